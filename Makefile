@@ -1,0 +1,34 @@
+# robot_calib: two commands set everything up on a fresh machine.
+#   make demo   create .venv, install pinned dependencies, replay bags/ through every node
+#   make test   create .venv if needed, then run the whole test suite
+SHELL := /bin/bash
+PYTHON ?= python3
+VENV := .venv
+PY := $(VENV)/bin/python
+STAMP := $(VENV)/.installed
+
+.PHONY: venv demo test bench lint config clean
+
+venv: $(STAMP)
+
+$(STAMP): requirements.txt requirements-bench.txt setup.py
+	test -x $(PY) || $(PYTHON) -m venv $(VENV)
+	$(PY) -m pip install --quiet --upgrade pip
+	$(PY) -m pip install --quiet -r requirements.txt -r requirements-bench.txt
+	$(PY) -m pip install --quiet --no-deps -e .
+	touch $(STAMP)
+
+demo: venv
+	$(VENV)/bin/robot-calib replay bags/husky_test1 --out demo_out
+
+test: venv
+	$(PY) -m pytest -q test
+
+bench: venv
+	for script in benchmarks/bench_*.py; do $(PY) $$script || exit 1; done
+
+config: venv
+	$(PY) -m robot_calib.config_gen > config/robot_calib.yaml
+
+clean:
+	rm -rf build install log demo_out
