@@ -1,6 +1,7 @@
 # Copyright 2026 robot_calib contributors
 # SPDX-License-Identifier: Apache-2.0
-"""Angles, planar rigid transforms (SE(2)) and quaternions (w, x, y, z).
+"""
+Angles, planar rigid transforms (SE(2)) and quaternions (w, x, y, z).
 
 Conventions: REP-103 (x forward, y left, z up), right-handed, angles in rad.
 Euler angles are the ROS ``rpy`` convention: R = Rz(yaw) Ry(pitch) Rx(roll).

@@ -1,6 +1,7 @@
 # Copyright 2026 robot_calib contributors
 # SPDX-License-Identifier: Apache-2.0
-"""Parameter dataclasses: the single source of defaults, units and documentation.
+"""
+Parameter dataclasses: the single source of defaults, units and documentation.
 
 Every method declares its parameters as a dataclass whose fields are made with
 :func:`param`. Nested dataclasses give dotted names (``filter.gyro_noise``).
@@ -37,7 +38,7 @@ class ParamInfo:
 
     name: str
     default: Any
-    type: type
+    value_type: type
     unit: str
     doc: str
     choices: Optional[tuple]
@@ -98,7 +99,7 @@ def to_flat(params: Any, prefix: str = '') -> dict[str, Any]:
 
 def coerce(info: ParamInfo, value: Any) -> Any:
     """Convert ``value`` to the parameter's type and check its limits; raise ParamError."""
-    tp = info.type
+    tp = info.value_type
     try:
         if tp is bool:
             if isinstance(value, str):

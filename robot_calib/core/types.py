@@ -1,6 +1,7 @@
 # Copyright 2026 robot_calib contributors
 # SPDX-License-Identifier: Apache-2.0
-"""Small immutable sample types shared by every core, the I/O layer and the nodes.
+"""
+Small immutable sample types shared by every core, the I/O layer and the nodes.
 
 All quantities are SI: time ``t`` in seconds (float, from the message header
 stamp), lengths in metres, angles in radians, rates in rad/s, accelerations in
@@ -31,7 +32,8 @@ def stamp_of(t: float, stamp_ns: int = -1) -> int:
 
 @dataclass(frozen=True, slots=True)
 class ImuSample:
-    """One IMU reading: body rates (rad/s), specific force (m/s^2, gravity included).
+    """
+    One IMU reading: body rates (rad/s), specific force (m/s^2, gravity included).
 
     ``orientation`` (w, x, y, z) is filled only by estimators (sensor-to-world);
     ``*_cov`` are 3x3 covariances, NaN-filled when unknown (ROS: -1 in [0]).
@@ -50,7 +52,8 @@ class ImuSample:
 
 @dataclass(frozen=True, slots=True)
 class OdomSample:
-    """Planar odometry: pose (m, m, rad) in ``frame_id``, twist (m/s, rad/s) in ``child_frame_id``.
+    """
+    Planar odometry: pose (m, m, rad) in ``frame_id``, twist (m/s, rad/s) in ``child_frame_id``.
 
     ``pose_cov`` and ``twist_cov`` are 3x3 covariances of (x, y, yaw) and
     (vx, vy, wz); NaN-filled when unknown. ``z``, ``roll`` and ``pitch`` are
@@ -76,7 +79,8 @@ class OdomSample:
 
 @dataclass(frozen=True, slots=True)
 class ScanSample:
-    """A planar laser scan: ranges (m) at ``angle_min + i * angle_increment`` (rad).
+    """
+    A planar laser scan: ranges (m) at ``angle_min + i * angle_increment`` (rad).
 
     Beams that returned nothing are NaN or inf, as real drivers publish them.
     """
@@ -94,7 +98,7 @@ class ScanSample:
     stamp_ns: int = -1
 
     def angles(self) -> np.ndarray:
-        """Return the beam angles (rad)."""
+        """Return the angle of every beam (rad)."""
         return self.angle_min + self.angle_increment * np.arange(self.ranges.size)
 
     def points(self) -> np.ndarray:

@@ -1,6 +1,7 @@
 # Copyright 2026 robot_calib contributors
 # SPDX-License-Identifier: Apache-2.0
-"""Read ROS 1 and ROS 2 bags into core samples, and write ROS 2 bags (mcap or sqlite3).
+"""
+Read ROS 1 and ROS 2 bags into core samples, and write ROS 2 bags (mcap or sqlite3).
 
 Reading merges any number of bags in time order (bag receive time) and turns
 every supported message into core samples with :mod:`robot_calib.io.convert`.
@@ -11,10 +12,10 @@ complete.
 
 from __future__ import annotations
 
-import os
-import shutil
 from dataclasses import dataclass
+import os
 from pathlib import Path
+import shutil
 from typing import Any, Iterable, Iterator, Optional
 
 from robot_calib.io import convert
@@ -84,7 +85,8 @@ def list_topics(paths: Iterable[os.PathLike | str]) -> dict[str, tuple[str, int]
 def read_messages(paths: Iterable[os.PathLike | str],
                   topics: Optional[Iterable[str]] = None,
                   errors: Optional[dict[str, int]] = None) -> Iterator[BagMessage]:
-    """Yield the supported messages of ``topics`` (all when None) in receive-time order.
+    """
+    Yield the supported messages of ``topics`` (all when None) in receive-time order.
 
     Messages that fail to deserialize are counted in ``errors`` (by topic) and
     skipped; messages of unsupported types are not read.
@@ -118,7 +120,8 @@ def read_messages(paths: Iterable[os.PathLike | str],
 
 
 class BagWriter:
-    """Write core samples into a ROS 2 bag (mcap by default, or sqlite3), atomically.
+    """
+    Write core samples into a ROS 2 bag (mcap by default, or sqlite3), atomically.
 
     Use as a context manager; the bag appears at ``path`` only after a clean
     close. ``write(topic, sample, time_ns)`` takes a core sample, or a list of

@@ -1,6 +1,7 @@
 # Copyright 2026 robot_calib contributors
 # SPDX-License-Identifier: Apache-2.0
-"""Message <-> core sample conversion, shared by the nodes, replay and the simulator.
+"""
+Message <-> core sample conversion, shared by the nodes, replay and the simulator.
 
 ``from_msg`` reads any object with the ROS field names (rosbags messages from
 ROS 1 or ROS 2 bags, and rclpy messages alike). ``to_msg`` builds rosbags
@@ -24,7 +25,7 @@ _POSE_IDX = np.ix_([0, 1, 5], [0, 1, 5])
 
 @lru_cache(maxsize=1)
 def typestore():
-    """Return the ROS 2 Jazzy rosbags typestore (cached)."""
+    """Return the cached ROS 2 Jazzy type store of rosbags."""
     from rosbags.typesys import Stores, get_typestore
     return get_typestore(Stores.ROS2_JAZZY)
 
@@ -208,8 +209,8 @@ def _v3(v: Any) -> Any:
 
 
 def _quat(q: Any) -> Any:
-    return _types()['geometry_msgs/msg/Quaternion'](float(q[1]), float(q[2]), float(q[3]),
-                                                     float(q[0]))
+    quaternion = _types()['geometry_msgs/msg/Quaternion']
+    return quaternion(float(q[1]), float(q[2]), float(q[3]), float(q[0]))
 
 
 def _cov_out(cov: Optional[np.ndarray], unknown: float = -1.0) -> np.ndarray:
@@ -236,8 +237,8 @@ def imu_to_msg(s: T.ImuSample) -> Any:
     else:
         q, ocov = s.orientation, _cov_out(s.orientation_cov, 0.0)
     return ty['sensor_msgs/msg/Imu'](
-        header(s.t, s.stamp_ns, s.frame_id), _quat(q), ocov, _v3(s.gyro), _cov_out(s.gyro_cov, 0.0),
-        _v3(s.accel), _cov_out(s.accel_cov, 0.0))
+        header(s.t, s.stamp_ns, s.frame_id), _quat(q), ocov, _v3(s.gyro),
+        _cov_out(s.gyro_cov, 0.0), _v3(s.accel), _cov_out(s.accel_cov, 0.0))
 
 
 def odom_to_msg(s: T.OdomSample) -> Any:
@@ -363,4 +364,3 @@ def deserialize(msgtype: str, data: bytes, bag_time_ns: Optional[int] = None) ->
 def sample_time_ns(sample: Any) -> int:
     """Return the stamp (ns) a core sample carries."""
     return T.stamp_of(sample.t, sample.stamp_ns)
-

@@ -1,6 +1,7 @@
 # Copyright 2026 robot_calib contributors
 # SPDX-License-Identifier: Apache-2.0
-"""A thin rclpy node around a :class:`robot_calib.pipelines.base.Pipeline`.
+"""
+A thin rclpy node around a :class:`robot_calib.pipelines.base.Pipeline`.
 
 Subscriptions receive serialized messages (``raw=True``), converted by the same
 code replay uses; outputs are serialized the same way and published as bytes.
@@ -10,11 +11,11 @@ counted and logged (throttled), and the node goes on.
 
 from __future__ import annotations
 
+from functools import partial
 import importlib
+from pathlib import Path
 import sys
 import time
-from functools import partial
-from pathlib import Path
 from typing import Any, Optional
 
 import numpy as np
@@ -48,7 +49,8 @@ def message_class(msgtype: str) -> Optional[type]:
 
 
 class PipelineNode(Node):
-    """Run one pipeline live: subscribe its inputs, publish its outputs.
+    """
+    Run one pipeline live: subscribe its inputs, publish its outputs.
 
     Besides the method's own parameters the node has ``output_dir`` (where
     artifacts such as the wheel calibration YAML are written at shutdown).

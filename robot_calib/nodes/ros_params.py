@@ -22,18 +22,19 @@ _ROS_TYPES = {
 def _descriptor(info: ParamInfo) -> ParameterDescriptor:
     unit = f' [{info.unit}]' if info.unit else ''
     extra = f' One of {list(info.choices)}.' if info.choices else ''
-    if info.type is list:
+    if info.value_type is list:
         is_num = not info.default or isinstance(info.default[0], (int, float))
         ptype = ParameterType.PARAMETER_DOUBLE_ARRAY if is_num \
             else ParameterType.PARAMETER_STRING_ARRAY
     else:
-        ptype = _ROS_TYPES.get(info.type, ParameterType.PARAMETER_STRING)
+        ptype = _ROS_TYPES.get(info.value_type, ParameterType.PARAMETER_STRING)
     return ParameterDescriptor(name=info.name, type=ptype,
                                description=f'{info.doc}{unit}{extra}', dynamic_typing=True)
 
 
 def declare_params(node: Node, params_type: type) -> Any:
-    """Declare every field of ``params_type`` on ``node`` and return the validated instance.
+    """
+    Declare every field of ``params_type`` on ``node`` and return the validated instance.
 
     Raises :class:`robot_calib.core.params.ParamError` with a one-line message
     when a value has the wrong type or is out of range.

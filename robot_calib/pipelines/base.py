@@ -1,6 +1,7 @@
 # Copyright 2026 robot_calib contributors
 # SPDX-License-Identifier: Apache-2.0
-"""The contract between a method's core and the two ways it runs: a live node and replay.
+"""
+The contract between a method's core and the two ways it runs: a live node and replay.
 
 A :class:`Pipeline` names its inputs (default topic and sample kind), its
 outputs (topic, message type, QoS), and turns input samples into output
@@ -18,9 +19,9 @@ fields, stamps that go backwards or repeat, and gaps are counted per reason
 from __future__ import annotations
 
 import abc
-import math
 from collections import defaultdict
 from dataclasses import dataclass
+import math
 from typing import Any, Callable, ClassVar, Optional
 
 import numpy as np
@@ -54,7 +55,8 @@ class InputSpec:
 
 @dataclass(frozen=True)
 class OutputSpec:
-    """One output: topic (relative, as the node publishes it), sample kind and QoS.
+    """
+    One output: topic (relative, as the node publishes it), sample kind and QoS.
 
     ``qos`` is ``'default'`` (reliable, volatile, depth 10), ``'latched'``
     (reliable, transient local, depth 1) or ``'sensor'`` (best effort, depth 5).
@@ -71,7 +73,8 @@ Output = tuple[str, Any]
 
 
 class Pipeline(abc.ABC):
-    """Base class of a method's pipeline; subclasses set the class variables and override hooks.
+    """
+    Base class of a method's pipeline; subclasses set the class variables and override hooks.
 
     Subclasses implement :meth:`handle` (one accepted sample in, outputs out) and
     may override :meth:`finish`, :meth:`method_summary`, :meth:`artifacts` and
