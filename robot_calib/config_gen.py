@@ -13,10 +13,9 @@ import math
 import sys
 from typing import Any
 
-import yaml
-
 from robot_calib import pipelines
 from robot_calib.core.params import describe
+import yaml
 
 HEADER = """\
 # robot_calib parameters, one top-level key per node (the executable's name).

@@ -4,10 +4,9 @@
 
 from pathlib import Path
 
-import yaml
-
 from robot_calib import config_gen, pipelines
 from robot_calib.core.params import describe, flatten_nested, from_flat
+import yaml
 
 REPO = Path(__file__).resolve().parent.parent
 CONFIG = REPO / 'config' / 'robot_calib.yaml'

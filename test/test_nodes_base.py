@@ -11,13 +11,12 @@ rclpy = pytest.importorskip('rclpy')
 from rclpy.executors import SingleThreadedExecutor  # noqa: E402
 from rclpy.parameter import Parameter  # noqa: E402
 from rclpy.qos import qos_profile_sensor_data  # noqa: E402
-from sensor_msgs.msg import Imu  # noqa: E402
-from std_msgs.msg import Bool  # noqa: E402
-
 from robot_calib.core import types as T  # noqa: E402
 from robot_calib.core.params import param, ParamError  # noqa: E402
 from robot_calib.nodes.base import LATCHED_QOS, PipelineNode  # noqa: E402
 from robot_calib.pipelines.base import InputSpec, OutputSpec, Pipeline  # noqa: E402
+from sensor_msgs.msg import Imu  # noqa: E402
+from std_msgs.msg import Bool  # noqa: E402
 
 
 @dataclasses.dataclass

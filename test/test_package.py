@@ -1,6 +1,6 @@
 # Copyright 2026 robot_calib contributors
 # SPDX-License-Identifier: Apache-2.0
-"""The ROS 2 package layout: manifest, colcon install space, ``ros2 run`` lookup, README commands."""
+"""The ROS 2 package layout: manifest, colcon install, ``ros2 run`` lookup, README commands."""
 
 import importlib.util
 import os
@@ -10,7 +10,6 @@ import signal
 import subprocess
 import sys
 import time
-import xml.etree.ElementTree as ElementTree
 
 import pytest
 
