@@ -1,10 +1,16 @@
 # Copyright 2026 robot_calib contributors
 # SPDX-License-Identifier: Apache-2.0
-"""Shared pytest fixtures."""
+"""Shared pytest fixtures; DDS kept on this machine and on a domain of this test run."""
 
+import os
 from pathlib import Path
 
 import pytest
+
+# Before rclpy is imported anywhere: discovery stays on localhost, and a domain id derived from
+# the process id keeps parallel test runs on one machine from hearing each other.
+os.environ.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
+os.environ.setdefault('ROS_DOMAIN_ID', str(1 + os.getpid() % 100))
 
 REPO = Path(__file__).resolve().parent.parent
 SHARED_DATA = REPO.parent / 'shared' / 'data'
