@@ -1,6 +1,7 @@
 # Copyright 2026 robot_calib contributors
 # SPDX-License-Identifier: Apache-2.0
-"""Loaders for CARMEN log files (``.clf``, ``.log``, optionally gzip-compressed).
+"""
+Loaders for CARMEN log files (``.clf``, ``.log``, optionally gzip-compressed).
 
 CARMEN logs are text, one message per line. The lines read here:
 
@@ -47,7 +48,8 @@ NO_RETURN_RANGE = 81.0
 
 @dataclass
 class CarmenLog:
-    """The content of one CARMEN log.
+    """
+    The content of one CARMEN log.
 
     :ivar scans: laser scans (``ScanSample``, t in s, ranges in m), in file order.
     :ivar scan_poses: (N, 3) laser pose x, y (m), yaw (rad) logged with each scan.
@@ -68,7 +70,8 @@ class CarmenLog:
         return np.array([s.t for s in self.scans])
 
     def odometry(self) -> list:
-        """Return odometry samples: the ``ODOM`` lines, else one per scan from its odometry pose.
+        """
+        Return odometry samples: the ``ODOM`` lines, else one per scan from its odometry pose.
 
         Velocities of the per-scan odometry are finite differences (m/s, rad/s)
         of consecutive poses, expressed in the robot frame.
@@ -114,7 +117,8 @@ def read_log(path: Union[str, Path], angle_min: float = -math.pi / 2,
              angle_increment: Optional[float] = None,
              no_return_range: float = NO_RETURN_RANGE, max_scans: Optional[int] = None,
              range_min: float = 0.01) -> CarmenLog:
-    """Read a CARMEN log (``.clf``/``.log``, ``.gz`` allowed) into a :class:`CarmenLog`.
+    """
+    Read a CARMEN log (``.clf``/``.log``, ``.gz`` allowed) into a :class:`CarmenLog`.
 
     Malformed lines are skipped (a clear ValueError only when the file holds
     no usable line at all).
@@ -172,7 +176,8 @@ def read_log(path: Union[str, Path], angle_min: float = -math.pi / 2,
 
 def read_relations(path: Union[str, Path],
                    time_offset: float = INTEL_RELATIONS_TIME_OFFSET) -> np.ndarray:
-    """Read a ``*.relations`` ground-truth file.
+    """
+    Read a ``*.relations`` ground-truth file.
 
     :param path: the relations file (``t1 t2 x y z roll pitch yaw`` per line).
     :param time_offset: relation time minus log time (s).
@@ -196,7 +201,8 @@ def read_relations(path: Union[str, Path],
 
 
 def match_times(times: np.ndarray, query: np.ndarray, tolerance: float = 0.01) -> np.ndarray:
-    """Return the index of the nearest entry of sorted ``times`` for each ``query`` (s).
+    """
+    Return the index of the nearest entry of sorted ``times`` for each ``query`` (s).
 
     :param times: sorted times (s).
     :param query: times to look up (s).
@@ -213,7 +219,8 @@ def match_times(times: np.ndarray, query: np.ndarray, tolerance: float = 0.01) -
 
 def relation_pairs(log: CarmenLog, relations: np.ndarray,
                    tolerance: float = 0.01) -> list[tuple[int, int, np.ndarray]]:
-    """Pair each relation with the indices of its two scans.
+    """
+    Pair each relation with the indices of its two scans.
 
     :param log: the log whose scans the relations refer to.
     :param relations: output of :func:`read_relations`.
