@@ -1,0 +1,384 @@
+# Copyright 2026 robot_calib contributors
+# SPDX-License-Identifier: Apache-2.0
+"""
+Planar scan registration: kiss-icp coarse alignment, then a 2D point-to-line refinement.
+
+This is the shared 2D registration of robot_calib (loop closure and wheel
+calibration use it). The stable entry point is::
+
+    register(source_points, target_points, initial_guess=(0, 0, 0),
+             params=ScanMatchParams()) -> MatchResult
+
+Convention: the result ``pose = (x, y, yaw)`` (m, m, rad) maps source points
+into the target frame, ``target ~= R(yaw) source + (x, y)``; in other words it
+is the pose of the source scan's frame seen from the target scan's frame
+(``se2_between(target_pose, source_pose)`` when both poses are known in a
+common frame). ``initial_guess`` uses the same convention.
+
+Stages
+------
+1. **Coarse (kiss-icp, optional)**: the target points become a kiss-icp voxel
+   hash map (``kiss_icp.mapping.VoxelHashMap``, points as ``(x, y, 0)``) and the
+   source is aligned to it with ``kiss_icp.registration.Registration.
+   align_points_to_map`` (point-to-point Gauss-Newton with a Geman-McClure
+   kernel, kiss-icp's C++ core). Two passes: a wide correspondence gate for the
+   basin, then a narrower one. The 4x4 result is projected onto SE(2) (its z,
+   roll and pitch stay zero for planar input). kiss-icp's odometry pipeline
+   (``KissICP``, adaptive threshold, motion compensation) is not used: pairwise
+   registration only needs the map and the aligner. kiss-icp returns no inlier
+   count or information matrix, hence stage 2.
+2. **Refinement (ours)**: point-to-line Gauss-Newton (Censi's PL-ICP residual
+   without the closed form): each source point is matched to its nearest target
+   point, the residual is the distance to the target's local line, whose normal
+   comes from a PCA of the target point's ``normal_neighbours`` nearest
+   neighbours; correspondences farther than a gate that shrinks from
+   ``refine_max_correspondence`` to ``refine_min_correspondence`` are dropped and
+   the rest weighted by a Cauchy kernel (scale ``robust_scale``).
+
+Quality: the Gauss-Newton Hessian ``H = sum J^T J`` (J = [n^T, n^T R' p]) of the
+final inliers gives the covariance ``sigma^2 H^-1`` and the observability of the
+match. ``min_eigenvalue`` is the smallest eigenvalue of ``S H S / n`` with
+``S = diag(1, 1, 1 / L)`` (L: RMS range of the source points, m), a
+dimensionless number in [0, 1] (0.5 for translation in a square room): near 0 a
+direction is unobservable, e.g. the along-corridor translation in a
+featureless corridor. ``degenerate`` is set below ``degenerate_eigenvalue``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+import math
+from typing import Optional, Sequence, Union
+
+import numpy as np
+from robot_calib.core.geometry import rot2, wrap_angle
+from robot_calib.core.params import param
+from scipy.spatial import cKDTree
+
+try:  # kiss-icp is a named dependency; without it the refinement runs alone.
+    from kiss_icp.mapping import VoxelHashMap
+    from kiss_icp.registration import Registration
+    HAVE_KISS_ICP = True
+except ImportError:  # pragma: no cover - exercised only without the dependency
+    HAVE_KISS_ICP = False
+
+
+@dataclass
+class ScanMatchParams:
+    """Parameters of the 2D scan registration (SI units)."""
+
+    coarse: str = param('kiss_icp', '', 'coarse alignment before the refinement: kiss_icp or '
+                        'none', choices=('kiss_icp', 'none'))
+    refine: bool = param(True, '', 'run the 2D point-to-line refinement after the coarse stage')
+    voxel_size: float = param(0.1, 'm', 'kiss-icp voxel size of the target map',
+                              minimum=0.005)
+    max_points_per_voxel: int = param(20, '', 'kiss-icp points kept per voxel', minimum=1)
+    coarse_max_correspondence: float = param(1.0, 'm', 'kiss-icp correspondence gate of the '
+                                             'first (wide) pass', minimum=0.01)
+    coarse_kernel: float = param(0.3, 'm', 'kiss-icp Geman-McClure kernel scale of the first '
+                                 'pass (the second pass uses a third of both)', minimum=0.001)
+    coarse_iterations: int = param(50, '', 'kiss-icp iterations per pass', minimum=1)
+    refine_iterations: int = param(30, '', 'point-to-line Gauss-Newton iterations', minimum=1)
+    refine_max_correspondence: float = param(0.5, 'm', 'initial correspondence gate of the '
+                                             'refinement', minimum=0.001)
+    refine_min_correspondence: float = param(0.1, 'm', 'final correspondence gate of the '
+                                             'refinement', minimum=0.001)
+    robust_scale: float = param(0.05, 'm', 'Cauchy kernel scale of the point-to-line residuals',
+                                minimum=1e-4)
+    normal_neighbours: int = param(5, '', 'target neighbours used for each line normal',
+                                   minimum=3)
+    max_line_spread: float = param(0.3, '', 'largest ratio of the smaller to the larger PCA '
+                                   'eigenvalue for a usable line normal', minimum=0.0)
+    convergence_translation: float = param(1e-5, 'm', 'translation update that ends the '
+                                           'refinement', minimum=0.0)
+    convergence_rotation: float = param(1e-6, 'rad', 'rotation update that ends the refinement',
+                                        minimum=0.0)
+    inlier_distance: float = param(0.1, 'm', 'a source point is an inlier when its nearest '
+                                   'target point is closer than this', minimum=0.0)
+    min_points: int = param(20, '', 'fewest valid points a scan must have', minimum=3)
+    min_inlier_ratio: float = param(0.3, '', 'fewest inliers / source points for ok',
+                                    minimum=0.0, maximum=1.0)
+    degenerate_eigenvalue: float = param(0.02, '', 'normalised Hessian eigenvalue below which '
+                                         'the match is degenerate', minimum=0.0)
+
+
+@dataclass
+class MatchResult:
+    """
+    Outcome of one registration.
+
+    :ivar pose: (x, y, yaw) (m, m, rad), the source frame seen from the target frame.
+    :ivar covariance: 3x3 covariance of ``pose`` (m^2, rad^2), ``sigma^2 H^-1``.
+    :ivar hessian: 3x3 Gauss-Newton information ``sum J^T J`` (1, m, m^2 blocks).
+    :ivar min_eigenvalue: smallest normalised Hessian eigenvalue (dimensionless, see module).
+    :ivar degenerate: a direction of the pose is unobservable (corridor, too few lines).
+    :ivar inliers: source points with a target point within ``inlier_distance``.
+    :ivar inlier_ratio: ``inliers`` / number of source points.
+    :ivar rmse: RMS point-to-line distance of the inliers (m).
+    :ivar converged: the refinement (or kiss-icp when alone) converged numerically.
+    :ivar iterations: refinement iterations run.
+    :ivar coarse_pose: the pose after the coarse stage (m, m, rad).
+    :ivar n_source: valid source points; ``n_target``: valid target points.
+    :ivar reason: empty when the match ran, else why it could not (e.g. 'few_points').
+    """
+
+    pose: np.ndarray
+    covariance: np.ndarray = field(default_factory=lambda: np.full((3, 3), np.nan))
+    hessian: np.ndarray = field(default_factory=lambda: np.zeros((3, 3)))
+    min_eigenvalue: float = 0.0
+    degenerate: bool = True
+    inliers: int = 0
+    inlier_ratio: float = 0.0
+    rmse: float = float('nan')
+    converged: bool = False
+    iterations: int = 0
+    coarse_pose: Optional[np.ndarray] = None
+    n_source: int = 0
+    n_target: int = 0
+    reason: str = ''
+
+    @property
+    def ok(self) -> bool:
+        """Return True when converged, not degenerate and ``reason`` is empty."""
+        return self.converged and not self.degenerate and not self.reason
+
+    def as_dict(self) -> dict:
+        """Return a JSON-ready summary (pose in m, m, rad)."""
+        return {'x': float(self.pose[0]), 'y': float(self.pose[1]), 'yaw': float(self.pose[2]),
+                'min_eigenvalue': float(self.min_eigenvalue), 'degenerate': bool(self.degenerate),
+                'inliers': int(self.inliers), 'inlier_ratio': float(self.inlier_ratio),
+                'rmse': float(self.rmse), 'converged': bool(self.converged),
+                'iterations': int(self.iterations), 'reason': self.reason}
+
+
+class PreparedScan:
+    """
+    A target scan made ready for many registrations: KD-tree, line normals, kiss-icp map.
+
+    Prepare the current scan once and register several keyframes against it
+    (loop closure does this for its Y candidates).
+
+    :param points: (N, 2) target points (m); non-finite rows are dropped.
+    :param params: registration parameters (normals and voxel map use them).
+    """
+
+    def __init__(self, points: np.ndarray, params: Optional[ScanMatchParams] = None):
+        """Build the KD-tree, the normals and (lazily) the kiss-icp voxel map."""
+        self.params = params if params is not None else ScanMatchParams()
+        self.points = clean_points(points)
+        self.tree = cKDTree(self.points) if len(self.points) else None
+        self.normals, self.normal_ok = _normals(self.points, self.tree,
+                                                self.params.normal_neighbours,
+                                                self.params.max_line_spread)
+        self._voxel_map = None
+
+    def __len__(self) -> int:
+        """Return the number of valid points."""
+        return len(self.points)
+
+    def voxel_map(self):
+        """Return the kiss-icp voxel hash map of the points (built on first use)."""
+        if self._voxel_map is None:
+            p = self.params
+            max_range = float(np.max(np.linalg.norm(self.points, axis=1))) + 1.0
+            vmap = VoxelHashMap(voxel_size=p.voxel_size, max_distance=max_range,
+                                max_points_per_voxel=p.max_points_per_voxel)
+            vmap.add_points(_to3d(self.points))
+            self._voxel_map = vmap
+        return self._voxel_map
+
+
+def clean_points(points: np.ndarray) -> np.ndarray:
+    """Return the finite rows of an (N, 2) (or (N, 3)) point array as float64 (N, 2) (m)."""
+    pts = np.asarray(points, dtype=float)
+    if pts.ndim != 2 or pts.shape[0] == 0:
+        return np.zeros((0, 2))
+    pts = pts[:, :2]
+    return np.ascontiguousarray(pts[np.all(np.isfinite(pts), axis=1)])
+
+
+def scan_points(scan, max_range: Optional[float] = None) -> np.ndarray:
+    """Return the valid beams of a ``ScanSample`` as (N, 2) points (m), capped at ``max_range``."""
+    pts = scan.points()
+    if max_range is not None and len(pts):
+        pts = pts[np.hypot(pts[:, 0], pts[:, 1]) <= max_range]
+    return pts
+
+
+def _to3d(points: np.ndarray) -> np.ndarray:
+    return np.column_stack((points, np.zeros(len(points))))
+
+
+def _pose_matrix(pose: Sequence[float]) -> np.ndarray:
+    m = np.eye(4)
+    m[:2, :2] = rot2(pose[2])
+    m[0, 3], m[1, 3] = pose[0], pose[1]
+    return m
+
+
+def _matrix_pose(m: np.ndarray) -> np.ndarray:
+    return np.array([m[0, 3], m[1, 3], math.atan2(m[1, 0], m[0, 0])])
+
+
+def _normals(points: np.ndarray, tree: Optional[cKDTree], k: int,
+             max_spread: float) -> tuple[np.ndarray, np.ndarray]:
+    """Return unit line normals (N, 2) from a PCA of each point's k neighbours, and validity."""
+    n = len(points)
+    if n < 3 or tree is None:
+        return np.zeros((n, 2)), np.zeros(n, dtype=bool)
+    k = min(k, n)
+    _, idx = tree.query(points, k=k)
+    nb = points[idx]                                   # (N, k, 2)
+    centred = nb - nb.mean(axis=1, keepdims=True)
+    cov = np.einsum('nki,nkj->nij', centred, centred) / k
+    evals, evecs = np.linalg.eigh(cov)                 # ascending eigenvalues
+    normals = evecs[:, :, 0]                           # direction of least spread
+    spread = evals[:, 0] / np.maximum(evals[:, 1], 1e-12)
+    ok = (spread <= max_spread) & (evals[:, 1] > 0)
+    return normals, ok
+
+
+def _coarse(source: np.ndarray, target: PreparedScan, guess: np.ndarray,
+            p: ScanMatchParams) -> tuple[np.ndarray, bool]:
+    """Align with kiss-icp in two passes; return the SE(2) pose and whether it ran."""
+    reg = Registration(max_num_iterations=p.coarse_iterations,
+                       convergence_criterion=1e-4, max_num_threads=1)
+    src3 = _to3d(source)
+    m = _pose_matrix(guess)
+    for gate, kernel in ((p.coarse_max_correspondence, p.coarse_kernel),
+                         (p.coarse_max_correspondence / 3.0, p.coarse_kernel / 3.0)):
+        m = reg.align_points_to_map(points=src3, voxel_map=target.voxel_map(), initial_guess=m,
+                                    max_correspondance_distance=gate, kernel=kernel)
+    pose = _matrix_pose(np.asarray(m))
+    if not np.all(np.isfinite(pose)):
+        return np.asarray(guess, dtype=float), False
+    return pose, True
+
+
+def _refine(source: np.ndarray, target: PreparedScan, pose: np.ndarray,
+            p: ScanMatchParams) -> tuple[np.ndarray, bool, int]:
+    """Point-to-line Gauss-Newton with an annealed gate and a Cauchy kernel."""
+    pose = np.array(pose, dtype=float)
+    converged = False
+    it = 0
+    last_step = (math.inf, math.inf)
+    n_it = p.refine_iterations
+    for it in range(1, n_it + 1):
+        # Gate shrinks geometrically from the wide to the narrow value over half the budget.
+        frac = min(1.0, (it - 1) / max(1.0, 0.5 * n_it))
+        gate = p.refine_max_correspondence * (
+            p.refine_min_correspondence / p.refine_max_correspondence) ** frac
+        r_mat = rot2(pose[2])
+        moved = source @ r_mat.T + pose[:2]
+        dist, idx = target.tree.query(moved, distance_upper_bound=gate)
+        use = np.isfinite(dist)
+        use[use] = target.normal_ok[idx[use]]
+        if use.sum() < 3:
+            break
+        q = target.points[idx[use]]
+        nrm = target.normals[idx[use]]
+        m = moved[use]
+        src = source[use]
+        res = np.einsum('ij,ij->i', nrm, m - q)       # point-to-line distance (m)
+        # d(R p)/d yaw = R [-p_y, p_x]
+        dp = np.column_stack((-src[:, 1], src[:, 0])) @ r_mat.T
+        jac = np.column_stack((nrm, np.einsum('ij,ij->i', nrm, dp)))
+        w = 1.0 / (1.0 + (res / p.robust_scale) ** 2)  # Cauchy weights
+        h = jac.T @ (jac * w[:, None])
+        g = jac.T @ (w * res)
+        try:
+            delta = -np.linalg.solve(h + 1e-9 * np.eye(3), g)
+        except np.linalg.LinAlgError:
+            break
+        pose = np.array([pose[0] + delta[0], pose[1] + delta[1], wrap_angle(pose[2] + delta[2])])
+        last_step = (math.hypot(delta[0], delta[1]), abs(delta[2]))
+        small = (last_step[0] < p.convergence_translation
+                 and last_step[1] < p.convergence_rotation)
+        if small and frac >= 1.0:
+            converged = True
+            break
+    if not converged and it == n_it:
+        # Accept a slow final creep as converged when the last step was tiny (sub-mm, mrad).
+        converged = last_step[0] < 1e-3 and last_step[1] < 1e-3
+    return pose, converged, it
+
+
+def _quality(source: np.ndarray, target: PreparedScan, pose: np.ndarray,
+             p: ScanMatchParams, result: MatchResult) -> None:
+    """Fill inliers, RMSE, Hessian, covariance and degeneracy of ``result`` at ``pose``."""
+    r_mat = rot2(pose[2])
+    moved = source @ r_mat.T + pose[:2]
+    dist, idx = target.tree.query(moved)
+    inl = dist <= p.inlier_distance
+    result.inliers = int(inl.sum())
+    result.inlier_ratio = result.inliers / max(1, len(source))
+    use = inl & target.normal_ok[idx]
+    if use.sum() < 3:
+        result.degenerate = True
+        result.min_eigenvalue = 0.0
+        return
+    nrm = target.normals[idx[use]]
+    src = source[use]
+    res = np.einsum('ij,ij->i', nrm, moved[use] - target.points[idx[use]])
+    dp = np.column_stack((-src[:, 1], src[:, 0])) @ r_mat.T
+    jac = np.column_stack((nrm, np.einsum('ij,ij->i', nrm, dp)))
+    h = jac.T @ jac
+    n = len(res)
+    result.hessian = h
+    result.rmse = float(math.sqrt(np.mean(res ** 2)))
+    length = max(1e-3, float(math.sqrt(np.mean(np.sum(source ** 2, axis=1)))))
+    s = np.diag([1.0, 1.0, 1.0 / length])
+    evals = np.linalg.eigvalsh(s @ h @ s / n)
+    result.min_eigenvalue = float(max(0.0, evals[0]))
+    result.degenerate = result.min_eigenvalue < p.degenerate_eigenvalue
+    sigma2 = float(np.sum(res ** 2) / max(1, n - 3))
+    sigma2 = max(sigma2, 1e-8)
+    result.covariance = sigma2 * np.linalg.pinv(h)
+
+
+def register(source_points: Union[np.ndarray, PreparedScan],
+             target_points: Union[np.ndarray, PreparedScan],
+             initial_guess: Sequence[float] = (0.0, 0.0, 0.0),
+             params: Optional[ScanMatchParams] = None) -> MatchResult:
+    """
+    Register a source scan to a target scan in 2D.
+
+    Never raises for bad data: too few valid points give ``reason='few_points'``
+    (``ok`` False) and the initial guess as pose.
+
+    :param source_points: (N, 2) source points (m) in the source frame, or a PreparedScan.
+    :param target_points: (M, 2) target points (m) in the target frame, or a PreparedScan
+        (prepare it once to register many sources against it).
+    :param initial_guess: (x, y, yaw) (m, m, rad), source frame in the target frame.
+    :param params: registration parameters (defaults when None).
+    :return: the :class:`MatchResult` (pose: source frame in the target frame).
+    """
+    p = params if params is not None else ScanMatchParams()
+    source = source_points.points if isinstance(source_points, PreparedScan) \
+        else clean_points(source_points)
+    target = target_points if isinstance(target_points, PreparedScan) \
+        else PreparedScan(target_points, p)
+    guess = np.array(initial_guess, dtype=float).reshape(3)
+    result = MatchResult(pose=guess.copy(), n_source=len(source), n_target=len(target))
+    if not np.all(np.isfinite(guess)):
+        result.reason = 'bad_initial_guess'
+        return result
+    if len(source) < p.min_points or len(target) < p.min_points:
+        result.reason = 'few_points'
+        return result
+    pose = guess
+    coarse_ok = False
+    if p.coarse == 'kiss_icp' and HAVE_KISS_ICP:
+        pose, coarse_ok = _coarse(source, target, guess, p)
+    result.coarse_pose = pose.copy()
+    if p.refine:
+        pose, converged, iters = _refine(source, target, pose, p)
+        result.iterations = iters
+    else:
+        converged = coarse_ok
+    result.pose = np.array([pose[0], pose[1], wrap_angle(pose[2])])
+    result.converged = bool(converged)
+    _quality(source, target, result.pose, p, result)
+    if result.inlier_ratio < p.min_inlier_ratio:
+        result.converged = False
+    return result

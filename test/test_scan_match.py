@@ -1,0 +1,181 @@
+# Copyright 2026 robot_calib contributors
+# SPDX-License-Identifier: Apache-2.0
+"""Tests of the shared 2D scan registration (kiss-icp coarse + point-to-line refinement)."""
+
+import math
+
+import numpy as np
+import pytest
+from robot_calib.core import scan_match as sm
+from robot_calib.core.geometry import se2_apply, se2_between, se2_inverse, wrap_angle
+
+
+def _segments_room():
+    """Return wall segments (K, 4) of an L-shaped room with a pillar and a shelf (m)."""
+    poly = [(0, 0), (8, 0), (8, 3), (5, 3), (5, 6), (0, 6)]
+    segs = [(*poly[i], *poly[(i + 1) % len(poly)]) for i in range(len(poly))]
+    segs += [(2, 2, 2.6, 2), (2.6, 2, 2.6, 2.5), (2.6, 2.5, 2, 2.5), (2, 2.5, 2, 2)]
+    segs += [(6.5, 0.8, 7.2, 1.5), (0.5, 4.5, 1.5, 5.2)]
+    return np.array(segs, dtype=float)
+
+
+def _corridor():
+    """Return a long featureless corridor, 2 m wide, 60 m long (m)."""
+    return np.array([(-30, -1, 30, -1), (-30, 1, 30, 1)], dtype=float)
+
+
+def _raycast(segs, pose, n=361, fov=math.pi * 1.5, max_range=20.0, noise=0.0, seed=0):
+    """Return the (N, 2) hit points (sensor frame, m) of rays from ``pose`` against ``segs``."""
+    x, y, th = pose
+    ang = th + np.linspace(-fov / 2, fov / 2, n)
+    d = np.column_stack((np.cos(ang), np.sin(ang)))
+    a = segs[:, :2]
+    b = segs[:, 2:] - segs[:, :2]
+    o = np.array([x, y])
+    denom = d[:, None, 0] * b[None, :, 1] - d[:, None, 1] * b[None, :, 0]
+    ao = a[None, :, :] - o[None, None, :]
+    with np.errstate(divide='ignore', invalid='ignore'):
+        t = (ao[..., 0] * b[None, :, 1] - ao[..., 1] * b[None, :, 0]) / denom
+        u = (ao[..., 0] * d[:, None, 1] - ao[..., 1] * d[:, None, 0]) / denom
+    hit = (t > 0) & (u >= 0) & (u <= 1) & np.isfinite(t)
+    t = np.where(hit, t, np.inf).min(axis=1)
+    if noise > 0:
+        t = t + np.random.default_rng(seed).normal(0, noise, t.size)
+    ok = t < max_range
+    pts_world = o + d[ok] * t[ok, None]
+    return se2_apply(se2_inverse(pose), pts_world)
+
+
+def _err(pose, truth):
+    e = np.asarray(pose) - np.asarray(truth)
+    return math.hypot(e[0], e[1]), abs(wrap_angle(e[2]))
+
+
+def test_exactly_transformed_scan_is_recovered():
+    target = _raycast(_segments_room(), (3.0, 1.5, 0.3))
+    truth = np.array([0.25, -0.15, math.radians(7.0)])
+    source = se2_apply(se2_inverse(truth), target)       # target = truth (+) source
+    res = sm.register(source, target, (0.0, 0.0, 0.0))
+    t_err, r_err = _err(res.pose, truth)
+    assert t_err < 1e-4 and r_err < math.radians(0.01)
+    assert res.converged and not res.degenerate and res.ok
+    assert res.inlier_ratio > 0.99 and res.rmse < 1e-4
+    assert res.covariance.shape == (3, 3) and np.all(np.isfinite(res.covariance))
+
+
+def test_two_viewpoints_with_noise_and_wide_start():
+    segs = _segments_room()
+    pose_t = np.array([3.0, 1.2, 0.1])
+    pose_s = np.array([3.4, 1.0, 0.35])
+    target = _raycast(segs, pose_t, noise=0.01, seed=1)
+    source = _raycast(segs, pose_s, noise=0.01, seed=2)
+    truth = se2_between(pose_t, pose_s)
+    rng = np.random.default_rng(3)
+    worst = (0.0, 0.0)
+    for _ in range(8):
+        guess = truth + np.array([*rng.uniform(-0.2, 0.2, 2), rng.uniform(-0.17, 0.17)])
+        res = sm.register(source, target, guess)
+        t_err, r_err = _err(res.pose, truth)
+        worst = (max(worst[0], t_err), max(worst[1], r_err))
+        assert res.ok
+    assert worst[0] < 0.01 and worst[1] < math.radians(0.2)
+
+
+def test_refinement_improves_on_kiss_icp_alone():
+    segs = _segments_room()
+    pose_t = np.array([2.5, 1.0, 0.0])
+    pose_s = np.array([2.9, 1.3, 0.2])
+    target = _raycast(segs, pose_t, n=721)
+    source = _raycast(segs, pose_s, n=721)
+    truth = se2_between(pose_t, pose_s)
+    guess = truth + np.array([0.1, -0.1, 0.05])
+    alone = sm.register(source, target, guess, sm.ScanMatchParams(refine=False))
+    full = sm.register(source, target, guess)
+    assert alone.coarse_pose is not None
+    assert _err(full.pose, truth)[0] <= _err(alone.pose, truth)[0] + 1e-4
+    assert _err(full.pose, truth)[0] < 0.005
+
+
+def test_refinement_alone_without_kiss_icp():
+    target = _raycast(_segments_room(), (3.0, 1.5, 0.3))
+    truth = np.array([0.1, 0.05, 0.03])
+    source = se2_apply(se2_inverse(truth), target)
+    res = sm.register(source, target, (0, 0, 0), sm.ScanMatchParams(coarse='none'))
+    assert _err(res.pose, truth)[0] < 1e-4
+    assert res.coarse_pose is not None and np.allclose(res.coarse_pose, 0.0)
+
+
+def test_corridor_is_degenerate():
+    segs = _corridor()
+    target = _raycast(segs, (0.0, 0.0, 0.0), noise=0.005, seed=4)
+    source = _raycast(segs, (0.5, 0.0, 0.0), noise=0.005, seed=5)
+    res = sm.register(source, target, (0.3, 0.0, 0.0))
+    assert res.degenerate and not res.ok
+    assert res.min_eigenvalue < sm.ScanMatchParams().degenerate_eigenvalue
+    # A room is well conditioned by the same measure.
+    room = _raycast(_segments_room(), (3.0, 1.5, 0.3))
+    assert sm.register(room, room).min_eigenvalue > 0.05
+
+
+def test_bad_input_is_reported_not_raised():
+    target = _raycast(_segments_room(), (3.0, 1.5, 0.3))
+    few = target[:5]
+    res = sm.register(few, target)
+    assert res.reason == 'few_points' and not res.ok
+    np.testing.assert_allclose(res.pose, 0.0)
+    noisy = target.copy()
+    noisy[::3] = np.nan
+    noisy[1::7, 0] = np.inf
+    res = sm.register(noisy, target, (0.02, 0.0, 0.01))
+    assert res.ok and _err(res.pose, (0, 0, 0))[0] < 1e-3
+    assert res.n_source < len(target)
+    res = sm.register(target, target, (math.nan, 0, 0))
+    assert res.reason == 'bad_initial_guess'
+    assert sm.register(np.zeros((0, 2)), target).reason == 'few_points'
+
+
+def test_unrelated_scans_give_low_inlier_ratio():
+    room = _raycast(_segments_room(), (3.0, 1.5, 0.3))
+    other = _raycast(np.array([(-3, -3, 3, -3), (3, -3, 0, 4), (0, 4, -3, -3)], float),
+                     (0.0, 0.0, 0.0))
+    res = sm.register(other, room)
+    assert res.inlier_ratio < 0.6
+
+
+def test_prepared_target_gives_same_result():
+    target = _raycast(_segments_room(), (3.0, 1.5, 0.3))
+    truth = np.array([0.2, 0.1, 0.05])
+    source = se2_apply(se2_inverse(truth), target)
+    prepared = sm.PreparedScan(target)
+    a = sm.register(source, prepared)
+    b = sm.register(source, target)
+    np.testing.assert_allclose(a.pose, b.pose, atol=1e-9)
+    assert len(prepared) == len(target)
+
+
+def test_intel_relations_slice(shared_data):
+    from robot_calib.io.datasets import carmen
+    folder = shared_data / 'carmen'
+    log = carmen.read_log(folder / 'intel-corrected.log.gz')
+    rel = carmen.read_relations(folder / 'intel.relations')
+    pairs = [(i, j, d) for i, j, d in carmen.relation_pairs(log, rel) if i != j][:30]
+    assert len(pairs) == 30
+    rng = np.random.default_rng(0)
+    errs = []
+    for i, j, d in pairs:
+        guess = d + np.array([*rng.uniform(-0.1, 0.1, 2), rng.uniform(-0.1, 0.1)])
+        res = sm.register(log.scans[j].points(), log.scans[i].points(), guess)
+        errs.append(_err(res.pose, d))
+    errs = np.array(errs)
+    assert np.median(errs[:, 0]) < 0.03
+    assert np.median(errs[:, 1]) < math.radians(0.5)
+
+
+@pytest.mark.parametrize('yaw', [-3.0, 3.0])
+def test_pose_is_wrapped(yaw):
+    target = _raycast(_segments_room(), (3.0, 1.5, 0.3))
+    truth = np.array([0.0, 0.0, yaw])
+    source = se2_apply(se2_inverse(truth), target)
+    res = sm.register(source, target, truth + np.array([0.02, 0.0, 0.02]))
+    assert -math.pi < res.pose[2] <= math.pi
+    assert _err(res.pose, truth)[1] < 1e-4
