@@ -1,0 +1,172 @@
+# Copyright 2026 robot_calib contributors
+# SPDX-License-Identifier: Apache-2.0
+"""The ``robot-calib`` command line: ``simulate``, ``replay`` and ``mismatch``.
+
+Bad input of any kind (a missing, truncated or corrupt bag, an unknown node,
+topic or type, an unwritable output folder, a bad ``--set``/``--remap``/
+``--params``) ends with ONE line on stderr naming the problem and what was
+expected, and exit status 2; nothing half-written is left behind.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import sys
+from typing import Optional, Sequence
+
+_EXIT_BAD_INPUT = 2
+
+
+class _Parser(argparse.ArgumentParser):
+    """An ArgumentParser whose usage errors are one line on stderr and exit status 2."""
+
+    def error(self, message: str) -> None:  # noqa: D102 - argparse hook
+        self.exit(_EXIT_BAD_INPUT, f'{self.prog}: error: {" ".join(message.split())} '
+                                   f'(see {self.prog} --help)\n')
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """Return the argument parser of ``robot-calib``."""
+    parser = _Parser(prog='robot-calib',
+                     description='Calibration and estimation for low-cost wheeled robots.')
+    sub = parser.add_subparsers(dest='verb', metavar='VERB', parser_class=_Parser)
+    sub.required = True
+
+    p = sub.add_parser('simulate', help='write a simulated ROS 2 bag with ground truth',
+                       description='Simulate a scenario and write a ROS 2 bag plus '
+                                   '<out>.truth.json.')
+    p.add_argument('scenario', help='scenario name (e.g. drive, vacuum, revisit, tip_over)')
+    p.add_argument('--out', required=True, help='output bag folder')
+    p.add_argument('--seed', type=int, default=0, help='random seed (default 0)')
+    p.add_argument('--duration', type=float, default=None, help='duration in s')
+    p.add_argument('--set', dest='overrides', action='append', default=[],
+                   metavar='KEY=VALUE', help='override a simulator parameter (repeatable)')
+    p.add_argument('--storage', choices=('mcap', 'sqlite3'), default='mcap',
+                   help='bag storage (default mcap)')
+
+    p = sub.add_parser('replay', help='run the nodes over bags offline (or --live)',
+                       description="Replay bags through the nodes' core code as fast as "
+                                   'possible; writes DIR/output.mcap, DIR/summary.json, '
+                                   'DIR/report.md.')
+    p.add_argument('bags', nargs='+', metavar='BAG',
+                   help='ROS 2 bag folder(s) (mcap or sqlite3) or ROS 1 .bag file(s)')
+    p.add_argument('--out', help='output folder (required unless --live)')
+    p.add_argument('--nodes', default=None,
+                   help='comma-separated nodes (executable names or package.module:Class); '
+                        'default: every node whose inputs are in the bag')
+    p.add_argument('--remap', action='append', default=[], metavar='FROM:=TO',
+                   help='remap a node topic (imu:=/imu/data) or a bag topic (repeatable)')
+    p.add_argument('--params', default=None, metavar='FILE',
+                   help='ROS 2 parameter YAML (config/robot_calib.yaml format)')
+    p.add_argument('--set', dest='overrides', action='append', default=[],
+                   metavar='NODE.PARAM=VALUE', help='override one node parameter (repeatable)')
+    p.add_argument('--live', action='store_true',
+                   help='publish the bag through rclpy at the recorded rate with /clock')
+    p.add_argument('--rate', type=float, default=1.0,
+                   help='--live playback rate factor (default 1.0)')
+    p.add_argument('--no-progress', action='store_true', help='never show a progress bar')
+
+    p = sub.add_parser('mismatch', help='compare a simulated and a real recording',
+                       description='Explain what a simulation left out: writes '
+                                   'DIR/findings.json and a report.')
+    p.add_argument('--sim', required=True, metavar='SIM_BAG', help='simulated bag')
+    p.add_argument('--real', required=True, metavar='REAL_BAG', help='real bag')
+    p.add_argument('--out', required=True, metavar='DIR', help='output folder')
+    return parser
+
+
+def _parse_sets(items: Sequence[str]) -> dict[str, str]:
+    out = {}
+    for item in items:
+        key, sep, value = item.partition('=')
+        if not sep or not key.strip():
+            raise ValueError(f'bad --set {item!r}: expected KEY=VALUE')
+        out[key.strip()] = value.strip()
+    return out
+
+
+def _simulate(args: argparse.Namespace) -> int:
+    from robot_calib import sim
+    truth = sim.simulate(args.scenario, args.out, seed=args.seed, duration=args.duration,
+                         overrides=_parse_sets(args.overrides) or None, storage=args.storage)
+    print(f'wrote {args.out} and {args.out}.truth.json (scenario {args.scenario}, '
+          f'seed {args.seed}, {len(truth)} truth keys)')
+    return 0
+
+
+def _replay(args: argparse.Namespace) -> int:
+    if args.live:
+        from robot_calib import live
+        if args.rate <= 0 or args.rate != args.rate:
+            raise ValueError(f'bad --rate {args.rate}: expected a positive factor')
+        stats = live.play(args.bags, rate=args.rate, remaps=args.remap)
+        print(f'published {stats["messages"]} messages on {len(stats["topics"])} topics '
+              f'in {stats["wall_seconds"]:.1f} s')
+        return 0
+    if not args.out:
+        raise ValueError('replay needs --out DIR (or --live)')
+    from robot_calib.replay import replay
+    summary = replay(args.bags, args.out, nodes=args.nodes, remaps=args.remap,
+                     params_file=args.params, overrides=args.overrides,
+                     progress=False if args.no_progress else None)
+    nodes = ', '.join(summary['nodes']) or 'none'
+    print(f'replayed {summary["timing"]["messages"]} messages through {nodes} in '
+          f'{summary["timing"]["wall_seconds"]:.2f} s; wrote {args.out}/output.mcap, '
+          f'summary.json, report.md')
+    for name, why in summary['skipped'].items():
+        print(f'skipped {name}: {why}')
+    return 0
+
+
+def _mismatch(args: argparse.Namespace) -> int:
+    from robot_calib import mismatch
+    findings = mismatch.analyse(args.sim, args.real, args.out)
+    n = len(findings.get('findings', [])) if isinstance(findings, dict) else 0
+    verdict = findings.get('verdict', '?') if isinstance(findings, dict) else '?'
+    print(f'{verdict}: {n} finding(s); wrote {args.out}/findings.json')
+    return 0
+
+
+def _bad_input_types() -> tuple:
+    """Return the exception types that mean bad input (exit status 2)."""
+    from robot_calib.core.params import ParamError
+    from robot_calib.io.bags import BagError
+    types = [BagError, ParamError, ValueError, KeyError, FileNotFoundError,
+             NotADirectoryError, PermissionError, IsADirectoryError, FileExistsError]
+    for module, name in (('robot_calib.sim', 'SimError'),
+                         ('robot_calib.mismatch', 'MismatchError')):
+        try:
+            types.append(getattr(importlib.import_module(module), name))
+        except Exception:  # noqa: B902 - a module still being written must not break the CLI
+            pass
+    return tuple(types)
+
+
+def main(argv: Optional[Sequence[str]] = None) -> int:
+    """Run ``robot-calib`` with ``argv`` (default: sys.argv); return the exit status."""
+    parser = build_parser()
+    try:
+        args = parser.parse_args(argv)
+    except SystemExit as exc:
+        return int(exc.code or 0) if not isinstance(exc.code, str) else _EXIT_BAD_INPUT
+    verbs = {'simulate': _simulate, 'replay': _replay, 'mismatch': _mismatch}
+    try:
+        return verbs[args.verb](args)
+    except KeyboardInterrupt:
+        print('robot-calib: interrupted', file=sys.stderr)
+        return 130
+    except Exception as exc:  # noqa: B902 - every failure ends in one line, no traceback
+        message = ' '.join(str(exc).split()) or type(exc).__name__
+        if isinstance(exc, KeyError) and message.startswith("'"):
+            message = message.strip("'")
+        if isinstance(exc, _bad_input_types()):
+            print(f'robot-calib {args.verb}: error: {message}', file=sys.stderr)
+            return _EXIT_BAD_INPUT
+        print(f'robot-calib {args.verb}: internal error: {type(exc).__name__}: {message}',
+              file=sys.stderr)
+        return 1
+
+
+if __name__ == '__main__':
+    sys.exit(main())
