@@ -1,0 +1,117 @@
+# Copyright 2026 robot_calib contributors
+# SPDX-License-Identifier: Apache-2.0
+"""Planar wheel kinematics of the two drive types that wheel calibration handles.
+
+Differential drive
+    ``base_link`` midway between the two driven wheels, x forward. A step with
+    wheel rotations ``dphi_l``, ``dphi_r`` (rad) moves the base by
+    ``ds = (r_r dphi_r + r_l dphi_l) / 2`` along its arc and turns it by
+    ``dtheta = (r_r dphi_r - r_l dphi_l) / b`` (``b`` track width, m).
+
+Steered drive wheel (tricycle, AGV "steering wheel")
+    ``base_link`` at the middle of the fixed (rear) axle, x forward. The
+    steered traction wheel sits at ``(wheel_base, 0)`` in ``base_link``. Its
+    true steering angle is ``alpha = steering_scale * reading +
+    steering_offset`` (rad, counter-clockwise positive seen from above; the
+    contract's sign convention: true = reading + offset for a unit scale).
+    The wheel's contact point rolls ``dw = wheel_radius * dphi`` (m) in the
+    direction ``alpha``; the rear axle has no lateral slip, so the base moves
+    ``ds = dw cos(alpha)`` forward and turns ``dtheta = dw sin(alpha) /
+    wheel_base``.
+
+Both give per-step arc increments (ds, dtheta) that :func:`arc_pose` turns
+into a relative pose assuming a constant curvature within the step (exact for
+a constant steering angle or wheel-speed ratio).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+
+def diff_arc(dphi_l, dphi_r, r_l: float, r_r: float, track: float):
+    """Return arc increments (ds m, dtheta rad) of a differential drive step.
+
+    :param dphi_l: left wheel rotation(s) (rad)
+    :param dphi_r: right wheel rotation(s) (rad)
+    :param r_l: left wheel radius (m)
+    :param r_r: right wheel radius (m)
+    :param track: track width (m)
+    """
+    dl = r_l * np.asarray(dphi_l, dtype=float)
+    dr = r_r * np.asarray(dphi_r, dtype=float)
+    return 0.5 * (dr + dl), (dr - dl) / track
+
+
+def steered_arc(dphi, reading, radius: float, wheel_base: float, offset: float = 0.0,
+                scale: float = 1.0):
+    """Return arc increments (ds m, dtheta rad) of a steered-drive-wheel step.
+
+    :param dphi: traction wheel rotation(s) (rad)
+    :param reading: steering encoder reading(s) (rad), converted by ``scale * reading + offset``
+    :param radius: traction wheel radius (m)
+    :param wheel_base: distance from the rear axle to the steered wheel (m)
+    :param offset: steering zero offset (rad, added to the scaled reading)
+    :param scale: steering scale (multiplies the reading)
+    """
+    alpha = scale * np.asarray(reading, dtype=float) + offset
+    dw = radius * np.asarray(dphi, dtype=float)
+    return dw * np.cos(alpha), dw * np.sin(alpha) / wheel_base
+
+
+def arc_pose(ds, dtheta) -> np.ndarray:
+    """Return relative poses ``[..., 3]`` (x m, y m, yaw rad) of constant-curvature arcs.
+
+    :param ds: arc length(s) travelled by the reference point (m)
+    :param dtheta: heading change(s) over the arc (rad)
+    """
+    ds = np.asarray(ds, dtype=float)
+    th = np.asarray(dtheta, dtype=float)
+    small = np.abs(th) < 1e-9
+    safe = np.where(small, 1.0, th)
+    t1 = np.where(small, 1.0 - th ** 2 / 6.0, np.sin(safe) / safe)
+    t2 = np.where(small, th / 2.0, (1.0 - np.cos(safe)) / safe)
+    return np.stack((ds * t1, ds * t2, th), axis=-1)
+
+
+def compose(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Return ``a (+) b`` for arrays of planar poses ``[..., 3]`` (b expressed in a)."""
+    c, s = np.cos(a[..., 2]), np.sin(a[..., 2])
+    return np.stack((a[..., 0] + c * b[..., 0] - s * b[..., 1],
+                     a[..., 1] + s * b[..., 0] + c * b[..., 1],
+                     a[..., 2] + b[..., 2]), axis=-1)
+
+
+def inverse(a: np.ndarray) -> np.ndarray:
+    """Return the inverse of planar poses ``[..., 3]``."""
+    c, s = np.cos(a[..., 2]), np.sin(a[..., 2])
+    return np.stack((-c * a[..., 0] - s * a[..., 1], s * a[..., 0] - c * a[..., 1],
+                     -a[..., 2]), axis=-1)
+
+
+def integrate_steps(steps: np.ndarray) -> np.ndarray:
+    """Compose padded step poses ``[S, K, 3]`` along K into segment motions ``[S, 3]``.
+
+    Padding steps must be zero poses. Yaw is not wrapped (segments stay short).
+    """
+    steps = np.asarray(steps, dtype=float)
+    out = np.zeros(steps.shape[:1] + (3,))
+    for k in range(steps.shape[1]):
+        out = compose(out, steps[:, k, :])
+    return out
+
+
+def sensor_motion(base_motion: np.ndarray, sensor_pose) -> np.ndarray:
+    """Return the sensor's own motion ``l^-1 (+) o (+) l`` for base motions ``o`` [..., 3].
+
+    :param base_motion: relative motion(s) of ``base_link`` (x m, y m, yaw rad)
+    :param sensor_pose: sensor pose in ``base_link`` (x m, y m, yaw rad)
+    """
+    lp = np.broadcast_to(np.asarray(sensor_pose, dtype=float), np.shape(base_motion))
+    return compose(inverse(lp), compose(base_motion, lp))
+
+
+def base_motion_from_sensor(sensor_motion_: np.ndarray, sensor_pose) -> np.ndarray:
+    """Return the base motion ``l (+) s (+) l^-1`` from sensor motions ``s`` [..., 3]."""
+    lp = np.broadcast_to(np.asarray(sensor_pose, dtype=float), np.shape(sensor_motion_))
+    return compose(lp, compose(sensor_motion_, inverse(lp)))

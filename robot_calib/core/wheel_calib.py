@@ -1,0 +1,833 @@
+# Copyright 2026 robot_calib contributors
+# SPDX-License-Identifier: Apache-2.0
+"""Wheel odometry calibration against a scene sensor (seed 003 and an improved ML estimator).
+
+Data model
+    A *segment* is a stretch of driving between two scene-sensor (lidar) key
+    frames: the wheel steps inside it and the sensor's own motion measured by
+    scan matching (``sensor_motion``: x, y in m and yaw in rad, expressed in
+    the sensor frame at the segment start). Wheel steps are ``(dphi_l,
+    dphi_r)`` (rad) for differential drive and ``(dphi, reading)`` (traction
+    wheel rotation rad, steering encoder reading rad) for a steered drive
+    wheel. Kinematic models: :mod:`robot_calib.core.kinematics` (``base_link``
+    midway between the driven wheels, or on the rear axle with the steered
+    wheel ``wheel_base`` ahead).
+
+Extrinsic
+    The sensor pose in ``base_link`` is ``l = (lidar_x, lidar_y, lidar_yaw)``.
+    A base motion ``o`` seen by the sensor is ``l^-1 (+) o (+) l`` (the
+    calibration constraint ``l (+) s = o (+) l`` of Censi et al., T-RO 2013,
+    eq. 4).
+
+Seed-faithful method (seed 003, steered wheel only)
+    Straight stages; per stage the scene rotation (scan match of the stage's
+    first and last scan) equals the odometry rotation, which gives the stage's
+    steering zero offset; the stage's offset is compared with the
+    compensation the stage was driven (or, offline, integrated) with; when the
+    difference is below ``seed.offset_threshold`` the stage's (scene
+    displacement, odometry displacement) is cached and a counter incremented,
+    else both are cleared; every stage uses the previous stage's solved offset
+    as its compensation; when the counter reaches ``seed.consecutive_stages``
+    the compensation in effect is the calibrated offset, and the wheel radius
+    is the average over the cached stages of the radius solving ``R_ext *
+    scene_displacement = odometry_displacement``. The text is silent on what
+    "the offset is below a threshold" compares; here it is the stage's offset
+    minus the compensation it used (the part of the offset the stage still
+    sees), which is what makes the iteration converge.
+
+Improved method (both drive types)
+    Maximum-likelihood fit of all intrinsic parameters and the sensor pose over
+    all segments at once (Censi et al. 2013: the closed form initialises the
+    differential case), iterated outlier rejection by the Mahalanobis distance
+    of each segment's residual, per-axis noise estimated from the inliers, the
+    covariance from the Fisher information, an observability check of the
+    information matrix and of what the drive contained, and a verdict.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass, field
+import math
+from typing import Any, Callable, Iterable, Optional
+
+import numpy as np
+from robot_calib.core import kinematics as K
+from robot_calib.core.geometry import wrap_angle
+from robot_calib.core.params import param
+from scipy import optimize, stats
+
+DIFF_KEYS = ('left_wheel_radius', 'right_wheel_radius', 'track_width',
+             'lidar_x', 'lidar_y', 'lidar_yaw')
+STEER_KEYS = ('steering_offset', 'steering_scale', 'wheel_radius', 'wheel_base',
+              'lidar_x', 'lidar_y', 'lidar_yaw')
+ANGLE_KEYS = ('steering_offset', 'lidar_yaw')
+
+
+# ------------------------------------------------------------------------------------------
+# parameters
+# ------------------------------------------------------------------------------------------
+@dataclass
+class SeedParams:
+    """Seed 003 stage logic (seed-faithful mode, steered drive wheel)."""
+
+    offset_threshold: float = param(
+        0.0005, 'rad', 'A stage counts as consistent when its solved zero offset differs from '
+        'the compensation it used by less than this (the seed below-threshold gate)',
+        minimum=0.0)
+    consecutive_stages: int = param(
+        3, '', 'Consecutive consistent stages after which the compensation in effect is the '
+        'calibrated zero offset (the seed counter threshold)', minimum=1)
+    straight_steering: float = param(
+        0.05, 'rad', 'A stretch is a straight stage while |steering angle| (nominal '
+        'conversion) stays below this', minimum=0.0)
+    min_stage_length: float = param(1.0, 'm', 'Shortest straight stage used', minimum=0.0)
+    max_stage_length: float = param(
+        4.0, 'm', 'Longest straight stage (longer ones are split so that the first and last '
+        'scan still overlap)', minimum=0.1)
+
+
+@dataclass
+class SolverParams:
+    """Improved joint estimator: outlier rejection, observability and verdict thresholds."""
+
+    outlier_sigma: float = param(
+        3.0, '', 'Segments whose residual is further than this many standard deviations '
+        '(Mahalanobis, 3 dof) are rejected as outliers (slip, bad matches)', minimum=1.0)
+    outlier_iterations: int = param(6, '', 'Fit / reject iterations', minimum=0)
+    min_segments: int = param(20, '', 'Fewest segments for a verdict of converged', minimum=1)
+    min_straight_segments: int = param(
+        5, '', 'Fewest straight segments (|rotation| below straight_rotation) needed',
+        minimum=0)
+    min_turn_segments: int = param(
+        3, '', 'Fewest turning segments needed in each direction (left and right)', minimum=0)
+    straight_rotation: float = param(
+        0.02, 'rad', 'A segment rotating less than this (and moving) counts as straight',
+        minimum=0.0)
+    turn_rotation: float = param(0.05, 'rad', 'A segment rotating more than this is a turn',
+                                 minimum=0.0)
+    min_motion: float = param(0.02, 'm', 'A segment moving less than this is standing still',
+                              minimum=0.0)
+    max_rel_std: float = param(
+        0.01, '', 'Largest relative standard deviation of a length or scale for converged',
+        minimum=0.0)
+    max_angle_std: float = param(
+        0.0087, 'rad', 'Largest standard deviation of steering offset / lidar yaw for converged',
+        minimum=0.0)
+    max_lidar_std: float = param(0.02, 'm', 'Largest lidar x/y standard deviation for converged',
+                                 minimum=0.0)
+    max_outlier_fraction: float = param(
+        0.25, '', 'More outliers than this fraction of segments make the verdict fail',
+        minimum=0.0, maximum=1.0)
+    prior_rel_sigma: float = param(
+        0.5, '', 'Weak prior on lengths and scales around nominal (relative standard '
+        'deviation); keeps unobservable directions at nominal with an honest large std',
+        minimum=1e-6)
+    prior_angle_sigma: float = param(0.5, 'rad', 'Weak prior on angles around nominal',
+                                     minimum=1e-6)
+    prior_lidar_sigma: float = param(1.0, 'm', 'Weak prior on lidar x/y around nominal',
+                                     minimum=1e-6)
+
+
+@dataclass
+class KeyframeParams:
+    """Key-frame selection that cuts the drive into segments (scan match between key frames)."""
+
+    distance: float = param(0.3, 'm', 'Travel (nominal odometry) that closes a segment',
+                            minimum=0.0)
+    angle: float = param(0.2, 'rad', 'Rotation (nominal odometry) that closes a segment',
+                         minimum=0.0)
+    max_time: float = param(3.0, 's', 'Longest segment while moving', minimum=0.1)
+    max_wheel_gap: float = param(0.5, 's', 'Wheel data gap that breaks a segment', minimum=0.0)
+
+
+@dataclass
+class WheelCalibParams:
+    """Parameters of ``wheel_odometry_calibration`` (geometry named like the result keys)."""
+
+    mode: str = param('improved', '', 'improved (joint ML estimate) or seed (seed 003 stages)',
+                      choices=('improved', 'seed'))
+    drive_type: str = param('differential', '', 'Drive type of the robot',
+                            choices=('differential', 'steered_wheel'))
+    wheel_radius: float = param(0.05, 'm', 'Nominal wheel radius (steered wheel: traction '
+                                'wheel; differential: both wheels unless set below)',
+                                minimum=1e-6)
+    wheel_base: float = param(1.0, 'm', 'Nominal distance from the rear axle to the steered '
+                              'wheel (steered wheel)', minimum=1e-6)
+    track_width: float = param(0.3, 'm', 'Nominal distance between the wheels (differential)',
+                               minimum=1e-6)
+    left_wheel_radius: float = param(0.0, 'm', 'Nominal left wheel radius (0: wheel_radius)',
+                                     minimum=0.0)
+    right_wheel_radius: float = param(0.0, 'm', 'Nominal right wheel radius (0: wheel_radius)',
+                                      minimum=0.0)
+    steering_offset: float = param(0.0, 'rad', 'Nominal steering zero offset (true = scale * '
+                                   'reading + offset)')
+    steering_scale: float = param(1.0, '', 'Nominal steering scale', minimum=1e-6)
+    steering_joint: str = param('steering_joint', '', 'Steering joint name in joint_states')
+    traction_joint: str = param('traction_joint', '', 'Traction joint name in joint_states')
+    left_wheel_joint: str = param('left_wheel_joint', '', 'Left wheel joint name')
+    right_wheel_joint: str = param('right_wheel_joint', '', 'Right wheel joint name')
+    lidar_x: float = param(0.0, 'm', 'Nominal lidar x in base_link (a /tf_static base_link -> '
+                           'scan frame transform overrides it)')
+    lidar_y: float = param(0.0, 'm', 'Nominal lidar y in base_link')
+    lidar_yaw: float = param(0.0, 'rad', 'Nominal lidar yaw in base_link')
+    base_frame: str = param('base_link', '', 'Robot base frame for /tf_static look-ups')
+    update_period: float = param(2.0, 's', 'Period of the estimate update and status message',
+                                 minimum=0.0)
+    keyframe: KeyframeParams = field(default_factory=KeyframeParams)
+    solver: SolverParams = field(default_factory=SolverParams)
+    seed: SeedParams = field(default_factory=SeedParams)
+
+    def nominal(self) -> dict[str, float]:
+        """Return the nominal value of every estimated quantity (SI)."""
+        rl = self.left_wheel_radius or self.wheel_radius
+        rr = self.right_wheel_radius or self.wheel_radius
+        return {'left_wheel_radius': rl, 'right_wheel_radius': rr,
+                'track_width': self.track_width, 'steering_offset': self.steering_offset,
+                'steering_scale': self.steering_scale, 'wheel_radius': self.wheel_radius,
+                'wheel_base': self.wheel_base, 'lidar_x': self.lidar_x,
+                'lidar_y': self.lidar_y, 'lidar_yaw': self.lidar_yaw}
+
+
+def keys_of(drive_type: str) -> tuple[str, ...]:
+    """Return the estimated quantities of a drive type, in solver order."""
+    return DIFF_KEYS if drive_type == 'differential' else STEER_KEYS
+
+
+# ------------------------------------------------------------------------------------------
+# data
+# ------------------------------------------------------------------------------------------
+@dataclass
+class Segment:
+    """Wheel steps between two key frames and the sensor motion measured between them.
+
+    ``steps`` is (K, 2): differential ``(dphi_l, dphi_r)`` rad; steered wheel
+    ``(dphi, reading)`` (traction rotation rad, steering reading rad).
+    ``sensor_motion`` is (x m, y m, yaw rad) of the sensor in its own frame at ``t0``.
+    """
+
+    t0: float
+    t1: float
+    steps: np.ndarray
+    sensor_motion: np.ndarray
+    info: dict = field(default_factory=dict)
+
+
+@dataclass
+class CalibResult:
+    """A calibration result: estimates, standard deviations, segments used and a verdict."""
+
+    drive_type: str
+    values: dict
+    stds: dict
+    segments_used: int
+    verdict: str
+    details: dict = field(default_factory=dict)
+
+    @property
+    def converged(self) -> bool:
+        """Return True when the verdict is 'converged'."""
+        return self.verdict == 'converged'
+
+    def to_dict(self) -> dict[str, Any]:
+        """Return the flat result mapping of the contract, in contract order (SI units)."""
+        out: dict[str, Any] = {'drive_type': self.drive_type}
+        for key in keys_of(self.drive_type):
+            out[key] = float(self.values.get(key, math.nan))
+            out[key + '_std'] = float(self.stds.get(key, math.nan))
+        out['segments_used'] = int(self.segments_used)
+        out['verdict'] = self.verdict
+        return out
+
+    def to_yaml(self) -> str:
+        """Return the result as the contract's flat YAML text, with a commented header."""
+        lines = ['# wheel_odometry_calibration result (SI units: m, rad); each estimate has a',
+                 '# _std twin (one standard deviation, .nan = not estimated by this mode).',
+                 '# steering_offset: true wheel angle = steering_scale * reading + offset,',
+                 '# counter-clockwise positive seen from above.']
+        for key, value in self.to_dict().items():
+            if isinstance(value, float):
+                text = '.nan' if math.isnan(value) else repr(value)
+            elif isinstance(value, int):
+                text = str(value)
+            else:
+                text = _yaml_str(str(value))
+            lines.append(f'{key}: {text}')
+        return '\n'.join(lines) + '\n'
+
+
+def _yaml_str(text: str) -> str:
+    """Quote a YAML string value safely (single quotes, doubled inside)."""
+    return "'" + text.replace("'", "''") + "'"
+
+
+# ------------------------------------------------------------------------------------------
+# models
+# ------------------------------------------------------------------------------------------
+def pad_steps(segments: list[Segment]) -> np.ndarray:
+    """Stack segment steps into a zero-padded array (S, K, 2)."""
+    kmax = max((s.steps.shape[0] for s in segments), default=1)
+    out = np.zeros((len(segments), max(kmax, 1), 2))
+    for i, s in enumerate(segments):
+        out[i, :s.steps.shape[0]] = s.steps
+    return out
+
+
+def base_motion(drive_type: str, x: np.ndarray, steps: np.ndarray) -> np.ndarray:
+    """Return the base_link motion (S, 3) of padded steps (S, K, 2) for parameters ``x``.
+
+    ``x`` is in :func:`keys_of` order; padding steps (zeros) add nothing.
+    """
+    if drive_type == 'differential':
+        ds, dth = K.diff_arc(steps[..., 0], steps[..., 1], x[0], x[1], x[2])
+    else:
+        ds, dth = K.steered_arc(steps[..., 0], steps[..., 1], x[2], x[3], x[0], x[1])
+    return K.integrate_steps(K.arc_pose(ds, dth))
+
+
+def predict(drive_type: str, x: np.ndarray, steps: np.ndarray) -> np.ndarray:
+    """Return the predicted sensor motion (S, 3) (the last three entries of ``x`` are the pose)."""
+    return K.sensor_motion(base_motion(drive_type, x, steps), x[-3:])
+
+
+def residuals(drive_type: str, x: np.ndarray, steps: np.ndarray,
+              measured: np.ndarray) -> np.ndarray:
+    """Return predicted minus measured sensor motion (S, 3), yaw wrapped (m, m, rad)."""
+    r = predict(drive_type, x, steps) - measured
+    r[:, 2] = wrap_angle(r[:, 2])
+    return r
+
+
+# ------------------------------------------------------------------------------------------
+# Censi et al. closed form (differential drive)
+# ------------------------------------------------------------------------------------------
+def censi_closed_form(segments: list[Segment]) -> Optional[np.ndarray]:
+    """Return Censi's closed-form estimate ``[r_l, r_r, b, lx, ly, lyaw]``, or None.
+
+    Each segment's wheel rotations are summed (the method assumes constant
+    wheel speeds inside a segment). Step 1: ``theta_sm = J21 phi_l + J22
+    phi_r`` by linear least squares (Censi 2013, eq. 11). Step 2: with ``o_t =
+    b c`` linear in the axle ``b``, the translation constraint ``(I - R(o_th))
+    l_t + R(l_th) s_t - b c = 0`` is linear in ``x = [b, lx, ly, cos l_th,
+    sin l_th]``; minimise ``x' M x`` subject to ``cos^2 + sin^2 = 1`` with a
+    Lagrange multiplier: ``det(M + lambda W) = 0`` is quadratic in lambda
+    (eq. 22-24).
+    """
+    if len(segments) < 3:
+        return None
+    phi = np.array([s.steps.sum(axis=0) for s in segments])
+    sm = np.array([s.sensor_motion for s in segments])
+    a = phi.T @ phi
+    if np.linalg.cond(a) > 1e8:
+        return None
+    j21, j22 = np.linalg.solve(a, phi.T @ sm[:, 2])  # Censi 2013, eq. 11
+    o_th = j21 * phi[:, 0] + j22 * phi[:, 1]
+    small = np.abs(o_th) < 1e-12
+    safe = np.where(small, 1.0, o_th)
+    t1 = np.where(small, 1.0, np.sin(safe) / safe)
+    t2 = np.where(small, 0.0, (1.0 - np.cos(safe)) / safe)
+    v = 0.5 * (-j21 * phi[:, 0] + j22 * phi[:, 1])  # base travel per unit axle
+    cx, cy = v * t1, v * t2
+    c, s = np.cos(o_th), np.sin(o_th)
+    rows = np.zeros((2 * len(segments), 5))
+    rows[0::2] = np.column_stack((-cx, 1 - c, s, sm[:, 0], -sm[:, 1]))
+    rows[1::2] = np.column_stack((-cy, -s, 1 - c, sm[:, 1], sm[:, 0]))
+    m = rows.T @ rows
+    w = np.diag([0.0, 0.0, 0.0, 1.0, 1.0])
+    # det(M + lambda W) is a quadratic in lambda: sample it at three points.
+    lam = np.array([-1.0, 0.0, 1.0]) * max(1.0, float(np.trace(m)))
+    dets = [np.linalg.det(m + li * w) for li in lam]
+    coef = np.polyfit(lam, dets, 2)
+    best, best_err = None, math.inf
+    for root in np.roots(coef):
+        if abs(root.imag) > 1e-9 * max(1.0, abs(root.real)):
+            continue
+        z = m + root.real * w
+        _, _, vt = np.linalg.svd(z)
+        xv = vt[-1]
+        norm = math.hypot(xv[3], xv[4])
+        if norm < 1e-12:
+            continue
+        xv = xv / norm * (1.0 if xv[0] >= 0 else -1.0)
+        err = float(xv @ m @ xv)
+        if err < best_err:
+            best, best_err = xv, err
+    if best is None or best[0] <= 0:
+        return None
+    b = best[0]
+    return np.array([-j21 * b, j22 * b, b, best[1], best[2], math.atan2(best[4], best[3])])
+
+
+def censi_calibrate(segments: list[Segment], outlier_iterations: int = 4,
+                    outlier_fraction: float = 0.01) -> Optional[dict]:
+    """Return Censi's closed form with the authors' outlier trimming and their uncertainty.
+
+    Each iteration solves, then drops the segments above the ``1 -
+    outlier_fraction`` quantile of |theta| or xy disagreement. The noise of the
+    scan matcher is the per-axis standard deviation of the residuals and the
+    covariance the inverse Fisher information at the estimate (Censi 2013,
+    Sec. VI). Returns ``{'x', 'cov', 'sigma', 'used'}`` or None.
+    """
+    segs = list(segments)
+    x = None
+    history = []
+    for _ in range(outlier_iterations + 1):
+        x_new = censi_closed_form(segs)
+        if x_new is None:
+            break
+        x = x_new
+        history.append(segs)
+        steps = pad_steps(segs)
+        meas = np.array([s.sensor_motion for s in segs])
+        r = residuals('differential', x, steps, meas)
+        exy = np.hypot(r[:, 0], r[:, 1])
+        eth = np.abs(r[:, 2])
+        idx = min(int(round((1.0 - outlier_fraction) * len(segs))), len(segs) - 1)
+        keep = (exy <= np.sort(exy)[idx]) & (eth <= np.sort(eth)[idx])
+        segs = [s for s, k in zip(segs, keep) if k]
+    if x is None:
+        return None
+    used = history[-1]
+    steps = pad_steps(used)
+    meas = np.array([s.sensor_motion for s in used])
+    r = residuals('differential', x, steps, meas)
+    sigma = np.maximum(r.std(axis=0), 1e-9)
+    jac = _jacobian('differential', x, steps) / sigma[None, :, None]
+    info = jac.reshape(-1, x.size).T @ jac.reshape(-1, x.size)
+    cov = _safe_inv(info)
+    return {'x': x, 'cov': cov, 'sigma': sigma, 'used': len(used)}
+
+
+def _jacobian(drive_type: str, x: np.ndarray, steps: np.ndarray) -> np.ndarray:
+    """Return d predict / d x (S, 3, P) by central differences."""
+    cols = []
+    for i in range(x.size):
+        h = 1e-6 * max(1.0, abs(x[i]))
+        xp, xm = x.copy(), x.copy()
+        xp[i] += h
+        xm[i] -= h
+        d = predict(drive_type, xp, steps) - predict(drive_type, xm, steps)
+        d[:, 2] = wrap_angle(d[:, 2])
+        cols.append(d / (2 * h))
+    return np.stack(cols, axis=-1)
+
+
+def _safe_inv(info: np.ndarray) -> np.ndarray:
+    """Invert an information matrix; infinite variances where it is singular."""
+    try:
+        cov = np.linalg.inv(info)
+        if np.all(np.isfinite(cov)) and np.all(np.diag(cov) >= 0):
+            return cov
+    except np.linalg.LinAlgError:
+        pass
+    cov = np.linalg.pinv(info)
+    w = np.linalg.eigvalsh(info)
+    if w.min() <= 1e-12 * max(w.max(), 1e-300):
+        cov = cov + np.diag(np.where(np.diag(info) <= 0, np.inf, 0.0))
+    return cov
+
+
+# ------------------------------------------------------------------------------------------
+# improved joint ML estimator
+# ------------------------------------------------------------------------------------------
+def _prior_sigma(keys: tuple, nominal: dict, sp: SolverParams) -> np.ndarray:
+    out = []
+    for k in keys:
+        if k in ANGLE_KEYS:
+            out.append(sp.prior_angle_sigma)
+        elif k in ('lidar_x', 'lidar_y'):
+            out.append(sp.prior_lidar_sigma)
+        else:
+            out.append(sp.prior_rel_sigma * max(abs(nominal[k]), 1e-6))
+    return np.array(out)
+
+
+def _init_lidar_yaw(drive_type: str, x: np.ndarray, steps: np.ndarray,
+                    meas: np.ndarray) -> float:
+    """Return the yaw aligning base translations with sensor translations (rad)."""
+    base = base_motion(drive_type, x, steps)
+    ok = (np.hypot(meas[:, 0], meas[:, 1]) > 1e-3) & (np.abs(base[:, 2]) < 0.1)
+    if ok.sum() < 2:
+        return float(x[-1])
+    b, s = base[ok, :2], meas[ok, :2]
+    # base ~= R(yaw) s  ->  yaw = atan2(sum s x b, sum s . b)
+    cross = np.sum(s[:, 0] * b[:, 1] - s[:, 1] * b[:, 0])
+    dot = np.sum(s[:, 0] * b[:, 0] + s[:, 1] * b[:, 1])
+    return math.atan2(cross, dot)
+
+
+def _init_steered(x: np.ndarray, steps: np.ndarray, meas: np.ndarray) -> np.ndarray:
+    """Return a global initial guess of the steered-wheel intrinsics from rotations and travel.
+
+    The rotation of a segment, ``sum r dphi sin(scale reading + offset) / L``,
+    does not depend on the sensor pose: a grid over (scale, offset) with the
+    best ``r / L`` in closed form for each picks the basin; the travel of
+    nearly straight segments then gives ``r`` (the lever arm cancels when the
+    segment hardly turns).
+    """
+    x = x.copy()
+    dphi, reading = steps[..., 0], steps[..., 1]
+    rot = meas[:, 2]
+    best = (math.inf, x[0], x[1], x[2] / x[3])
+    scales = x[1] * np.geomspace(0.1, 10.0, 61)
+    offsets = x[0] + np.linspace(-0.3, 0.3, 61)
+    for sc in scales:
+        ang = sc * reading[None] + offsets[:, None, None]
+        g = np.sum(dphi[None] * np.sin(ang), axis=2)  # (O, S)
+        rho = np.sum(g * rot[None], axis=1) / np.maximum(np.sum(g * g, axis=1), 1e-30)
+        cost = np.sum((rho[:, None] * g - rot[None]) ** 2, axis=1)
+        i = int(np.argmin(cost))
+        if cost[i] < best[0] and rho[i] > 0:
+            best = (float(cost[i]), float(offsets[i]), float(sc), float(rho[i]))
+    _, x[0], x[1], rho = best
+    ang = x[1] * reading + x[0]
+    fwd = np.sum(dphi * np.cos(ang), axis=1)
+    dist = np.hypot(meas[:, 0], meas[:, 1])
+    ok = (np.abs(rot) < 0.05) & (np.abs(fwd) > 1e-9)
+    if ok.sum() >= 2:
+        r = float(np.sum(dist[ok] * np.abs(fwd[ok])) / np.sum(fwd[ok] ** 2))
+        if r > 0:
+            x[2] = r
+    x[3] = x[2] / rho
+    return x
+
+
+def joint_fit(drive_type: str, segments: list[Segment], nominal: dict,
+              sp: Optional[SolverParams] = None, x0: Optional[np.ndarray] = None) -> dict:
+    """Fit all parameters of a drive type over all segments (ML with outlier rejection).
+
+    Minimises ``sum_k |(predict_k(x) - sm_k) / sigma|^2 + |(x - x_nom) / sigma_prior|^2``
+    (Censi 2013, eq. 9, plus a weak prior that only matters along directions
+    the drive leaves unobservable). ``sigma`` (per axis x, y, yaw) is
+    re-estimated from the inliers each iteration; a segment is an outlier when
+    its squared Mahalanobis distance exceeds the chi-square (3 dof) quantile
+    of ``outlier_sigma``. Returns ``x`` (in :func:`keys_of` order), ``cov``,
+    ``sigma``, ``inliers`` (bool per segment), ``residuals`` and ``info``.
+    """
+    sp = sp or SolverParams()
+    keys = keys_of(drive_type)
+    x_nom = np.array([nominal[k] for k in keys], dtype=float)
+    psig = _prior_sigma(keys, nominal, sp)
+    steps = pad_steps(segments)
+    meas = np.array([s.sensor_motion for s in segments]).reshape(-1, 3)
+    if x0 is None:
+        x0 = x_nom.copy()
+        if drive_type == 'differential':
+            cf = censi_closed_form(segments)
+            if cf is not None and np.all(np.isfinite(cf)) and np.all(cf[:3] > 0):
+                x0 = cf
+        else:
+            x0 = _init_steered(x0, steps, meas)
+        if drive_type != 'differential' or x0 is x_nom:
+            x0[-1] = _init_lidar_yaw(drive_type, x0, steps, meas)
+    x = np.asarray(x0, dtype=float).copy()
+    inl = np.ones(len(segments), bool)
+    r0 = residuals(drive_type, x, steps, meas)
+    sigma = _robust_sigma(r0)
+    gate = stats.chi2.ppf(stats.chi2.cdf(sp.outlier_sigma ** 2, 1), 3)
+    scale = np.where(np.abs(x_nom) > 1e-9, np.abs(x_nom), 1.0)
+    for it in range(sp.outlier_iterations + 1):
+        s_in, m_in = steps[inl], meas[inl]
+
+        def fun(z, s_in=s_in, m_in=m_in, sig=sigma):
+            xx = z * scale
+            r = residuals(drive_type, xx, s_in, m_in) / sig
+            return np.concatenate((r.ravel(), (xx - x_nom) / psig))
+
+        sol = optimize.least_squares(fun, x / scale, method='lm', x_scale='jac',
+                                     xtol=1e-12, ftol=1e-12, max_nfev=200 * x.size)
+        x = sol.x * scale
+        r = residuals(drive_type, x, steps, meas)
+        sigma = _robust_sigma(r[inl]) if it < sp.outlier_iterations else sigma
+        d2 = np.sum((r / sigma) ** 2, axis=1)
+        new = d2 <= gate
+        if new.sum() < max(3, x.size):
+            new = inl
+        if it == sp.outlier_iterations or np.array_equal(new, inl):
+            inl = new
+            break
+        inl = new
+    r = residuals(drive_type, x, steps, meas)
+    if inl.sum() >= 2:
+        sigma = np.maximum(r[inl].std(axis=0) * np.sqrt(inl.sum() / max(inl.sum() - 1, 1)),
+                           1e-9)
+    jac = _jacobian(drive_type, x, steps[inl]) / sigma[None, :, None]
+    jflat = jac.reshape(-1, x.size)
+    info_data = jflat.T @ jflat
+    info = info_data + np.diag(1.0 / psig ** 2)
+    cov = _safe_inv(info)
+    return {'x': x, 'cov': cov, 'sigma': sigma, 'inliers': inl, 'residuals': r,
+            'info': info, 'info_data': info_data, 'prior_sigma': psig, 'keys': keys}
+
+
+def _robust_sigma(r: np.ndarray) -> np.ndarray:
+    """Return per-column robust standard deviations (1.4826 MAD), floored."""
+    if r.shape[0] == 0:
+        return np.ones(3)
+    med = np.median(r, axis=0)
+    mad = 1.4826 * np.median(np.abs(r - med), axis=0)
+    return np.maximum(mad, np.array([1e-6, 1e-6, 1e-7]))
+
+
+# ------------------------------------------------------------------------------------------
+# observability and verdict
+# ------------------------------------------------------------------------------------------
+def drive_content(segments: list[Segment], sp: SolverParams) -> dict:
+    """Count straight, left-turn and right-turn segments from the measured sensor motion."""
+    if not segments:
+        return {'segments': 0, 'straight': 0, 'left': 0, 'right': 0, 'still': 0}
+    m = np.array([s.sensor_motion for s in segments])
+    dist = np.hypot(m[:, 0], m[:, 1])
+    moving = dist >= sp.min_motion
+    return {'segments': len(segments),
+            'straight': int(np.sum(moving & (np.abs(m[:, 2]) < sp.straight_rotation))),
+            'left': int(np.sum(m[:, 2] > sp.turn_rotation)),
+            'right': int(np.sum(m[:, 2] < -sp.turn_rotation)),
+            'still': int(np.sum(~moving & (np.abs(m[:, 2]) < sp.turn_rotation)))}
+
+
+_ADVICE = {
+    'left_wheel_radius': 'drive more straight segments',
+    'right_wheel_radius': 'drive more straight segments',
+    'wheel_radius': 'drive more straight segments',
+    'track_width': 'turn both ways',
+    'wheel_base': 'turn both ways with larger steering angles',
+    'steering_scale': 'turn both ways with larger steering angles',
+    'steering_offset': 'drive more straight segments',
+    'lidar_x': 'turn on the spot or in tight curves both ways',
+    'lidar_y': 'turn on the spot or in tight curves both ways',
+    'lidar_yaw': 'drive more straight segments',
+}
+
+
+def verdict_of(drive_type: str, values: dict, stds: dict, content: dict, n_used: int,
+               n_outliers: int, sp: SolverParams, extra: Iterable[str] = ()) -> str:
+    """Return 'converged' or a sentence saying what the drive lacked.
+
+    Checks the drive's content (segments, straight segments, turns each way),
+    the outlier fraction and every parameter's standard deviation against its
+    tolerance (the observability check on the information matrix).
+    """
+    problems = list(extra)
+    if content['segments'] == 0:
+        return 'too little data: no usable segments (need wheel data and matching scans)'
+    if n_used < sp.min_segments:
+        problems.append(f'too little data ({n_used} usable segments, need {sp.min_segments})')
+    if content['straight'] < sp.min_straight_segments and content['left'] + content['right'] \
+            >= content['segments'] - content['still']:
+        problems.append(f'drive more straight segments (have {content["straight"]}, need '
+                        f'{sp.min_straight_segments})')
+    if content['left'] < sp.min_turn_segments or content['right'] < sp.min_turn_segments:
+        problems.append(f'turn both ways (left turns {content["left"]}, right turns '
+                        f'{content["right"]}, need {sp.min_turn_segments} each)')
+    total = n_used + n_outliers
+    if total and n_outliers > sp.max_outlier_fraction * total:
+        problems.append(f'{n_outliers} of {total} segments disagree with the model (wheel slip '
+                        'or failed scan matches): drive slower on a grippy floor')
+    weak = []
+    for k in keys_of(drive_type):
+        s = stds.get(k, math.nan)
+        v = values.get(k, math.nan)
+        if k in ANGLE_KEYS:
+            bad = not s <= sp.max_angle_std
+        elif k in ('lidar_x', 'lidar_y'):
+            bad = not s <= sp.max_lidar_std
+        else:
+            bad = not s <= sp.max_rel_std * max(abs(v), 1e-9)
+        if bad:
+            weak.append(k)
+    if weak:
+        advice = sorted({_ADVICE[k] for k in weak})
+        problems.append(f'{", ".join(weak)} poorly determined ({"; ".join(advice)})')
+    if not problems:
+        return 'converged'
+    text = '; '.join(dict.fromkeys(problems))
+    return text[0].upper() + text[1:]
+
+
+def calibrate(drive_type: str, segments: list[Segment], params: WheelCalibParams,
+              extra_problems: Iterable[str] = ()) -> CalibResult:
+    """Run the improved joint estimator and return a result with stds and a verdict."""
+    sp = params.solver
+    nominal = params.nominal()
+    keys = keys_of(drive_type)
+    content = drive_content(segments, sp)
+    if len(segments) < 3:
+        values = {k: nominal[k] for k in keys}
+        stds = {k: math.nan for k in keys}
+        verdict = verdict_of(drive_type, values, stds, content, len(segments), 0, sp,
+                             extra_problems)
+        if verdict == 'converged':
+            verdict = 'Too little data'
+        return CalibResult(drive_type, values, stds, 0, verdict, {'content': content})
+    fit = joint_fit(drive_type, segments, nominal, sp)
+    x, cov = fit['x'], fit['cov']
+    values = {k: float(v) for k, v in zip(keys, x)}
+    values['lidar_yaw'] = wrap_angle(values['lidar_yaw'])
+    with np.errstate(invalid='ignore'):
+        std = np.sqrt(np.diag(cov))
+    stds = {k: float(v) for k, v in zip(keys, std)}
+    n_in = int(fit['inliers'].sum())
+    n_out = len(segments) - n_in
+    inl_segs = [s for s, k in zip(segments, fit['inliers']) if k]
+    verdict = verdict_of(drive_type, values, stds, drive_content(inl_segs, sp), n_in, n_out,
+                         sp, extra_problems)
+    details = {'content': content, 'outliers': n_out, 'sigma': fit['sigma'].tolist(),
+               'covariance': cov.tolist(), 'keys': list(keys),
+               'information_eigenvalues': np.linalg.eigvalsh(fit['info_data']).tolist()}
+    return CalibResult(drive_type, values, stds, n_in, verdict, details)
+
+
+# ------------------------------------------------------------------------------------------
+# seed 003: steered-wheel stages with the gate / counter logic
+# ------------------------------------------------------------------------------------------
+@dataclass
+class StageRecord:
+    """What the seed logic did with one stage."""
+
+    index: int
+    compensation: float
+    offset: float
+    residual: float
+    accepted: bool
+    counter: int
+    radius: float
+
+
+class SeedSteeredCalibrator:
+    """Seed 003 (steered drive wheel): stage-by-stage zero offset, then the wheel radius.
+
+    Feed straight stages with :meth:`update` (streaming) or all at once with
+    :meth:`run`. The wheel base and steering scale are taken as nominal (the
+    seed does not estimate them); the extrinsic ``R_ext`` is the nominal lidar
+    yaw.
+    """
+
+    def __init__(self, params: Optional[WheelCalibParams] = None):
+        """Start with the nominal offset as the first compensation."""
+        self.params = params or WheelCalibParams(drive_type='steered_wheel', mode='seed')
+        self.compensation = self.params.steering_offset
+        self.counter = 0
+        self.candidates: list[tuple[np.ndarray, np.ndarray]] = []
+        self.records: list[StageRecord] = []
+        self.offset: Optional[float] = None
+        self.radius: Optional[float] = None
+        self.stages_needed: Optional[int] = None
+
+    def stage_offset(self, seg: Segment) -> float:
+        """Solve "scene rotation = odometry rotation" for the stage's zero offset (rad).
+
+        ``sum_j r dphi_j sin(scale reading_j + c) / L = scene_rotation``
+        (kinematics of :mod:`robot_calib.core.kinematics`) solved for ``c`` by
+        Newton's method from the constant-reading closed form.
+        """
+        p = self.params
+        dphi, reading = seg.steps[:, 0], seg.steps[:, 1]
+        travel = p.wheel_radius * float(np.sum(dphi))
+        scene = float(seg.sensor_motion[2])
+        if abs(travel) < 1e-9:
+            return math.nan
+        s = np.clip(p.wheel_base * scene / travel, -1.0, 1.0)
+        mean_reading = float(np.sum(dphi * reading) / np.sum(dphi))
+        c = math.asin(s) - p.steering_scale * mean_reading  # seed 003: scene = odometry rotation
+        for _ in range(20):
+            ang = p.steering_scale * reading + c
+            f = p.wheel_radius * np.sum(dphi * np.sin(ang)) / p.wheel_base - scene
+            df = p.wheel_radius * np.sum(dphi * np.cos(ang)) / p.wheel_base
+            if abs(df) < 1e-12:
+                break
+            step = f / df
+            c -= step
+            if abs(step) < 1e-12:
+                break
+        return float(c)
+
+    def update(self, seg: Segment) -> StageRecord:
+        """Process one straight stage; return what the gate and counter did."""
+        p = self.params
+        comp = self.compensation
+        off = self.stage_offset(seg)
+        resid = off - comp if math.isfinite(off) else math.inf
+        accepted = abs(resid) < p.seed.offset_threshold
+        radius = math.nan
+        if accepted:
+            d_odo = K.integrate_steps(
+                K.arc_pose(*K.steered_arc(seg.steps[None, :, 0], seg.steps[None, :, 1], 1.0,
+                                          p.wheel_base, comp, p.steering_scale)))[0]
+            c, s = math.cos(p.lidar_yaw), math.sin(p.lidar_yaw)
+            d_scene = np.array([c * seg.sensor_motion[0] - s * seg.sensor_motion[1],
+                                s * seg.sensor_motion[0] + c * seg.sensor_motion[1]])
+            self.candidates.append((d_scene, d_odo[:2]))
+            self.counter += 1
+            # seed 003: R_ext * scene_displacement = odometry_displacement (radius r)
+            g = d_odo[:2]
+            radius = float(d_scene @ g / max(g @ g, 1e-12))
+        else:
+            self.candidates.clear()
+            self.counter = 0
+        rec = StageRecord(len(self.records), comp, off, resid, accepted, self.counter, radius)
+        self.records.append(rec)
+        if self.offset is None and self.counter >= p.seed.consecutive_stages:
+            self.offset = comp
+            radii = [float(ds @ g / max(g @ g, 1e-12)) for ds, g in self.candidates]
+            self.radius = float(np.mean(radii))
+            self.stages_needed = len(self.records)
+        if math.isfinite(off):
+            self.compensation = off  # next stage compensates with this stage's offset
+        return rec
+
+    def run(self, stages: Iterable[Segment]) -> CalibResult:
+        """Process all stages (stops updating once converged) and return the result."""
+        for seg in stages:
+            if self.offset is not None:
+                break
+            self.update(seg)
+        return self.result()
+
+    def result(self, extra_problems: Iterable[str] = ()) -> CalibResult:
+        """Return the seed result so far (nominal values where the seed has none)."""
+        p = self.params
+        nominal = p.nominal()
+        values = {k: nominal[k] for k in STEER_KEYS}
+        stds = {k: math.nan for k in STEER_KEYS}
+        problems = list(extra_problems)
+        if self.offset is not None:
+            values['steering_offset'] = self.offset
+            values['wheel_radius'] = self.radius
+            radii = [float(ds @ g / max(g @ g, 1e-12)) for ds, g in self.candidates]
+            offs = [r.offset for r in self.records[-len(self.candidates):]]
+            n = len(radii)
+            if n > 1:
+                stds['wheel_radius'] = float(np.std(radii, ddof=1) / math.sqrt(n))
+                stds['steering_offset'] = float(np.std(offs, ddof=1) / math.sqrt(n))
+            verdict = 'converged' if not problems else '; '.join(problems)
+        else:
+            n_stages = len(self.records)
+            if n_stages == 0:
+                problems.append('drive more straight segments (no straight stage found)')
+            else:
+                problems.append(
+                    f'drive more straight segments ({n_stages} stages, {self.counter} '
+                    f'consecutive consistent, need {p.seed.consecutive_stages})')
+            verdict = '; '.join(problems)
+            verdict = verdict[0].upper() + verdict[1:]
+        used = len(self.candidates) if self.offset is not None else 0
+        details = {'stages': [dataclasses.asdict(r) for r in self.records],
+                   'stages_needed': self.stages_needed}
+        return CalibResult('steered_wheel', values, stds, used, verdict, details)
+
+
+def solve(params: WheelCalibParams, segments: list[Segment],
+          stages: Optional[list[Segment]] = None,
+          extra_problems: Iterable[str] = ()) -> CalibResult:
+    """Return the result of the configured mode: the seed stages or the joint estimator."""
+    if params.mode == 'seed':
+        if params.drive_type != 'steered_wheel':
+            res = calibrate(params.drive_type, segments, params, extra_problems)
+            res.details['note'] = 'seed 003 covers the steered wheel only; improved estimator'
+            return res
+        return SeedSteeredCalibrator(params).run(stages or [])
+    return calibrate(params.drive_type, segments, params, extra_problems)
+
+
+MatchFn = Callable[[Any, Any, np.ndarray], Optional[tuple[np.ndarray, dict]]]
