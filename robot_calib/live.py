@@ -1,0 +1,146 @@
+# Copyright 2026 robot_calib contributors
+# SPDX-License-Identifier: Apache-2.0
+"""``robot-calib replay --live``: publish bags through rclpy at the recorded rate, with /clock.
+
+Like ``ros2 bag play``: every topic whose message type is installed is
+published on its own name (after ``--remap FROM:=TO`` on bag topics) as the
+serialized bytes from the bag (ROS 1 messages are converted to ROS 2 CDR
+first), paced by the bag receive times divided by ``rate``; ``/clock``
+(rosgraph_msgs/Clock) carries the bag time so nodes can run with
+``use_sim_time``. Topics recorded as transient-local (and ``/tf_static``)
+are published latched.
+"""
+
+from __future__ import annotations
+
+import os
+import time
+from typing import Any, Iterable, Mapping, Optional, Sequence, Union
+
+from robot_calib.io.bags import BagError, BagSet, normalize_topic
+
+_NS = 1_000_000_000
+
+
+def _bag_remaps(remaps: Union[None, Mapping[str, str], Iterable[str]],
+                bag_topics: Iterable[str]) -> dict[str, str]:
+    from robot_calib.replay import parse_remaps, ReplayError
+    known = set(bag_topics)
+    out = {}
+    for src, dst in parse_remaps(remaps):
+        if src not in known:
+            raise ReplayError(f'--remap {src}:={dst}: {src} is not a topic in the bag(s) '
+                              f'({", ".join(sorted(known)) or "none"})')
+        out[src] = dst
+    return out
+
+
+def play(bags: Union[str, os.PathLike, Sequence[Union[str, os.PathLike]]], rate: float = 1.0,
+         remaps: Union[None, Mapping[str, str], Iterable[str]] = None,
+         topics: Optional[Iterable[str]] = None, clock: bool = True, delay: float = 0.5,
+         clock_period: float = 0.01, wait_for_subscribers: float = 0.0,
+         node_name: str = 'robot_calib_player') -> dict[str, Any]:
+    """Publish the messages of ``bags`` on their topics at ``rate`` times the recorded speed.
+
+    :param bags: bag paths (ROS 2 folders or ROS 1 ``.bag`` files).
+    :param rate: playback speed factor (> 0; 2.0 plays twice as fast).
+    :param remaps: ``FROM:=TO`` rules renaming bag topics.
+    :param topics: publish only these bag topics (after remapping); None: all.
+    :param clock: publish ``/clock`` with the bag time.
+    :param delay: seconds to wait after creating the publishers (discovery), s.
+    :param clock_period: publish ``/clock`` at most this often in bag time, s.
+    :param wait_for_subscribers: wait up to this long (s) for every publisher to
+        have a subscriber before playing.
+    :param node_name: name of the player node.
+    :return: ``{'messages', 'topics': {topic: count}, 'skipped': {topic: reason},
+        'wall_seconds', 'bag_seconds'}``.
+    """
+    if not rate > 0:
+        raise ValueError(f'bad rate {rate}: expected a positive factor')
+    bag_list = [bags] if isinstance(bags, (str, os.PathLike)) else list(bags)
+    import rclpy
+    from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+    from robot_calib.nodes.base import LATCHED_QOS, message_class
+
+    reliable = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=100,
+                          reliability=ReliabilityPolicy.RELIABLE,
+                          durability=DurabilityPolicy.VOLATILE)
+    with BagSet(bag_list) as bagset:
+        rename = _bag_remaps(remaps, bagset.topics())
+        wanted = None if topics is None else {normalize_topic(t) for t in topics}
+        skipped: dict[str, str] = {}
+        chosen = []
+        for s in bagset.streams:
+            topic = rename.get(s.topic, s.topic)
+            if wanted is not None and topic not in wanted:
+                continue
+            cls = message_class(s.msgtype) if s.msgtype.count('/') == 2 else None
+            if cls is None:
+                skipped[topic] = f'message type {s.msgtype} is not installed'
+                continue
+            chosen.append((s, topic, cls))
+        if wanted is not None:
+            missing = wanted - {t for _, t, _ in chosen} - set(skipped)
+            if missing:
+                raise BagError(f'topic(s) {sorted(missing)} not in the bag(s); bag topics: '
+                               f'{", ".join(sorted(bagset.topics()))}')
+        own_context = not rclpy.ok()
+        if own_context:
+            rclpy.init()
+        node = None
+        counts: dict[str, int] = {}
+        n = 0
+        wall0 = time.monotonic()
+        first = last = None
+        try:
+            node = rclpy.create_node(node_name)
+            pubs = {}
+            for s, topic, cls in chosen:
+                key = (topic, s.msgtype)
+                if key not in pubs:
+                    qos = LATCHED_QOS if (s.latched or topic == '/tf_static') else reliable
+                    pubs[key] = node.create_publisher(cls, topic, qos)
+            by_stream = {id(s): (pubs[(topic, s.msgtype)], topic, s) for s, topic, _ in chosen}
+            clock_pub = clock_msg = time_msg = None
+            if clock:
+                from builtin_interfaces.msg import Time
+                from rosgraph_msgs.msg import Clock
+                clock_pub = node.create_publisher(Clock, '/clock', 10)
+                clock_msg, time_msg = Clock, Time
+            deadline = time.monotonic() + max(wait_for_subscribers, 0.0)
+            while time.monotonic() < deadline and any(
+                    p.get_subscription_count() == 0 for p in pubs.values()):
+                time.sleep(0.01)
+            if delay > 0:
+                time.sleep(delay)
+            wall0 = time.monotonic()
+            next_clock = None
+            for stream, time_ns, raw in bagset.messages([s for s, _, _ in chosen]):
+                if first is None:
+                    first = time_ns
+                last = time_ns
+                target = wall0 + (time_ns - first) / _NS / rate
+                wait = target - time.monotonic()
+                if wait > 0:
+                    time.sleep(wait)
+                if clock_pub is not None and (next_clock is None or time_ns >= next_clock):
+                    clock_pub.publish(clock_msg(clock=time_msg(sec=time_ns // _NS,
+                                                               nanosec=time_ns % _NS)))
+                    next_clock = time_ns + int(clock_period * _NS)
+                pub, topic, s = by_stream[id(stream)]
+                try:
+                    data = s.to_cdr(raw)
+                except Exception:  # noqa: B902 - an undecodable ROS 1 message is skipped
+                    skipped[topic] = 'some messages could not be converted'
+                    continue
+                pub.publish(data)
+                counts[topic] = counts.get(topic, 0) + 1
+                n += 1
+        finally:
+            if node is not None:
+                node.destroy_node()
+            if own_context:
+                rclpy.try_shutdown()
+    return {'messages': n, 'topics': counts, 'skipped': skipped,
+            'wall_seconds': time.monotonic() - wall0,
+            'bag_seconds': 0.0 if first is None else (last - first) / _NS}
