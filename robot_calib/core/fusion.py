@@ -168,6 +168,15 @@ class FusionParams:
     seed: SeedParams = field(default_factory=SeedParams)
 
 
+def _wrap(a: float) -> float:
+    """Wrap a scalar angle (rad) to (-pi, pi] (fast path of geometry.wrap_angle)."""
+    if -math.pi < a <= math.pi:
+        return a
+    a = math.fmod(a + math.pi, 2.0 * math.pi)
+    a = a + math.pi if a <= 0.0 else a - math.pi
+    return a if a != -math.pi else math.pi
+
+
 def lidar_accuracy(d: float, d_lidar: float) -> tuple[float, bool]:
     """Return the seed's accuracy ``1 - |d - d_l| / d_l`` and whether it is valid (>= 0.95).
 
@@ -246,6 +255,8 @@ class _ImuFrontEnd:
     def set_rotation(self, rot: np.ndarray, source: str) -> None:
         """Use ``rot`` (3x3, IMU -> base) from ``source``."""
         self.rot = np.asarray(rot, dtype=float)
+        self._r0 = [float(v) for v in self.rot[0]]
+        self._r2 = [float(v) for v in self.rot[2]]
         self.rot_source = source
         self.forward_known = source in ('param', 'tf')
 
@@ -254,8 +265,9 @@ class _ImuFrontEnd:
 
         None while the units or the gravity axis are still being determined.
         """
-        acc = np.asarray(s.accel, dtype=float)
+        acc = s.accel
         if self.accel_scale is None:
+            acc = np.asarray(acc, dtype=float)
             self._norms.append(float(np.linalg.norm(acc)))
             if len(self._norms) >= 10:
                 med = float(np.median(self._norms))
@@ -272,16 +284,19 @@ class _ImuFrontEnd:
         if self.rot is None and self.p.imu_extrinsic in ('auto', 'gravity', 'tf'):
             if self.p.imu_extrinsic == 'tf':
                 return None
-            self._acc_sum += acc
+            self._acc_sum += np.asarray(acc, dtype=float)
             if len(self._norms) < 10 and self.accel_scale is None:
                 return None
             up = self._acc_sum / max(np.linalg.norm(self._acc_sum), 1e-12)
             self.set_rotation(_rotation_to_up(up), 'gravity')
         if self.rot is None or self.accel_scale is None:
             return None
-        gz = float(self.rot[2] @ s.gyro)
+        r2, r0 = self._r2, self._r0
+        g = s.gyro
+        gz = r2[0] * g[0] + r2[1] * g[1] + r2[2] * g[2]
         use_acc = self.forward_known and self.units_source != 'unknown'
-        ax = float(self.rot[0] @ acc) * self.accel_scale if use_acc else 0.0
+        ax = (r0[0] * acc[0] + r0[1] * acc[1] + r0[2] * acc[2]) * self.accel_scale \
+            if use_acc else 0.0
         return gz, ax, use_acc
 
 
@@ -343,13 +358,14 @@ class _Base:
     # -- input adapters --------------------------------------------------------------------
     def imu(self, s: T.ImuSample) -> Optional[str]:
         """Feed one IMU sample; return a rejection reason or None when used."""
-        g = np.asarray(s.gyro, dtype=float)
-        a = np.asarray(s.accel, dtype=float)
-        if not (np.all(np.isfinite(g)) and np.all(np.isfinite(a)) and math.isfinite(s.t)):
+        gx, gy, gz = (float(v) for v in s.gyro)
+        ax, ay, az = (float(v) for v in s.accel)
+        if not math.isfinite(gx + gy + gz + ax + ay + az + s.t):
             return 'non_finite'
-        if float(np.max(np.abs(g))) > self.p.max_gyro:
+        if max(abs(gx), abs(gy), abs(gz)) > self.p.max_gyro:
             return 'gyro_out_of_range'
-        if float(np.linalg.norm(a)) * (self.front.accel_scale or 1.0) > self.p.max_accel:
+        if math.sqrt(ax * ax + ay * ay + az * az) * (self.front.accel_scale or 1.0) > \
+                self.p.max_accel:
             return 'accel_out_of_range'
         if self.last_imu_t is not None and s.t <= self.last_imu_t:
             return 'out_of_order'
@@ -449,6 +465,7 @@ class _Base:
 IX, IY, IYAW, IV, IBG, IBA, IKW, IKV = range(8)
 
 
+_EYE8 = np.eye(8)
 _CONSIDER_W = np.array([True, True, True, True, True, True, False, False])
 """States the wheel yaw rate does not correct by default (only its scale and offset)."""
 
@@ -485,6 +502,7 @@ class ImprovedFusion(_Base):
         self._first_reject_t: Optional[float] = None
         self.last_output: Optional[FusionOutput] = None
         self.imu_stale = True
+        self._cov_acc = [0.0, 0.0, 0.0, 0.0, 0.0]
 
     # -- initialisation --------------------------------------------------------------------
     def _init_pose(self, s: Optional[T.OdomSample]) -> None:
@@ -497,6 +515,7 @@ class ImprovedFusion(_Base):
     def reinitialise(self, t: float, v: float, reason: str) -> None:
         """Reset speed and the bias/scale uncertainties, keep the pose; warn."""
         p = self.p
+        self._flush()
         self.x[IV] = v
         self.x[IKW] = 1.0 if not (0.2 < self.x[IKW] < 5.0) else self.x[IKW]
         P = np.diag(np.maximum(np.diag(self.P), 0.0))
@@ -513,6 +532,7 @@ class ImprovedFusion(_Base):
 
     # -- prediction ------------------------------------------------------------------------
     def _predict(self, t: float) -> None:
+        """Integrate the state to ``t`` (s); the covariance follows in chunks (see _flush)."""
         if self.t is None:
             self.t = t
             return
@@ -521,37 +541,60 @@ class ImprovedFusion(_Base):
             return
         p = self.p
         x = self.x
+        mode = (self.imu_stale, self.use_acc)
+        if mode != self._cov_mode:
+            self._flush()
+            self._cov_mode = mode
         if self.imu_stale:
             w_in, a_in = self._w_fallback, 0.0
-            q_yaw = (p.odom_yaw_rate_noise ** 2) * dt
-            bg_dt = 0.0
         else:
             w_in = self.gz - x[IBG]
             a_in = self.ax - x[IBA] if self.use_acc else 0.0
-            q_yaw = (p.gyro_noise ** 2) * dt
-            bg_dt = -dt
         yaw, v = x[IYAW], x[IV]
         c, s = math.cos(yaw), math.sin(yaw)
         # constant-rate planar kinematics, first order (IMU as input)
-        x[IX] += v * c * dt
-        x[IY] += v * s * dt
-        x[IYAW] = wrap_angle(yaw + w_in * dt)
-        x[IV] = v + a_in * dt
-        if abs(x[IV]) > p.max_speed:
-            x[IV] = math.copysign(p.max_speed, x[IV])
+        dx, dy = v * c * dt, v * s * dt
+        x[IX] += dx
+        x[IY] += dy
+        x[IYAW] = _wrap(yaw + w_in * dt)
+        v += a_in * dt
+        x[IV] = v if abs(v) <= p.max_speed else math.copysign(p.max_speed, v)
+        acc = self._cov_acc
+        acc[0] += dt
+        acc[1] += dx
+        acc[2] += dy
+        acc[3] += c * dt
+        acc[4] += s * dt
+        self.t = t
+        if acc[0] >= 0.05:
+            self._flush()
+
+    def _flush(self) -> None:
+        """Propagate P over the pending chunk of prediction (<= 0.05 s): P = F P F' + Q."""
+        dt, dx, dy, sc, ss = self._cov_acc
+        if dt <= 0.0:
+            return
+        self._cov_acc = [0.0, 0.0, 0.0, 0.0, 0.0]
+        p = self.p
+        stale, use_acc = self._cov_mode
         F = np.eye(8)
-        F[IX, IYAW] = -v * s * dt
-        F[IX, IV] = c * dt
-        F[IY, IYAW] = v * c * dt
-        F[IY, IV] = s * dt
-        F[IYAW, IBG] = bg_dt
-        if self.use_acc and not self.imu_stale:
+        F[IX, IYAW] = -dy  # d(displacement)/d(yaw): the displacement rotated by 90 deg
+        F[IY, IYAW] = dx
+        F[IX, IV] = sc
+        F[IY, IV] = ss
+        if not stale:
+            F[IYAW, IBG] = -dt
+            q_yaw = (p.gyro_noise ** 2) * dt
+        else:
+            q_yaw = (p.odom_yaw_rate_noise ** 2) * dt
+        if use_acc and not stale:
             F[IV, IBA] = -dt
             q_v = (p.accel_noise ** 2) * dt
         else:
             q_v = (0.5 ** 2) * dt  # no accelerometer: speed as a random walk, 0.5 m/s^2
         P = F @ self.P @ F.T
-        lat = (p.lateral_slip * abs(v)) ** 2 * dt
+        c, s = math.cos(self.x[IYAW]), math.sin(self.x[IYAW])
+        lat = (p.lateral_slip * abs(self.x[IV])) ** 2 * dt
         P[IX, IX] += lat * s * s + 1e-8 * dt
         P[IY, IY] += lat * c * c + 1e-8 * dt
         P[IX, IY] -= lat * s * c
@@ -563,7 +606,8 @@ class ImprovedFusion(_Base):
         P[IKW, IKW] += (p.yaw_rate_scale_walk ** 2) * dt
         P[IKV, IKV] += (p.yaw_rate_offset_walk ** 2) * dt
         self.P = P
-        self.t = t
+
+    _cov_mode = (True, False)
 
     _w_fallback = 0.0
 
@@ -594,8 +638,9 @@ class ImprovedFusion(_Base):
             k[consider] = 0.0
         self.x += k * resid
         # Joseph form keeps P symmetric positive definite
-        A = np.eye(8) - np.outer(k, h)
-        self.P = A @ self.P @ A.T + r * np.outer(k, k)
+        A = _EYE8 - np.outer(k, h)
+        P = A @ self.P @ A.T + r * np.outer(k, k)
+        self.P = 0.5 * (P + P.T)
         return s, resid * resid / s
 
     def _odom(self, t: float, v: float, w: float) -> Optional[str]:
@@ -616,6 +661,7 @@ class ImprovedFusion(_Base):
         self._w_fallback = w / kw
         prev_pos = (self.x[IX], self.x[IY])
         self._predict(t)
+        self._flush()
         if gap:
             self.count('odom_gaps')
             self.reinitialise(t, v, f'odometry silent for {t - self.last_odom_t:.2f} s')
@@ -746,13 +792,11 @@ class ImprovedFusion(_Base):
     def _guard(self, t: float, v: float) -> None:
         """Re-initialise when the state or covariance is no longer finite or sane."""
         P = self.P
-        bad = not (np.all(np.isfinite(self.x)) and np.all(np.isfinite(P)))
+        bad = not math.isfinite(float(self.x.sum()) + float(P.sum()))
         if not bad:
-            P = 0.5 * (P + P.T)
-            d = np.diag(P)
-            bad = bool(np.any(d < 0)) or d[IBG] > 1.0 or abs(self.x[IBG]) > 1.0 or \
+            d = P.diagonal()
+            bad = float(d.min()) < 0 or d[IBG] > 1.0 or abs(self.x[IBG]) > 1.0 or \
                 not (0.05 < self.x[IKW] < 20.0)
-            self.P = P
         if bad:
             if not np.all(np.isfinite(self.x[:3])):
                 self.x[:3] = 0.0
@@ -770,6 +814,7 @@ class ImprovedFusion(_Base):
         """Return the current estimate with covariances, or None before initialisation."""
         if self.t is None or not self.initialised:
             return None
+        self._flush()
         x, P = self.x, self.P
         w = (self.gz - x[IBG]) if not self.imu_stale else self._w_fallback
         pose_cov = P[:3, :3].copy()
