@@ -831,3 +831,412 @@ def solve(params: WheelCalibParams, segments: list[Segment],
 
 
 MatchFn = Callable[[Any, Any, np.ndarray], Optional[tuple[np.ndarray, dict]]]
+
+
+def _scan_end(scan: Any) -> float:
+    """Return the time (s) of a scan's last beam."""
+    inc = scan.time_increment if scan.time_increment > 0 else 0.0
+    return scan.t + inc * max(len(scan.ranges) - 1, 0)
+
+
+# ------------------------------------------------------------------------------------------
+# streaming front end: wheel data + scans -> segments (and seed stages) -> result
+# ------------------------------------------------------------------------------------------
+def default_matcher(source: np.ndarray, target: Any, guess: np.ndarray) -> Optional[tuple]:
+    """Register ``source`` points to a prepared ``target`` (robot_calib.core.scan_match).
+
+    Returns ``(pose, info)`` (pose of the source frame in the target frame, m,
+    m, rad) or None when the match failed or is degenerate.
+    """
+    from robot_calib.core import scan_match
+    res = scan_match.register(source, target, guess)
+    if not res.ok:
+        return None
+    return np.asarray(res.pose, dtype=float), {'rmse': float(res.rmse),
+                                               'min_eigenvalue': float(res.min_eigenvalue)}
+
+
+def prepare_target(points: np.ndarray) -> Any:
+    """Prepare key-frame points as a registration target (scan_match.PreparedScan)."""
+    from robot_calib.core import scan_match
+    return scan_match.PreparedScan(points)
+
+
+@dataclass
+class _KeyFrame:
+    t: float
+    points: np.ndarray
+    target: Any
+    odom: np.ndarray
+
+
+class WheelCalibrator:
+    """Cut a calibration drive into segments between key-frame scans and calibrate.
+
+    Feed samples with :meth:`update` (streaming: wheel data as ``JointStateSample``
+    or ``OdomSample``, scans as ``ScanSample``) or a whole recording with
+    :meth:`run`; :meth:`solve` returns the :class:`CalibResult` of the
+    configured mode. Wheel data: joint positions (rad) of the named joints; a
+    traction or wheel position that jumps by about 2 pi is unwrapped (using
+    the joint velocity when present), a steering reading is wrapped to (-pi,
+    pi]. With ``odom`` only, the nominal geometry inverts the odometry into
+    virtual wheel rotations (so the nominal parameters must be those the
+    odometry source uses). A key frame closes a segment after
+    ``keyframe.distance`` or ``keyframe.angle`` of nominal odometry motion; its
+    scan is registered against the previous key frame's scan, guessed from the
+    nominal odometry. In ``steered_wheel`` drives consecutive straight
+    segments also form the seed's stages, whose first and last scans are
+    matched directly (seed 003).
+    """
+
+    def __init__(self, params: Optional[WheelCalibParams] = None, matcher: Optional[Any] = None,
+                 prepare: Optional[Any] = None, max_range: float = 30.0):
+        """Create an empty calibrator (``matcher``/``prepare`` replace the scan registration)."""
+        self.params = params or WheelCalibParams()
+        p = self.params
+        self.drive = p.drive_type
+        self.nominal = p.nominal()
+        self.sensor_pose = np.array([p.lidar_x, p.lidar_y, p.lidar_yaw], dtype=float)
+        self.matcher = matcher or default_matcher
+        self.prepare = prepare or prepare_target
+        self.max_range = max_range
+        self.x_nom = np.array([self.nominal[k] for k in keys_of(self.drive)], dtype=float)
+        self._t: list[float] = []
+        self._a: list[float] = []
+        self._b: list[float] = []
+        self._pose: list[np.ndarray] = []
+        self._last_raw: Optional[tuple] = None
+        self._odom_prev: Optional[Any] = None
+        self._use_joints = False
+        self._pending: list[Any] = []
+        self._kf: Optional[_KeyFrame] = None
+        self.segments: list[Segment] = []
+        self.seed = SeedSteeredCalibrator(p) if self.drive == 'steered_wheel' else None
+        self._stage: list[Segment] = []
+        self._stage_start: Optional[_KeyFrame] = None
+        self.counts = {'wheel_samples': 0, 'scans': 0, 'match_attempts': 0, 'match_failed': 0,
+                       'wheel_gaps': 0, 'encoder_unwraps': 0, 'stages': 0,
+                       'stage_match_failed': 0, 'scans_without_wheel_data': 0,
+                       'missing_joints': 0}
+
+    # -- wheel input ----------------------------------------------------------------------
+    def set_sensor_pose(self, x: float, y: float, yaw: float) -> None:
+        """Set the nominal sensor pose in base_link (m, m, rad), e.g. from /tf_static."""
+        self.sensor_pose = np.array([x, y, yaw], dtype=float)
+        self.nominal.update(lidar_x=float(x), lidar_y=float(y), lidar_yaw=float(yaw))
+        self.params = dataclasses.replace(self.params, lidar_x=float(x), lidar_y=float(y),
+                                          lidar_yaw=float(yaw))
+        self.x_nom[-3:] = self.sensor_pose
+        if self.seed is not None and not self.seed.records:
+            self.seed.params = self.params
+
+    def _step_pose(self, da: float, b0: float, b1: float) -> np.ndarray:
+        """Return the nominal base motion of one wheel step."""
+        x = self.x_nom
+        if self.drive == 'differential':
+            ds, dth = K.diff_arc(da, b1 - b0, x[0], x[1], x[2])
+        else:
+            ds, dth = K.steered_arc(da, 0.5 * (b0 + b1), x[2], x[3], x[0], x[1])
+        return K.arc_pose(ds, dth)
+
+    def add_wheel(self, t: float, a: float, b: float, va: float = math.nan,
+                  vb: float = math.nan) -> None:
+        """Add one wheel sample: differential (phi_l, phi_r) or steered (traction, reading).
+
+        :param t: time (s)
+        :param a: left wheel / traction joint position (rad)
+        :param b: right wheel position / steering reading (rad)
+        :param va: velocity of ``a`` (rad/s, NaN when unknown), used to unwrap
+        :param vb: velocity of ``b`` (rad/s, NaN when unknown)
+        """
+        if self.drive == 'steered_wheel':
+            b = wrap_angle(b)
+        if self._last_raw is None:
+            self._t.append(t)
+            self._a.append(a)
+            self._b.append(b)
+            self._pose.append(np.zeros(3))
+            self._last_raw = (t, a, b)
+            self.counts['wheel_samples'] += 1
+            return
+        t0, a0, b0 = self._last_raw
+        da = self._unwrap(a - a0, va, t - t0)
+        db = self._unwrap(b - b0, vb, t - t0) if self.drive == 'differential' else 0.0
+        self._last_raw = (t, a, b)
+        na = self._a[-1] + da
+        nb = self._b[-1] + db if self.drive == 'differential' else b
+        step = self._step_pose(da, self._b[-1], nb)
+        self._pose.append(K.compose(self._pose[-1], step))
+        self._t.append(t)
+        self._a.append(na)
+        self._b.append(nb)
+        self.counts['wheel_samples'] += 1
+        self._drain()
+
+    def _unwrap(self, d: float, v: float, dt: float) -> float:
+        two_pi = 2 * math.pi
+        if math.isfinite(v):
+            k = round((d - v * dt) / two_pi)
+        else:
+            k = round(d / two_pi) if abs(d) > math.pi else 0
+        if k:
+            self.counts['encoder_unwraps'] += 1
+        return d - k * two_pi
+
+    def add_joint_state(self, js: Any) -> bool:
+        """Add a ``JointStateSample``; return False when the named joints are absent."""
+        p = self.params
+        names = (p.left_wheel_joint, p.right_wheel_joint) if self.drive == 'differential' \
+            else (p.traction_joint, p.steering_joint)
+        (a, va), (b, vb) = js.get(names[0]), js.get(names[1])
+        if not (math.isfinite(a) and math.isfinite(b)):
+            self.counts['missing_joints'] += 1
+            return False
+        if not self._use_joints:
+            self._use_joints = True
+            self._reset_wheels()
+        self.add_wheel(js.t, a, b, va, vb)
+        return True
+
+    def _reset_wheels(self) -> None:
+        self._t, self._a, self._b, self._pose = [], [], [], []
+        self._last_raw = None
+        self._kf = None
+        self._stage, self._stage_start = [], None
+
+    def add_odom(self, od: Any) -> bool:
+        """Add an ``OdomSample`` as virtual wheel rotations; False when joints are used instead."""
+        if self._use_joints:
+            return False
+        prev = self._odom_prev
+        self._odom_prev = od
+        if prev is None:
+            self.add_wheel(od.t, 0.0, 0.0 if self.drive == 'differential' else
+                           (0.0 - self.nominal['steering_offset'])
+                           / self.nominal['steering_scale'])
+            return True
+        rel = K.compose(K.inverse(np.array([prev.x, prev.y, prev.yaw])),
+                        np.array([od.x, od.y, od.yaw]))
+        dth = wrap_angle(rel[2])
+        chord = math.hypot(rel[0], rel[1])
+        arc = 1.0 if abs(dth) < 1e-9 else (dth / 2) / math.sin(dth / 2)
+        ds = math.copysign(chord, rel[0]) * arc
+        n = self.nominal
+        if self.drive == 'differential':
+            dl = (ds - n['track_width'] * dth / 2) / n['left_wheel_radius']
+            dr = (ds + n['track_width'] * dth / 2) / n['right_wheel_radius']
+            self.add_wheel(od.t, self._a[-1] + dl, self._b[-1] + dr)
+        else:
+            lat = n['wheel_base'] * dth
+            dw = math.copysign(math.hypot(ds, lat), ds if ds != 0 else 1.0)
+            if abs(dw) < 1e-12:
+                reading = self._b[-1]
+            else:
+                alpha = math.atan2(lat / dw, ds / dw)
+                reading = (alpha - n['steering_offset']) / n['steering_scale']
+            self.add_wheel(od.t, self._a[-1] + dw / n['wheel_radius'], reading)
+        return True
+
+    # -- scans ----------------------------------------------------------------------------
+    def add_scan(self, scan: Any) -> None:
+        """Add a ``ScanSample`` (processed once wheel data covers its time)."""
+        self.counts['scans'] += 1
+        self._pending.append(scan)
+        if len(self._pending) > 200:
+            self._pending.pop(0)
+            self.counts['scans_without_wheel_data'] += 1
+        self._drain()
+
+    def _drain(self) -> None:
+        while self._pending and self._t and _scan_end(self._pending[0]) <= self._t[-1]:
+            scan = self._pending.pop(0)
+            if scan.t < self._t[0]:
+                self.counts['scans_without_wheel_data'] += 1
+                continue
+            self._on_scan(scan)
+
+    def _odom_at(self, t: float) -> tuple[np.ndarray, int]:
+        """Return the nominal odometry pose interpolated at ``t`` and the sample index after."""
+        i = int(np.searchsorted(self._t, t))
+        if i == 0:
+            return self._pose[0].copy(), 0
+        if i >= len(self._t):
+            return self._pose[-1].copy(), len(self._t) - 1
+        t0, t1 = self._t[i - 1], self._t[i]
+        w = (t - t0) / (t1 - t0) if t1 > t0 else 1.0
+        p0, p1 = self._pose[i - 1], self._pose[i]
+        return p0 + w * (p1 - p0), i
+
+    def _wheel_at(self, t: float) -> tuple[float, float]:
+        i = int(np.clip(np.searchsorted(self._t, t), 1, len(self._t) - 1))
+        t0, t1 = self._t[i - 1], self._t[i]
+        w = (t - t0) / (t1 - t0) if t1 > t0 else 1.0
+        a = self._a[i - 1] + w * (self._a[i] - self._a[i - 1])
+        b = self._b[i - 1] + w * (self._b[i] - self._b[i - 1])
+        return a, b
+
+    def _steps(self, t0: float, t1: float) -> Optional[np.ndarray]:
+        """Return the wheel steps between t0 and t1 (None over a data gap)."""
+        tt = np.asarray(self._t)
+        inner = np.nonzero((tt > t0) & (tt < t1))[0]
+        times = np.concatenate(([t0], tt[inner], [t1]))
+        if np.max(np.diff(times)) > self.params.keyframe.max_wheel_gap:
+            return None
+        a0, b0 = self._wheel_at(t0)
+        a1, b1 = self._wheel_at(t1)
+        aa = np.concatenate(([a0], np.asarray(self._a)[inner], [a1]))
+        bb = np.concatenate(([b0], np.asarray(self._b)[inner], [b1]))
+        if self.drive == 'differential':
+            return np.column_stack((np.diff(aa), np.diff(bb)))
+        return np.column_stack((np.diff(aa), 0.5 * (bb[1:] + bb[:-1])))
+
+    def _deskewed_points(self, scan: Any) -> np.ndarray:
+        """Return the scan's points (m) in its frame at the stamp, motion-compensated.
+
+        A rotating lidar measures beam i at ``t + i * time_increment``; the
+        nominal wheel odometry moves each point into the sensor frame at the
+        stamp (without this, turns bias the scan-matched rotation).
+        """
+        r = np.asarray(scan.ranges, dtype=float)
+        ok = np.isfinite(r) & (r >= scan.range_min) & (r <= min(scan.range_max, self.max_range))
+        idx = np.nonzero(ok)[0]
+        ang = scan.angle_min + scan.angle_increment * idx
+        pts = np.column_stack((r[idx] * np.cos(ang), r[idx] * np.sin(ang)))
+        if not scan.time_increment > 0 or len(self._t) < 2 or not len(idx):
+            return pts
+        tt = np.asarray(self._t)
+        poses = np.asarray(self._pose)
+        ti = scan.t + scan.time_increment * idx
+        at = np.column_stack([np.interp(ti, tt, poses[:, j]) for j in range(3)])
+        a0 = np.array([np.interp(scan.t, tt, poses[:, j]) for j in range(3)])
+        rel = K.compose(np.broadcast_to(K.inverse(a0), at.shape), at)
+        srel = K.sensor_motion(rel, self.sensor_pose)
+        c, s = np.cos(srel[:, 2]), np.sin(srel[:, 2])
+        return np.column_stack((srel[:, 0] + c * pts[:, 0] - s * pts[:, 1],
+                                srel[:, 1] + s * pts[:, 0] + c * pts[:, 1]))
+
+    def _on_scan(self, scan: Any) -> None:
+        pts = self._deskewed_points(scan)
+        odom, _ = self._odom_at(scan.t)
+        if self._kf is None:
+            self._kf = _KeyFrame(scan.t, pts, None, odom)
+            return
+        kp = self.params.keyframe
+        kf = self._kf
+        rel = K.compose(K.inverse(kf.odom), odom)
+        dist, ang = math.hypot(rel[0], rel[1]), abs(rel[2])
+        moving = dist > 1e-3 or ang > 1e-3
+        if not (dist >= kp.distance or ang >= kp.angle or
+                (scan.t - kf.t >= kp.max_time and moving)):
+            if scan.t - kf.t >= kp.max_time:
+                self._kf = _KeyFrame(scan.t, pts, None, odom)
+            return
+        steps = self._steps(kf.t, scan.t)
+        new_kf = _KeyFrame(scan.t, pts, None, odom)
+        if steps is None:
+            self.counts['wheel_gaps'] += 1
+            self._close_stage()
+            self._kf = new_kf
+            return
+        guess = K.sensor_motion(rel, self.sensor_pose)
+        if kf.target is None:
+            kf.target = self.prepare(kf.points)
+        self.counts['match_attempts'] += 1
+        m = self.matcher(pts, kf.target, guess)
+        self._kf = new_kf
+        if m is None:
+            self.counts['match_failed'] += 1
+            self._close_stage()
+            return
+        seg = Segment(kf.t, scan.t, steps, np.asarray(m[0], dtype=float), dict(m[1]))
+        self.segments.append(seg)
+        if self.seed is not None:
+            self._stage_add(seg, kf, new_kf)
+
+    # -- seed stages ----------------------------------------------------------------------
+    def _is_straight(self, seg: Segment) -> bool:
+        n = self.nominal
+        ang = n['steering_scale'] * seg.steps[:, 1] + n['steering_offset']
+        moving = abs(np.sum(seg.steps[:, 0])) * n['wheel_radius'] > 1e-3
+        return moving and bool(np.max(np.abs(ang)) < self.params.seed.straight_steering)
+
+    def _stage_add(self, seg: Segment, start: _KeyFrame, end: _KeyFrame) -> None:
+        if not self._is_straight(seg):
+            self._close_stage()
+            return
+        if not self._stage:
+            self._stage_start = start
+        self._stage.append(seg)
+        self._stage_end = end
+        length = self.nominal['wheel_radius'] * abs(sum(float(np.sum(s.steps[:, 0]))
+                                                        for s in self._stage))
+        if length >= self.params.seed.max_stage_length:
+            self._close_stage()
+
+    def _close_stage(self) -> None:
+        stage, start = self._stage, self._stage_start
+        self._stage, self._stage_start = [], None
+        if not stage or start is None:
+            return
+        length = self.nominal['wheel_radius'] * abs(sum(float(np.sum(s.steps[:, 0]))
+                                                        for s in stage))
+        if length < self.params.seed.min_stage_length:
+            return
+        guess = np.zeros(3)
+        for s in stage:
+            guess = K.compose(guess, s.sensor_motion)
+        if start.target is None:
+            start.target = self.prepare(start.points)
+        m = self.matcher(self._stage_end.points, start.target, guess)
+        if m is None:
+            self.counts['stage_match_failed'] += 1
+            return
+        steps = np.concatenate([s.steps for s in stage])
+        self.counts['stages'] += 1
+        self.seed.update(Segment(stage[0].t0, stage[-1].t1, steps,
+                                 np.asarray(m[0], dtype=float)))
+
+    # -- API ------------------------------------------------------------------------------
+    def update(self, sample: Any) -> None:
+        """Add one core sample (JointStateSample, OdomSample or ScanSample)."""
+        name = type(sample).__name__
+        if name == 'JointStateSample':
+            self.add_joint_state(sample)
+        elif name == 'OdomSample':
+            self.add_odom(sample)
+        elif name == 'ScanSample':
+            self.add_scan(sample)
+
+    def problems(self) -> list[str]:
+        """Return what the input lacked so far (no wheel data, failed matches...)."""
+        c = self.counts
+        out = []
+        if c['wheel_samples'] < 2:
+            out.append('no wheel data (need odom or joint_states with the named joints)')
+        if c['scans'] == 0:
+            out.append('no scans')
+        if c['match_attempts'] and c['match_failed'] > 0.25 * c['match_attempts']:
+            out.append(f'scans failed to match in {c["match_failed"]} of '
+                       f'{c["match_attempts"]} segments (featureless surroundings or fast '
+                       'motion)')
+        return out
+
+    def solve(self, final: bool = False) -> CalibResult:
+        """Return the result of the configured mode from the data so far."""
+        if final:
+            self._close_stage()
+        extra = self.problems()
+        if self.params.mode == 'seed' and self.seed is not None:
+            res = self.seed.result(extra)
+        else:
+            res = calibrate(self.drive, self.segments, self.params, extra)
+        res.details['counts'] = dict(self.counts)
+        if self.seed is not None:
+            res.details['seed_stages_needed'] = self.seed.stages_needed
+        return res
+
+    def run(self, samples: Iterable[Any]) -> CalibResult:
+        """Process a whole recording (time-ordered core samples) and return the result."""
+        for s in samples:
+            self.update(s)
+        return self.solve(final=True)
