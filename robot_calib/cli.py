@@ -1,6 +1,7 @@
 # Copyright 2026 robot_calib contributors
 # SPDX-License-Identifier: Apache-2.0
-"""The ``robot-calib`` command line: ``simulate``, ``replay`` and ``mismatch``.
+"""
+The ``robot-calib`` command line: ``simulate``, ``replay`` and ``mismatch``.
 
 Bad input of any kind (a missing, truncated or corrupt bag, an unknown node,
 topic or type, an unwritable output folder, a bad ``--set``/``--remap``/

@@ -1,6 +1,7 @@
 # Copyright 2026 robot_calib contributors
 # SPDX-License-Identifier: Apache-2.0
-"""``robot-calib replay --live``: publish bags through rclpy at the recorded rate, with /clock.
+"""
+``robot-calib replay --live``: publish bags through rclpy at the recorded rate, with /clock.
 
 Like ``ros2 bag play``: every topic whose message type is installed is
 published on its own name (after ``--remap FROM:=TO`` on bag topics) as the
@@ -40,7 +41,8 @@ def play(bags: Union[str, os.PathLike, Sequence[Union[str, os.PathLike]]], rate:
          topics: Optional[Iterable[str]] = None, clock: bool = True, delay: float = 0.5,
          clock_period: float = 0.01, wait_for_subscribers: float = 0.0,
          node_name: str = 'robot_calib_player') -> dict[str, Any]:
-    """Publish the messages of ``bags`` on their topics at ``rate`` times the recorded speed.
+    """
+    Publish the messages of ``bags`` on their topics at ``rate`` times the recorded speed.
 
     :param bags: bag paths (ROS 2 folders or ROS 1 ``.bag`` files).
     :param rate: playback speed factor (> 0; 2.0 plays twice as fast).

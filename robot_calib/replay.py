@@ -1,6 +1,7 @@
 # Copyright 2026 robot_calib contributors
 # SPDX-License-Identifier: Apache-2.0
-"""Offline replay: run the nodes' pipelines over recorded bags as fast as possible, no rclpy.
+"""
+Offline replay: run the nodes' pipelines over recorded bags as fast as possible, no rclpy.
 
 Each selected pipeline gets the messages of its input topics (``'/' + topic``
 after ``--remap``) in bag time order, through exactly the conversion code the
@@ -117,7 +118,8 @@ def parse_overrides(overrides: Union[None, Mapping[str, Any], Iterable[str]]
 
 
 def load_params_file(path: Union[str, os.PathLike, None]) -> dict[str, dict[str, Any]]:
-    """Read a ROS 2 parameter YAML (node -> ros__parameters -> nested or dotted keys).
+    """
+    Read a ROS 2 parameter YAML (node -> ros__parameters -> nested or dotted keys).
 
     Returns ``{node name: {dotted name: value}}``; ``/**`` (all nodes) is kept as
     the key ``'/**'``. Raises ReplayError when the file is missing or malformed.
@@ -328,7 +330,8 @@ def replay(bags: Union[str, os.PathLike, Sequence[Union[str, os.PathLike]]],
            overrides: Union[None, Mapping[str, Any], Iterable[str]] = None,
            progress: Optional[bool] = None,
            storage: str = 'mcap') -> dict:
-    """Replay ``bags`` through pipelines and write ``out_dir``; return the summary dict.
+    """
+    Replay ``bags`` through pipelines and write ``out_dir``; return the summary dict.
 
     :param bags: one or more bags (ROS 2 folders, or ROS 1 ``.bag`` files).
     :param out_dir: output folder (created; replaced when it holds a previous replay).

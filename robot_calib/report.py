@@ -1,6 +1,7 @@
 # Copyright 2026 robot_calib contributors
 # SPDX-License-Identifier: Apache-2.0
-"""The replay report: generic PNG plots and ``report.md`` built from ``summary.json``.
+"""
+The replay report: generic PNG plots and ``report.md`` built from ``summary.json``.
 
 Generic plots: every nav_msgs/Odometry trajectory the nodes published, drawn
 against the input odometry and ``/ground_truth/odom`` when the bag has it (x-y
@@ -28,7 +29,8 @@ def _thin(a: np.ndarray) -> np.ndarray:
 
 def generic_plots(plot_dir: Path, inputs: dict[str, np.ndarray], outputs: dict[str, np.ndarray],
                   t0: float) -> list[str]:
-    """Draw trajectory and heading plots; return their paths relative to the report.
+    """
+    Draw trajectory and heading plots; return their paths relative to the report.
 
     :param plot_dir: folder for the PNG files (created).
     :param inputs: input odometry by topic: arrays of rows (t s, x m, y m, yaw rad).

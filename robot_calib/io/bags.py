@@ -1,6 +1,7 @@
 # Copyright 2026 robot_calib contributors
 # SPDX-License-Identifier: Apache-2.0
-"""Read ROS 1 and ROS 2 bags into core samples, and write ROS 2 bags (mcap or sqlite3).
+"""
+Read ROS 1 and ROS 2 bags into core samples, and write ROS 2 bags (mcap or sqlite3).
 
 Reading merges any number of bags in time order (bag receive time) and turns
 every supported message into core samples with :mod:`robot_calib.io.convert`.
@@ -194,7 +195,8 @@ def _fast_ros1(fn: Callable[[bytes], Any]) -> Callable[[bytes, int], list]:
 # reading
 # ---------------------------------------------------------------------------------------
 class Stream:
-    """One topic of one bag: its normalized name, ROS 2 type, count and decoders.
+    """
+    One topic of one bag: its normalized name, ROS 2 type, count and decoders.
 
     ``decode(raw, time_ns)`` returns core samples (fast path when available);
     ``decode_generic`` always goes through rosbags; ``to_msg(raw)`` returns the
@@ -239,7 +241,8 @@ def _is_latched(conn: Any) -> bool:
 
 
 class BagSet:
-    """Several ROS 1 / ROS 2 bags opened for reading, merged in receive-time order.
+    """
+    Several ROS 1 / ROS 2 bags opened for reading, merged in receive-time order.
 
     Use as a context manager. :attr:`streams` lists every connection;
     :meth:`topics` summarizes them; :meth:`messages` yields
@@ -336,7 +339,8 @@ class BagSet:
 
     def messages(self, streams: Optional[Iterable[Stream]] = None
                  ) -> Iterator[tuple[Stream, int, bytes]]:
-        """Yield ``(stream, time_ns, raw)`` of ``streams`` (all when None) in time order.
+        """
+        Yield ``(stream, time_ns, raw)`` of ``streams`` (all when None) in time order.
 
         Raises BagError when a bag turns out truncated or corrupt while reading.
         """
@@ -369,7 +373,8 @@ def list_topics(paths: Iterable[os.PathLike | str]) -> dict[str, tuple[str, int]
 def read_messages(paths: Iterable[os.PathLike | str],
                   topics: Optional[Iterable[str]] = None,
                   errors: Optional[dict[str, int]] = None) -> Iterator[BagMessage]:
-    """Yield the supported messages of ``topics`` (all when None) in receive-time order.
+    """
+    Yield the supported messages of ``topics`` (all when None) in receive-time order.
 
     Messages that fail to deserialize are counted in ``errors`` (by topic) and
     skipped; messages of unsupported types are not read.
@@ -394,7 +399,8 @@ def read_messages(paths: Iterable[os.PathLike | str],
 # writing
 # ---------------------------------------------------------------------------------------
 class BagWriter:
-    """Write core samples into a ROS 2 bag (mcap by default, or sqlite3), atomically.
+    """
+    Write core samples into a ROS 2 bag (mcap by default, or sqlite3), atomically.
 
     Use as a context manager; the bag appears at ``path`` only after a clean
     close. ``write(topic, sample, time_ns)`` takes a core sample, or a list of

@@ -1,6 +1,7 @@
 # Copyright 2026 robot_calib contributors
 # SPDX-License-Identifier: Apache-2.0
-"""Convert a ROS 1 (or ROS 2) bag into a ROS 2 bag, renaming topics and adding /tf_static.
+"""
+Convert a ROS 1 (or ROS 2) bag into a ROS 2 bag, renaming topics and adding /tf_static.
 
 Messages are copied field for field into the ROS 2 Jazzy types (ROS 1 headers
 lose their ``seq``; nothing else changes), so covariances and frames stay
@@ -29,7 +30,8 @@ _NS = 1_000_000_000
 
 def static_transform(x: float, y: float, z: float, yaw: float, pitch: float, roll: float,
                      parent: str, child: str, stamp_ns: int = 0) -> T.StaticTransform:
-    """Return the transform ``static_transform_publisher x y z yaw pitch roll parent child`` gives.
+    """
+    Return the transform ``static_transform_publisher x y z yaw pitch roll parent child`` gives.
 
     :param x: translation x (m); likewise ``y``, ``z``.
     :param yaw: rotation about z (rad), applied first of the intrinsic z-y'-x'' sequence;
@@ -47,7 +49,8 @@ def convert_bag(src: Union[str, os.PathLike], dst: Union[str, os.PathLike],
                 static: Sequence[T.StaticTransform] = (), storage: str = 'mcap',
                 compress: bool = True, start: float = 0.0,
                 duration: Optional[float] = None) -> dict[str, int]:
-    """Copy ``src`` into a new ROS 2 bag ``dst``; return the message count per topic.
+    """
+    Copy ``src`` into a new ROS 2 bag ``dst``; return the message count per topic.
 
     :param src: input bag (ROS 1 ``.bag`` file or ROS 2 folder).
     :param dst: output ROS 2 bag folder (must not exist).

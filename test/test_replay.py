@@ -1,0 +1,361 @@
+# Copyright 2026 robot_calib contributors
+# SPDX-License-Identifier: Apache-2.0
+"""Offline replay end to end, with small test pipelines given as ``module:Class``."""
+
+from dataclasses import dataclass, field
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from robot_calib import pipelines
+from robot_calib.core import types as T
+from robot_calib.core.params import param, ParamError
+from robot_calib.io import bags
+from robot_calib.pipelines.base import InputSpec, OutputSpec, Pipeline
+from robot_calib.replay import parse_overrides, parse_remaps, replay, ReplayError
+
+ECHO = f'{__name__}:EchoPipeline'
+
+
+@dataclass
+class OffsetParams:
+    """Nested parameters (dotted names ``offset.x``)."""
+
+    x: float = param(0.0, 'm', 'offset added to x')
+
+
+@dataclass
+class EchoParams:
+    """Parameters of the echo test pipeline."""
+
+    gain: float = param(1.0, '', 'factor on x', minimum=0.0)
+    offset: OffsetParams = field(default_factory=OffsetParams)
+    mode: str = param('improved', '', 'variant', choices=('improved', 'seed'))
+
+
+class EchoPipeline(Pipeline):
+    """Publish every odometry input with x scaled; note the order static transforms arrived."""
+
+    name = 'echo'
+    params_type = EchoParams
+    inputs = (InputSpec('imu', 'imu', 'imu'), InputSpec('odom', 'odom', 'odom', optional=True),
+              InputSpec('tf', 'tf_static', 'tf_static', optional=True))
+    outputs = (OutputSpec('odom', 'echo/odom', 'odom'),
+               OutputSpec('alert', 'echo/alert', 'bool', qos='latched'))
+
+    def __init__(self, params=None, log=None):
+        """Create with counters."""
+        super().__init__(params, log)
+        self.static_at_first = None
+        self.imu_seen = 0
+        self.last_imu_t = None
+
+    def handle(self, key, sample):
+        """Echo odometry; raise the alert on the first IMU sample."""
+        if self.static_at_first is None:
+            self.static_at_first = len(self.static_transforms)
+        if key == 'imu':
+            self.imu_seen += 1
+            self.last_imu_t = sample.t
+            if self.imu_seen == 1:
+                return [('alert', T.BoolSample(sample.t, True, sample.stamp_ns))]
+            return []
+        p = self.params
+        return [('odom', T.OdomSample(sample.t, sample.x * p.gain + p.offset.x, sample.y,
+                                      sample.yaw, sample.vx, 0.0, sample.wz,
+                                      stamp_ns=sample.stamp_ns))]
+
+    def finish(self):
+        """Nothing to flush."""
+        return []
+
+    def method_summary(self):
+        """Report what the pipeline saw."""
+        return {'static_at_first': self.static_at_first, 'imu_seen': self.imu_seen,
+                'gain': self.params.gain}
+
+    def artifacts(self):
+        """Write a small YAML result."""
+        return {'echo_result.yaml': f'gain: {self.params.gain}\nimu_seen: {self.imu_seen}\n'}
+
+    def plot(self, out_dir):
+        """Draw one PNG."""
+        import matplotlib
+        matplotlib.use('Agg')
+        import matplotlib.pyplot as plt
+        fig, ax = plt.subplots()
+        ax.plot([0, 1], [0, 1])
+        fig.savefig(Path(out_dir) / 'echo.png')
+        plt.close(fig)
+        return ['echo.png']
+
+
+class BrokenPipeline(Pipeline):
+    """Raise on every other IMU sample, and in its summary hooks."""
+
+    name = 'broken'
+    params_type = EchoParams
+    inputs = (InputSpec('imu', 'imu', 'imu'),)
+    outputs = (OutputSpec('odom', 'broken/odom', 'odom'),)
+
+    def __init__(self, params=None, log=None):
+        """Create."""
+        super().__init__(params, log)
+        self.n = 0
+
+    def handle(self, key, sample):
+        """Fail half the time; otherwise publish an undeclared output."""
+        self.n += 1
+        if self.n % 2:
+            raise RuntimeError('boom')
+        return [('nope', T.BoolSample(sample.t, True))]
+
+    def plot(self, out_dir):
+        """Fail."""
+        raise ValueError('no plot')
+
+
+class ScanOnlyPipeline(Pipeline):
+    """Needs a scan (absent from the test bags)."""
+
+    name = 'scan_only'
+    params_type = EchoParams
+    inputs = (InputSpec('scan', 'scan', 'scan'),)
+    outputs = ()
+
+    def handle(self, key, sample):
+        """Nothing."""
+        return []
+
+
+def _imu(ns, gz=0.1):
+    return T.ImuSample(ns * 1e-9, np.array([0.0, 0.0, gz]), np.array([0.0, 0.0, 9.81]),
+                       stamp_ns=ns)
+
+
+def write_test_bag(path, storage='mcap', imu_topic='/imu', odom_topic='/odom',
+                   ground_truth=True):
+    """
+    Write a 4 s bag with known defects; return the counts to expect.
+
+    IMU 100 Hz with one NaN sample, one duplicate stamp, one out-of-order stamp and a
+    2 s gap; odometry 20 Hz; ground truth odometry; /tf_static written last in time
+    (must still reach the pipeline first).
+    """
+    base = 1_000_000_000_000
+    step = 10_000_000
+    imu_times = [base + i * step for i in range(100)]
+    imu_times += [base + 99 * step + 2_000_000_000 + i * step for i in range(1, 101)]
+    with bags.BagWriter(path, storage=storage) as w:
+        for i, ns in enumerate(imu_times):
+            w.write(imu_topic, _imu(ns), ns)
+            if i == 10:
+                w.write(imu_topic, _imu(ns, gz=float('nan')), ns + 1)  # NaN, new stamp
+            if i == 20:
+                w.write(imu_topic, _imu(ns), ns + 2)  # duplicate stamp
+            if i == 30:
+                w.write(imu_topic, _imu(ns - 5 * step), ns + 3)  # out of order
+        for i in range(60):
+            ns = base + i * 50_000_000
+            w.write(odom_topic, T.OdomSample(ns * 1e-9, 0.1 * i, 0.0, 0.01 * i, 0.1,
+                                             stamp_ns=ns), ns)
+            if ground_truth:
+                w.write('/ground_truth/odom', T.OdomSample(ns * 1e-9, 0.1 * i, 0.001 * i,
+                                                           0.0, stamp_ns=ns), ns)
+        w.write('/tf_static', [T.StaticTransform('base_link', 'imu_link', np.zeros(3),
+                                                 np.array([1.0, 0, 0, 0]))], imu_times[-1] + 1)
+    return {'imu_read': 203, 'nan': 1, 'dup': 1, 'ooo': 1, 'gaps': 1, 'odom': 60}
+
+
+@pytest.fixture
+def bag(tmp_path):
+    path = tmp_path / 'in'
+    write_test_bag(path)
+    return path
+
+
+@pytest.mark.parametrize('storage', ['mcap', 'sqlite3'])
+def test_replay_end_to_end(tmp_path, storage):
+    path = tmp_path / 'in'
+    expect = write_test_bag(path, storage=storage)
+    out = tmp_path / 'out'
+    summary = replay([path], out, nodes=[ECHO], overrides=['echo.gain=2', 'echo.offset.x=0.5'],
+                     progress=False)
+    assert sorted(p.name for p in out.iterdir()) == [
+        'echo_result.yaml', 'output.mcap', 'plots', 'report.md', 'summary.json']
+    on_disk = json.loads((out / 'summary.json').read_text())
+    assert on_disk == summary
+    node = summary['nodes']['echo']
+    imu = node['inputs']['imu']
+    assert imu['read'] == expect['imu_read']
+    assert imu['rejected_non_finite'] == expect['nan']
+    assert imu['rejected_duplicate_stamp'] == expect['dup']
+    assert imu['rejected_out_of_order'] == expect['ooo']
+    assert imu['gaps'] == expect['gaps']
+    assert imu['accepted'] == expect['imu_read'] - 3
+    assert node['inputs']['odom']['accepted'] == expect['odom']
+    assert node['static_at_first'] == 1  # /tf_static came before every other message
+    assert node['params']['gain'] == 2.0 and node['params']['offset.x'] == 0.5
+    assert node['timing']['input_messages'] == expect['imu_read'] + expect['odom']
+    assert node['timing']['per_message_ms_p99'] >= node['timing']['per_message_ms_p50'] > 0
+    assert summary['topics']['/imu']['read'] == expect['imu_read']
+    assert summary['topics']['/ground_truth/odom']['read'] == 60
+    assert summary['static_transforms'] == 1
+    assert summary['duration'] == pytest.approx(3.99, abs=1e-6)  # 0.99 s + 2 s gap + 1 s
+    assert summary['output']['topics'] == {'/echo/odom': 60, '/echo/alert': 1}
+    assert (out / 'echo_result.yaml').read_text().startswith('gain: 2.0')
+    # Output bag: same types as live, each output stamped with its input's stamp.
+    topics = bags.list_topics([out / 'output.mcap'])
+    assert topics == {'/echo/odom': ('nav_msgs/msg/Odometry', 60),
+                      '/echo/alert': ('std_msgs/msg/Bool', 1)}
+    odom = list(bags.read_messages([out / 'output.mcap'], ['/echo/odom']))
+    for i, m in enumerate(odom):
+        s = m.samples[0]
+        assert m.time_ns == s.stamp_ns == 1_000_000_000_000 + i * 50_000_000
+        assert s.x == pytest.approx(0.1 * i * 2 + 0.5)
+    report = (out / 'report.md').read_text()
+    for plot in summary['plots']:
+        assert (out / plot).is_file() and f']({plot})' in report
+    assert 'plots/trajectories.png' in summary['plots']
+    assert 'plots/echo/echo.png' in summary['plots']
+    assert not [p for p in tmp_path.iterdir() if p.name.startswith('.')]
+
+
+def test_default_nodes_and_skips(bag, tmp_path, monkeypatch):
+    monkeypatch.setattr(pipelines, 'REGISTRY', {
+        'echo': ECHO, 'scan_only': f'{__name__}:ScanOnlyPipeline',
+        'absent': 'robot_calib.pipelines.does_not_exist:Nothing'})
+    summary = replay(bag, tmp_path / 'out', progress=False)
+    assert list(summary['nodes']) == ['echo']
+    assert '/scan' in summary['skipped']['scan_only']
+    assert 'not installed' in summary['skipped']['absent']
+    # Replaying again into the same folder replaces the previous output.
+    summary2 = replay(bag, tmp_path / 'out', progress=False)
+    assert summary2['nodes']['echo']['inputs'] == summary['nodes']['echo']['inputs']
+    with pytest.raises(ReplayError, match='no node can run'):
+        replay(bag, tmp_path / 'out2', nodes=None, remaps=['imu:=/nothing'], progress=False)
+    assert not (tmp_path / 'out2').exists()
+
+
+def test_remaps_both_ways(tmp_path):
+    path = tmp_path / 'in'
+    write_test_bag(path, imu_topic='/imu/data', odom_topic='/wheel/odom', ground_truth=False)
+    # Node-side remap: the node's imu reads /imu/data; its output follows the rule too.
+    s = replay(path, tmp_path / 'a', nodes=ECHO,
+               remaps=['imu:=/imu/data', '/odom:=/wheel/odom', 'echo/odom:=/fixed/odom'],
+               progress=False)
+    assert s['nodes']['echo']['input_topics'] == {'imu': '/imu/data', 'odom': '/wheel/odom'}
+    assert s['output']['topics']['/fixed/odom'] == 60
+    # Bag-side remap: the bag's /imu/data is seen as /imu.
+    s = replay(path, tmp_path / 'b', nodes=ECHO, remaps={'/imu/data': '/imu'}, progress=False)
+    assert s['nodes']['echo']['input_topics'] == {'imu': '/imu'}
+    assert 'odom' not in s['nodes']['echo']['inputs']
+    with pytest.raises(ReplayError, match='neither'):
+        replay(path, tmp_path / 'c', nodes=ECHO, remaps=['/nothing:=/imu'], progress=False)
+    with pytest.raises(ReplayError, match='needs /imu'):
+        replay(path, tmp_path / 'c', nodes=ECHO, progress=False)
+    assert not (tmp_path / 'c').exists()
+
+
+def test_params_file_then_set(bag, tmp_path):
+    params = tmp_path / 'p.yaml'
+    params.write_text('echo:\n  ros__parameters:\n    gain: 3.0\n    offset:\n      x: 1.0\n'
+                      'other_node:\n  ros__parameters:\n    anything: 1\n')
+    s = replay(bag, tmp_path / 'o', nodes=ECHO, params_file=params, progress=False)
+    assert s['nodes']['echo']['params'] == {'gain': 3.0, 'offset.x': 1.0, 'mode': 'improved'}
+    s = replay(bag, tmp_path / 'o', nodes=ECHO, params_file=params,
+               overrides={'echo.gain': '0.5', 'echo.mode': 'seed'}, progress=False)
+    assert s['nodes']['echo']['params'] == {'gain': 0.5, 'offset.x': 1.0, 'mode': 'seed'}
+    params.write_text('/**:\n  ros__parameters:\n    offset.x: 2.0\n    unrelated: 3\n')
+    s = replay(bag, tmp_path / 'o', nodes=ECHO, params_file=params, progress=False)
+    assert s['nodes']['echo']['params']['offset.x'] == 2.0
+    params.write_text('echo:\n  ros__parameters:\n    gian: 3.0\n')
+    with pytest.raises(ParamError, match='gian'):
+        replay(bag, tmp_path / 'p', nodes=ECHO, params_file=params, progress=False)
+    with pytest.raises(ParamError, match='minimum'):
+        replay(bag, tmp_path / 'p', nodes=ECHO, overrides=['echo.gain=-1'], progress=False)
+    with pytest.raises(ReplayError, match='not among'):
+        replay(bag, tmp_path / 'p', nodes=ECHO, overrides=['tilt_detection.x=1'],
+               progress=False)
+    params.write_text('echo: [1, 2]\n')
+    with pytest.raises(ReplayError, match='ros__parameters'):
+        replay(bag, tmp_path / 'p', nodes=ECHO, params_file=params, progress=False)
+    params.write_text('echo: {ros__parameters: {gain: [1,\n')
+    with pytest.raises(ReplayError, match='cannot read'):
+        replay(bag, tmp_path / 'p', nodes=ECHO, params_file=params, progress=False)
+    assert not (tmp_path / 'p').exists()
+
+
+def test_pipeline_errors_are_counted_not_fatal(bag, tmp_path):
+    s = replay(bag, tmp_path / 'o', nodes=[ECHO, f'{__name__}:BrokenPipeline'],
+               progress=False)
+    broken = s['nodes']['broken']
+    assert broken['errors']['process'] > 50 and broken['errors']['output'] > 50
+    assert broken['inputs']['imu']['rejected_processing_error'] == broken['errors']['process']
+    assert 'plot' in broken['errors']
+    assert s['nodes']['echo']['inputs']['imu']['read'] == 203
+
+
+def test_undecodable_messages_are_counted(tmp_path):
+    path = tmp_path / 'in'
+    with bags.BagWriter(path) as w:
+        for i in range(20):
+            ns = 10**9 + i * 10**7
+            _, raw = __import__('robot_calib.io.convert', fromlist=['x']).serialize(_imu(ns))
+            if i in (3, 7):
+                raw = raw[:30]  # cut short: cannot be decoded
+            w.write_raw('/imu', 'sensor_msgs/msg/Imu', raw, ns)
+    s = replay(path, tmp_path / 'o', nodes=ECHO, progress=False)
+    assert s['undecodable'] == {'/imu': 2}
+    assert s['nodes']['echo']['inputs']['imu']['read'] == 18
+
+
+def test_parsers():
+    assert parse_remaps(['imu:=/imu/data', '/a/b:=c']) == [('/imu', '/imu/data'),
+                                                           ('/a/b', '/c')]
+    for bad in (['imu'], ['imu:='], [':=x'], ['a b:=c']):
+        with pytest.raises(ReplayError, match='FROM:=TO'):
+            parse_remaps(bad)
+    assert parse_overrides(['n.a.b=1', 'n.c= x ']) == {'n': {'a.b': '1', 'c': 'x'}}
+    for bad in (['n=1'], ['n.a'], ['.a=1'], ['n..a=1']):
+        with pytest.raises(ReplayError, match='NODE.PARAM=VALUE'):
+            parse_overrides(bad)
+
+
+def test_bad_node_specs(bag, tmp_path):
+    for spec, match in (('no_such_node', 'unknown node'), ('nomodule_xyz:Thing', 'import'),
+                        (f'{__name__}:Missing', 'no class'), (f'{__name__}:write_test_bag',
+                                                              'not a robot_calib Pipeline'),
+                        (f'{ECHO},{ECHO}', 'twice')):
+        with pytest.raises(ReplayError, match=match):
+            replay(bag, tmp_path / 'o', nodes=spec, progress=False)
+    assert not (tmp_path / 'o').exists()
+
+
+def test_output_folder_checks(bag, tmp_path):
+    other = tmp_path / 'notes'
+    other.mkdir()
+    (other / 'keep.txt').write_text('mine')
+    with pytest.raises(ReplayError, match='not empty'):
+        replay(bag, other, nodes=ECHO, progress=False)
+    assert (other / 'keep.txt').read_text() == 'mine'
+    afile = tmp_path / 'file'
+    afile.write_text('x')
+    with pytest.raises(ReplayError, match='not a folder'):
+        replay(bag, afile, nodes=ECHO, progress=False)
+
+
+def test_registered_pipelines_on_sample_bag(repo_root, tmp_path):
+    names = pipelines.available()
+    if not names:
+        pytest.skip('no registered pipeline is installed yet')
+    s = replay(repo_root / 'bags' / 'husky_test1', tmp_path / 'o', progress=False)
+    assert set(s['nodes']) | set(s['skipped']) == set(pipelines.REGISTRY)
+    for name, node in s['nodes'].items():
+        assert node['inputs'], name
+        assert all(v.get('read', 0) > 0 for v in node['inputs'].values()), name
+        assert not node['errors'], (name, node.get('first_errors'))
+    assert math.isclose(s['duration'], 395.3, abs_tol=0.1)
