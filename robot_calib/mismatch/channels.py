@@ -1,0 +1,389 @@
+# Copyright 2026 robot_calib contributors
+# SPDX-License-Identifier: Apache-2.0
+"""Recordings as channels, and their alignment: pairing, resampling and a lagged cross-correlation.
+
+A :class:`Recording` maps a topic (``/imu``) to a :class:`Topic`: one time
+vector (s, header stamps) and named field arrays whose names follow the ROS
+message field paths (``angular_velocity.z``, ``twist.twist.linear.x``), so a
+channel is ``topic + '.' + field`` as in ``findings.json``.
+
+:func:`pair_topics` pairs the simulated and the real recording topic by
+topic, resamples both onto the times of the slower side (linear
+interpolation; no filtering, which would damp the faster side only), and
+estimates each topic's time offset by a lagged cross-correlation of the
+mean-removed, standardised channels (parabolic peak refinement). Problems
+that make a channel impossible to judge are returned as plain sentences.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+import math
+import os
+from typing import Optional
+
+import numpy as np
+
+IMU_TYPE = 'sensor_msgs/msg/Imu'
+ODOM_TYPE = 'nav_msgs/msg/Odometry'
+TWIST_TYPES = ('geometry_msgs/msg/Twist', 'geometry_msgs/msg/TwistStamped')
+
+IMU_FIELDS = ('angular_velocity.x', 'angular_velocity.y', 'angular_velocity.z',
+              'linear_acceleration.x', 'linear_acceleration.y', 'linear_acceleration.z')
+ODOM_FIELDS = ('twist.twist.linear.x', 'twist.twist.angular.z')
+TWIST_FIELDS = ('linear.x', 'angular.z')
+COMPARED_TYPES = (IMU_TYPE, ODOM_TYPE)
+
+
+class ChannelError(ValueError):
+    """Input that cannot be compared at all (one-line message)."""
+
+
+@dataclass
+class Topic:
+    """One topic of a recording: times (s) and field arrays (SI units) of equal length."""
+
+    name: str
+    msgtype: str
+    t: np.ndarray
+    fields: dict = field(default_factory=dict)
+
+    def __len__(self) -> int:
+        """Return the number of samples."""
+        return int(self.t.size)
+
+
+Recording = dict
+
+
+def _sorted_topic(name: str, msgtype: str, t: list, cols: dict) -> Topic:
+    ta = np.asarray(t, float)
+    order = np.argsort(ta, kind='stable')
+    ta = ta[order]
+    fields = {k: np.asarray(v, float)[order] for k, v in cols.items()}
+    keep = np.concatenate(([True], np.diff(ta) > 0)) if ta.size else np.zeros(0, bool)
+    return Topic(name, msgtype, ta[keep], {k: v[keep] for k, v in fields.items()})
+
+
+def _odom_twist_from_pose(t: np.ndarray, x: np.ndarray, y: np.ndarray,
+                          yaw: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Return forward speed (m/s) and yaw rate (rad/s) differentiated from planar poses."""
+    if t.size < 3:
+        return np.zeros_like(t), np.zeros_like(t)
+    yaw_u = np.unwrap(yaw)
+    dx, dy, dyaw = (np.gradient(a, t) for a in (x, y, yaw_u))
+    v = np.cos(yaw) * dx + np.sin(yaw) * dy
+    return v, dyaw
+
+
+def read_bag(path: os.PathLike | str) -> Recording:
+    """Read the IMU, odometry and velocity-command topics of a bag into a :class:`Recording`.
+
+    Odometry without a twist (all zero while the pose moves) gets its forward
+    speed (m/s) and yaw rate (rad/s) differentiated from the pose.
+
+    :param path: a ROS 1 bag file or a ROS 2 bag folder
+    :raises ChannelError: when the bag cannot be read
+    """
+    from robot_calib.io import bags
+    from robot_calib.core import types as T
+    buf: dict = {}
+    try:
+        for msg in bags.read_messages([path]):
+            if msg.msgtype not in COMPARED_TYPES and msg.msgtype not in TWIST_TYPES:
+                continue
+            for s in msg.samples:
+                b = buf.setdefault(msg.topic, {'type': msg.msgtype, 't': [], 'cols': {}})
+                cols = b['cols']
+                if isinstance(s, T.ImuSample):
+                    vals = (s.gyro[0], s.gyro[1], s.gyro[2], s.accel[0], s.accel[1], s.accel[2])
+                    names = IMU_FIELDS
+                elif isinstance(s, T.OdomSample):
+                    vals = (s.vx, s.wz, s.x, s.y, s.yaw)
+                    names = ODOM_FIELDS + ('pose.x', 'pose.y', 'pose.yaw')
+                elif isinstance(s, T.TwistSample):
+                    vals = (s.vx, s.wz)
+                    names = TWIST_FIELDS
+                else:
+                    continue
+                b['t'].append(s.t)
+                for k, v in zip(names, vals):
+                    cols.setdefault(k, []).append(v)
+    except bags.BagError as exc:
+        raise ChannelError(str(exc)) from None
+    except (OSError, ValueError, KeyError) as exc:
+        raise ChannelError(f'cannot read {path}: {exc}') from None
+    rec: Recording = {}
+    for topic, b in buf.items():
+        tp = _sorted_topic(topic, b['type'], b['t'], b['cols'])
+        if tp.msgtype == ODOM_TYPE and len(tp) > 2:
+            f = tp.fields
+            twist_dead = np.ptp(f['twist.twist.linear.x']) == 0 and \
+                np.ptp(f['twist.twist.angular.z']) == 0
+            moved = np.ptp(f['pose.x']) > 0 or np.ptp(f['pose.y']) > 0 or np.ptp(f['pose.yaw']) > 0
+            if twist_dead and moved:
+                v, w = _odom_twist_from_pose(tp.t, f['pose.x'], f['pose.y'], f['pose.yaw'])
+                f['twist.twist.linear.x'], f['twist.twist.angular.z'] = v, w
+        for k in ('pose.x', 'pose.y', 'pose.yaw'):
+            tp.fields.pop(k, None)
+        rec[topic] = tp
+    return rec
+
+
+@dataclass
+class PairedTopic:
+    """A topic of both recordings on common times (s from the sim bag start).
+
+    ``sim`` and ``real`` map field -> array (NaN where a side has no value);
+    ``tau_xcorr`` is the lag (s, positive: real lags) of the cross-correlation
+    peak, ``xcorr_gain`` the correlation gained over lag 0.
+    """
+
+    name: str
+    msgtype: str
+    t: np.ndarray
+    sim: dict
+    real: dict
+    dt: float
+    tau_xcorr: float = 0.0
+    xcorr_gain: float = 0.0
+    notes: list = field(default_factory=list)
+    sim_reg: dict = field(default_factory=dict)
+    sim_noisy: dict = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        """Build the regressor copies of the simulated channels (see :func:`regressor_signal`)."""
+        if not self.sim_reg:
+            for k, v in self.sim.items():
+                self.sim_reg[k] = regressor_signal(v)
+                self.sim_noisy[k] = self.sim_reg[k] is not v
+
+
+def loo_derivative(x: np.ndarray, dt: float, half: int = 2) -> np.ndarray:
+    """Return dx/dt from the means of the ``half`` samples after and before each sample.
+
+    The sample itself is left out, so its noise does not enter (see
+    :func:`regressor_signal`); exact for a straight line.
+    """
+    xz = np.nan_to_num(x)
+    c = np.concatenate(([0.0], np.cumsum(xz)))
+    n = x.size
+    i = np.arange(n)
+    a1, b1 = np.clip(i + 1, 0, n), np.clip(i + 1 + half, 0, n)
+    a0, b0 = np.clip(i - half, 0, n), np.clip(i, 0, n)
+    after = (c[b1] - c[a1]) / np.maximum(b1 - a1, 1)
+    before = (c[b0] - c[a0]) / np.maximum(b0 - a0, 1)
+    ca = (a1 + b1 - 1) / 2.0
+    cb = (a0 + b0 - 1) / 2.0
+    ok = (b1 > a1) & (b0 > a0)
+    out = np.where(ok, (after - before) / (np.maximum(ca - cb, 1e-9) * dt), 0.0)
+    return out
+
+
+def regressor_signal(x: np.ndarray, half: int = 2) -> np.ndarray:
+    """Return ``x`` for use as a regressor: a leave-one-out average when ``x`` is noisy.
+
+    A noisy simulation used as a regressor of its own residual biases the fit
+    (errors in variables: the sim noise is in both). When the second
+    differences are as large as white noise makes them (MAD(d2)/MAD(d1) > 0.5;
+    about 0 for a smooth signal, 1.73 for white noise), each sample is
+    replaced by the mean of its ``half`` neighbours on each side, which
+    excludes the sample's own noise; a smooth (noiseless) signal is returned
+    unchanged so exact models stay exact.
+    """
+    ok = np.isfinite(x)
+    if ok.sum() < 10 * half + 10:
+        return x
+    xs = x[ok]
+    d1 = np.median(np.abs(np.diff(xs) - np.median(np.diff(xs))))
+    d2 = np.median(np.abs(np.diff(xs, 2)))
+    if d1 <= 0 or d2 / d1 <= 0.5:
+        return x
+    k = np.ones(2 * half + 1)
+    k[half] = 0.0
+    xz = np.where(ok, x, 0.0)
+    num = np.convolve(xz, k, mode='same')
+    den = np.convolve(ok.astype(float), k, mode='same')
+    with np.errstate(invalid='ignore', divide='ignore'):
+        y = np.where(den > 0, num / np.maximum(den, 1.0), np.nan)
+    return np.where(ok, y, np.nan)
+
+
+def _box(x: np.ndarray, width: int) -> np.ndarray:
+    """Return a centred moving average of ``width`` samples (edges shrink)."""
+    if width <= 1 or x.size < 2:
+        return x
+    ok = np.isfinite(x)
+    xs = np.where(ok, x, 0.0)
+    k = np.ones(width)
+    num = np.convolve(xs, k, mode='same')
+    den = np.convolve(ok.astype(float), k, mode='same')
+    with np.errstate(invalid='ignore', divide='ignore'):
+        return np.where(den > 0, num / np.maximum(den, 1), np.nan)
+
+
+def _interp(t_src: np.ndarray, x: np.ndarray, t_dst: np.ndarray, max_gap: float) -> np.ndarray:
+    """Interpolate linearly; NaN outside the source span or across gaps longer than max_gap (s)."""
+    ok = np.isfinite(x)
+    ts, xs = t_src[ok], x[ok]
+    if ts.size < 2:
+        return np.full(t_dst.size, np.nan)
+    y = np.interp(t_dst, ts, xs)
+    idx = np.clip(np.searchsorted(ts, t_dst), 1, ts.size - 1)
+    gap = ts[idx] - ts[idx - 1]
+    bad = (t_dst < ts[0]) | (t_dst > ts[-1]) | (gap > max_gap)
+    y[bad] = np.nan
+    return y
+
+
+def median_dt(t: np.ndarray) -> float:
+    """Return the median sample period (s), NaN for fewer than two samples."""
+    if t.size < 2:
+        return float('nan')
+    return float(np.median(np.diff(t)))
+
+
+def xcorr_lag(sim: dict, real: dict, dt: float, max_lag: float) -> tuple[float, float]:
+    """Return (lag s, correlation gain) of the peak of the summed normalised cross-correlation.
+
+    Each channel is mean-removed and divided by its standard deviation; the
+    correlations of all channels are summed; the peak is refined by a parabola
+    through its neighbours. Positive lag: ``real`` lags ``sim``.
+    """
+    num = None
+    n_used = 0
+    for k in sim:
+        a, b = sim[k], real.get(k)
+        if b is None:
+            continue
+        ok = np.isfinite(a) & np.isfinite(b)
+        if ok.sum() < 20:
+            continue
+        a0 = np.where(ok, a - np.nanmean(a[ok]), 0.0)
+        b0 = np.where(ok, b - np.nanmean(b[ok]), 0.0)
+        sa, sb = np.std(a0[ok]), np.std(b0[ok])
+        if sa <= 0 or sb <= 0:
+            continue
+        a0, b0 = a0 / sa, b0 / sb
+        n = a0.size
+        nfft = 1 << int(math.ceil(math.log2(2 * n)))
+        c = np.fft.irfft(np.fft.rfft(b0, nfft) * np.conj(np.fft.rfft(a0, nfft)), nfft)
+        c = c / ok.sum()
+        num = c if num is None else num + c
+        n_used += 1
+    if num is None or not np.isfinite(dt) or dt <= 0:
+        return 0.0, 0.0
+    num = num / n_used
+    nfft = num.size
+    m = int(min(max_lag / dt, nfft // 4))
+    if m < 1:
+        return 0.0, 0.0
+    lags = np.concatenate((np.arange(0, m + 1), np.arange(-m, 0)))
+    vals = np.concatenate((num[:m + 1], num[nfft - m:]))
+    i = int(np.argmax(vals))
+    best = lags[i]
+    frac = 0.0
+    if -m < best < m:
+        y0, y1, y2 = num[(best - 1) % nfft], num[best % nfft], num[(best + 1) % nfft]
+        den = y0 - 2 * y1 + y2
+        if den < 0:
+            frac = float(np.clip(0.5 * (y0 - y2) / den, -0.5, 0.5))
+    return float((best + frac) * dt), float(vals[i] - num[0])
+
+
+def topic_start(rec: Recording) -> float:
+    """Return the earliest sample time (s) of a recording's compared topics (NaN if none)."""
+    starts = [tp.t[0] for tp in rec.values() if len(tp)]
+    return float(min(starts)) if starts else float('nan')
+
+
+def pair_topics(sim: Recording, real: Recording,
+                max_lag: float = 0.5) -> tuple[list, list, float, list]:
+    """Pair and resample the compared topics of two recordings.
+
+    :param sim: the simulated recording
+    :param real: the real recording
+    :param max_lag: largest time offset (s) the cross-correlation searches
+    :returns: (paired topics, not-judged entries ``{'channel', 'reason'}``,
+        the sim bag start (s) used as time zero, notes)
+    :raises ChannelError: when nothing at all can be compared
+    """
+    notes: list = []
+    not_judged: list = []
+    sim_c = {k: v for k, v in sim.items() if v.msgtype in COMPARED_TYPES}
+    real_c = {k: v for k, v in real.items() if v.msgtype in COMPARED_TYPES}
+    if not sim_c:
+        raise ChannelError('the simulated recording has no IMU or odometry topic '
+                           f'(topics: {sorted(sim) or "none"})')
+    if not real_c:
+        raise ChannelError('the real recording has no IMU or odometry topic '
+                           f'(topics: {sorted(real) or "none"})')
+    s0, r0 = topic_start(sim_c), topic_start(real_c)
+    s1 = max(tp.t[-1] for tp in sim_c.values() if len(tp)) if np.isfinite(s0) else s0
+    r1 = max(tp.t[-1] for tp in real_c.values() if len(tp)) if np.isfinite(r0) else r0
+    if not (np.isfinite(s0) and np.isfinite(r0)):
+        raise ChannelError('one recording has no samples on its IMU/odometry topics')
+    shift = 0.0
+    overlap = min(s1, r1) - max(s0, r0)
+    if overlap < 0.5 * min(s1 - s0, r1 - r0):
+        shift = s0 - r0
+        notes.append(f'the recordings use different clocks (starts {s0:.3f} s and {r0:.3f} s); '
+                     'their starts were aligned')
+    paired = []
+    for name in sorted(set(sim_c) | set(real_c)):
+        if name not in real_c:
+            not_judged.append({'channel': name, 'reason': 'topic missing in the real recording'})
+            continue
+        if name not in sim_c:
+            not_judged.append({'channel': name, 'reason': 'topic missing in the simulated '
+                               'recording'})
+            continue
+        a, b = sim_c[name], real_c[name]
+        if a.msgtype != b.msgtype:
+            not_judged.append({'channel': name, 'reason': f'different message types: sim '
+                               f'{a.msgtype}, real {b.msgtype}'})
+            continue
+        if len(a) < 20 or len(b) < 20:
+            not_judged.append({'channel': name, 'reason': f'too few samples (sim {len(a)}, '
+                               f'real {len(b)})'})
+            continue
+        pt = _pair_one(a, b, s0, shift, max_lag, not_judged)
+        if pt is not None:
+            paired.append(pt)
+    return paired, not_judged, s0, notes
+
+
+def _pair_one(a: Topic, b: Topic, t0: float, shift: float, max_lag: float,
+              not_judged: list) -> Optional[PairedTopic]:
+    tb = b.t + shift
+    dta, dtb = median_dt(a.t), median_dt(tb)
+    notes = []
+    if not (dta > 0 and dtb > 0):
+        not_judged.append({'channel': a.name, 'reason': 'time stamps do not increase'})
+        return None
+    if abs(dta - dtb) > 0.05 * min(dta, dtb):
+        notes.append(f'different rates: sim {1 / dta:.1f} Hz, real {1 / dtb:.1f} Hz; '
+                     'compared at the slower rate')
+    lo, hi = max(a.t[0], tb[0]), min(a.t[-1], tb[-1])
+    if hi - lo < 20 * max(dta, dtb):
+        not_judged.append({'channel': a.name, 'reason': 'the two recordings of this topic do '
+                           'not overlap in time'})
+        return None
+    dur_a, dur_b = a.t[-1] - a.t[0], tb[-1] - tb[0]
+    if abs(dur_a - dur_b) > 0.02 * max(dur_a, dur_b) + 2 * max(dta, dtb):
+        notes.append(f'different lengths: sim {dur_a:.1f} s, real {dur_b:.1f} s; compared '
+                     f'on the common {hi - lo:.1f} s')
+    if dta >= dtb:
+        grid = a.t[(a.t >= lo) & (a.t <= hi)]
+        dt = dta
+    else:
+        grid = tb[(tb >= lo) & (tb <= hi)]
+        dt = dtb
+    sim_f, real_f = {}, {}
+    for k in a.fields:
+        if k not in b.fields:
+            continue
+        sim_f[k] = _interp(a.t, a.fields[k], grid, 5 * dta + 1e-9)
+        real_f[k] = _interp(tb, b.fields[k], grid, 5 * dtb + 1e-9)
+    tau, gain = xcorr_lag(sim_f, real_f, dt, max_lag)
+    return PairedTopic(a.name, a.msgtype, grid - t0, sim_f, real_f, dt, tau, gain, notes)

@@ -1,0 +1,328 @@
+# Copyright 2026 robot_calib contributors
+# SPDX-License-Identifier: Apache-2.0
+"""The library of physical effects: parametric models, units, plausible ranges and regressors.
+
+Each effect predicts the difference ``real - sim`` of one or more channels
+as a linear combination of regressors built from the simulation (its own
+value, time, the forward speed v, the yaw rate omega, the commanded
+acceleration a, the gravity direction). The contract table
+(architecture.md, "Mismatch findings") fixes the names, models and
+parameters:
+
+- ``gyro_bias``: real = sim + b (rad/s); regressor 1
+- ``gyro_scale``: real = (1 + s) sim; regressor sim
+- ``gyro_bias_drift``: real = sim + b0 + d t (rad/s, rad/s^2); regressors 1, t
+- ``time_offset``: real(t) = sim(t - tau) (s); regressor sim(t - tau_ref) - sim(t)
+  (first order: -tau sim'(t)); refined exactly afterwards
+- ``accel_bias``: real = sim + b (m/s^2)
+- ``centripetal_acceleration``: real a_y = sim a_y + k v omega; regressor v omega
+- ``imu_mounting_tilt``: real a = R(roll, pitch)^T sim a with R = Ry(pitch) Rx(roll)
+  (sensor in base); first order d a_x = -pitch a_z, d a_y = roll a_z,
+  d a_z = -roll a_y + pitch a_x; refined exactly afterwards
+- ``wheel_radius_scale``: real v = (1 + k) sim v
+- ``track_width_scale``: real omega = sim omega / (1 + k); fitted as (1 + beta) sim,
+  k = 1 / (1 + beta) - 1
+- ``wheel_slip``: real v = sim v (1 + c a); regressor v a (c in s^2/m)
+
+Effects beyond the table, named freely: ``gyro_cross_axis`` (an axis
+misalignment: real = sim + m sim_other) and ``accel_scale``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field, replace
+import itertools
+from typing import Optional
+
+import numpy as np
+
+from robot_calib.mismatch.channels import IMU_TYPE, ODOM_TYPE, PairedTopic
+
+G = 9.80665  # standard gravity (m/s^2)
+_UID = itertools.count(1)
+
+
+@dataclass(frozen=True)
+class EffectSpec:
+    """An effect of the library: parameter names, units, plausible magnitude and a sentence."""
+
+    name: str
+    params: tuple
+    units: tuple
+    plausible: tuple
+    windowable: bool
+    what: str
+
+
+SPECS = {s.name: s for s in (
+    EffectSpec('gyro_bias', ('bias',), ('rad/s',), (0.2,), True,
+               'a constant offset of the gyro'),
+    EffectSpec('gyro_scale', ('scale',), ('',), (0.2,), True,
+               'a gyro scale-factor error (the rate reads too large or too small)'),
+    EffectSpec('gyro_bias_drift', ('bias', 'drift'), ('rad/s', 'rad/s^2'), (0.2, 1e-3), True,
+               'a gyro offset that changes linearly with time (warm-up)'),
+    EffectSpec('time_offset', ('tau',), ('s',), (0.5,), False,
+               'a latency between the two recordings'),
+    EffectSpec('accel_bias', ('bias',), ('m/s^2',), (1.5,), True,
+               'a constant offset of the accelerometer'),
+    EffectSpec('centripetal_acceleration', ('gain',), ('',), (1.5,), False,
+               'the centripetal acceleration v*omega in turns, missing from the simulation'),
+    EffectSpec('imu_mounting_tilt', ('roll', 'pitch'), ('rad', 'rad'), (0.35, 0.35), False,
+               'the IMU is mounted tilted, so gravity leaks into a_x and a_y'),
+    EffectSpec('wheel_radius_scale', ('scale',), ('',), (0.2,), True,
+               'the wheels are larger or smaller than modelled, so odometry speed is scaled'),
+    EffectSpec('track_width_scale', ('scale',), ('',), (0.5,), True,
+               'the effective track width differs, so the odometry yaw rate is scaled'),
+    EffectSpec('wheel_slip', ('coefficient',), ('s^2/m',), (2.0,), True,
+               'the wheels slip when accelerating, so odometry speed depends on acceleration'),
+    EffectSpec('gyro_cross_axis', ('coefficient',), ('',), (0.2,), False,
+               'an axis misalignment: rotation about another axis leaks into this gyro axis'),
+    EffectSpec('accel_scale', ('scale',), ('',), (0.2,), True,
+               'an accelerometer scale-factor error'),
+)}
+
+# Motion that separates two effects that one recording cannot tell apart.
+SEPARATE = {
+    frozenset(('gyro_bias', 'gyro_scale')): 'standing still for a while, or turning both ways '
+    'at several rates, separates a constant offset from a rate-proportional error',
+    frozenset(('gyro_bias', 'gyro_bias_drift')): 'rest periods at the start and the end of a '
+    'longer recording show whether the offset changes with time',
+    frozenset(('gyro_scale', 'gyro_bias_drift')): 'rest periods and turns both ways separate a '
+    'drifting offset from a rate-proportional error',
+    frozenset(('accel_bias', 'imu_mounting_tilt')): 'tilting the robot (a ramp, or driving '
+    'over a slope) changes the gravity direction, which moves a mounting tilt but not a bias',
+    frozenset(('accel_bias', 'centripetal_acceleration')): 'turns in both directions and '
+    'straight driving separate a constant offset from v*omega',
+    frozenset(('imu_mounting_tilt', 'centripetal_acceleration')): 'turns in both directions '
+    'separate v*omega from a constant gravity leak',
+    frozenset(('wheel_radius_scale', 'wheel_slip')): 'long stretches at constant speed '
+    '(no acceleration) separate a radius error from slip under acceleration',
+    frozenset(('gyro_scale', 'time_offset')): 'fast rate changes (sharp starts and stops of '
+    'turns) separate a latency from a scale error',
+    frozenset(('accel_bias', 'accel_scale')): 'poses with the axis up, down and sideways '
+    'separate an offset from a scale error',
+}
+DEFAULT_SEPARATE = 'a recording with more varied motion (stops, turns both ways at several ' \
+    'rates, accelerations) would separate them'
+
+
+def separating_motion(a: str, b: str) -> str:
+    """Return the motion that would tell effects ``a`` and ``b`` apart."""
+    return SEPARATE.get(frozenset((a, b)), DEFAULT_SEPARATE)
+
+
+@dataclass
+class Term:
+    """A candidate effect on a paired topic: its regressor columns per channel (field).
+
+    ``cols[field]`` is an (n, p) array; the contribution to ``real - sim`` is
+    ``cols @ beta`` inside ``window`` (sample indices [i0, i1), None: everywhere).
+    ``group`` makes terms exclusive (one per group); ``nonlinear`` marks terms
+    refined with their exact model afterwards (``time_offset``, ``imu_mounting_tilt``).
+    """
+
+    effect: str
+    topic: str
+    cols: dict
+    group: str
+    channel: str
+    windowable: bool = True
+    window: Optional[tuple] = None
+    meta: dict = field(default_factory=dict)
+    uid: int = field(default_factory=lambda: next(_UID))
+
+    @property
+    def p(self) -> int:
+        """Return the number of linear coefficients."""
+        return next(iter(self.cols.values())).shape[1]
+
+    def with_window(self, window: Optional[tuple]) -> 'Term':
+        """Return a copy acting only inside ``window`` (sample indices)."""
+        return replace(self, window=window)
+
+
+def _col(x: np.ndarray) -> np.ndarray:
+    return np.nan_to_num(np.asarray(x, float)).reshape(-1, 1)
+
+
+def _informative(x: np.ndarray, sigma: float) -> bool:
+    """Return True when a regressor varies beyond the channel noise and is not a constant."""
+    ok = np.isfinite(x)
+    if ok.sum() < 10:
+        return False
+    xs = x[ok]
+    rms = float(np.sqrt(np.mean(xs ** 2)))
+    sd = float(np.std(xs))
+    return rms > 0 and sd > max(1e-12, 0.02 * sigma) and sd > 0.05 * rms
+
+
+def shifted(pt: PairedTopic, f: str, tau: float) -> np.ndarray:
+    """Return the simulated channel ``f`` delayed by ``tau`` s: sim(t - tau), NaN outside.
+
+    For a noisy simulation (see :func:`~robot_calib.mismatch.channels.regressor_signal`)
+    a shift shorter than one sample is taken to first order from the
+    leave-one-out signal and derivative, so a sample's own noise never enters.
+    """
+    from robot_calib.mismatch.channels import loo_derivative
+    if pt.sim_noisy.get(f) and abs(tau) < pt.dt:
+        key = ('dloo', f)
+        d = pt.sim_noisy.get(key)
+        if d is None:
+            d = loo_derivative(pt.sim[f], pt.dt)
+            pt.sim_noisy[key] = d
+        return pt.sim_reg[f] - tau * d
+    x = pt.sim[f]
+    ok = np.isfinite(x)
+    if ok.sum() < 2:
+        return np.full_like(x, np.nan)
+    tt = pt.t[ok]
+    y = np.interp(pt.t - tau, tt, x[ok])
+    y[(pt.t - tau < tt[0]) | (pt.t - tau > tt[-1])] = np.nan
+    return y
+
+
+def tilt_rotate(ax: np.ndarray, ay: np.ndarray, az: np.ndarray, roll: float,
+                pitch: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Return the specific force seen by an IMU mounted with ``roll``, ``pitch`` (rad).
+
+    a_sensor = Rx(roll)^T Ry(pitch)^T a_base (REP-103, sensor orientation in
+    base = Ry(pitch) Rx(roll)); level gravity (0, 0, g) becomes
+    (-g sin(pitch), g cos(pitch) sin(roll), g cos(pitch) cos(roll)).
+    """
+    cp, sp, cr, sr = np.cos(pitch), np.sin(pitch), np.cos(roll), np.sin(roll)
+    x1 = cp * ax - sp * az           # Ry(pitch)^T
+    z1 = sp * ax + cp * az
+    y2 = cr * ay + sr * z1           # Rx(roll)^T
+    z2 = -sr * ay + cr * z1
+    return x1, y2, z2
+
+
+def candidates(pt: PairedTopic, sigma: dict, aux: dict) -> tuple[list, list]:
+    """Build the candidate terms for one paired topic.
+
+    :param pt: the paired topic
+    :param sigma: noise standard deviation per field (channel units)
+    :param aux: regressors on ``pt.t`` from the simulation: ``v`` forward speed
+        (m/s), ``omega`` yaw rate (rad/s), ``acmd`` commanded acceleration (m/s^2);
+        missing ones absent or NaN
+    :returns: (terms, sentences on what cannot be judged)
+    """
+    terms: list = []
+    cannot: list = []
+    t = pt.t
+    fields = [f for f in pt.sim if f in sigma]
+    sim = pt.sim_reg
+    ones = np.ones((t.size, 1))
+    if pt.msgtype == IMU_TYPE:
+        gyro = [f for f in fields if f.startswith('angular_velocity.')]
+        acc = [f for f in fields if f.startswith('linear_acceleration.')]
+        moving = [f for f in gyro if _informative(sim[f], sigma[f])]
+        for f in gyro:
+            ch = f'{pt.name}.{f}'
+            terms.append(Term('gyro_bias', pt.name, {f: ones}, f'offset:{f}', ch))
+            terms.append(Term('gyro_bias_drift', pt.name,
+                              {f: np.column_stack((np.ones_like(t), t))}, f'offset:{f}', ch))
+            if f in moving:
+                terms.append(Term('gyro_scale', pt.name, {f: _col(sim[f])}, f'scale:{f}', ch))
+            for g in moving:
+                if g != f:
+                    terms.append(Term('gyro_cross_axis', pt.name, {f: _col(sim[g])},
+                                      f'cross:{f}:{g}', ch, windowable=False,
+                                      meta={'source': f'{pt.name}.{g}'}))
+        if gyro and not moving:
+            cannot.append(f'{pt.name}: the simulated run does not rotate, so gyro scale and '
+                          'axis misalignment cannot be judged')
+        for f in acc:
+            ch = f'{pt.name}.{f}'
+            terms.append(Term('accel_bias', pt.name, {f: ones}, f'offset:{f}', ch))
+            x = sim[f]
+            if _informative(x, sigma[f]):
+                terms.append(Term('accel_scale', pt.name, {f: _col(x)}, f'scale:{f}', ch))
+        fy = 'linear_acceleration.y'
+        if fy in acc:
+            v, om = aux.get('v'), aux.get('omega')
+            if v is not None and om is not None:
+                vw = v * om
+                if _informative(vw, sigma[fy]):
+                    terms.append(Term('centripetal_acceleration', pt.name, {fy: _col(vw)},
+                                      'centripetal', f'{pt.name}.{fy}', windowable=False))
+                else:
+                    cannot.append(f'{pt.name}: the run has no turns while moving, so a missing '
+                                  'centripetal acceleration cannot be judged')
+            else:
+                cannot.append(f'{pt.name}: no simulated odometry speed, so a missing '
+                              'centripetal acceleration cannot be judged')
+        fx, fz = 'linear_acceleration.x', 'linear_acceleration.z'
+        if all(f in acc for f in (fx, fy, fz)):
+            sx, sy, sz = (np.nan_to_num(sim[f]) for f in (fx, fy, fz))
+            z = np.zeros_like(sx)
+            cols = {fx: np.column_stack((z, -sz)), fy: np.column_stack((sz, z)),
+                    fz: np.column_stack((-sy, sx))}
+            terms.append(Term('imu_mounting_tilt', pt.name, cols, 'tilt', f'{pt.name}.{fy}',
+                              windowable=False))
+    elif pt.msgtype == ODOM_TYPE:
+        fv, fw = 'twist.twist.linear.x', 'twist.twist.angular.z'
+        if fv in fields:
+            ch = f'{pt.name}.{fv}'
+            if _informative(sim[fv], sigma[fv]):
+                terms.append(Term('wheel_radius_scale', pt.name, {fv: _col(sim[fv])},
+                                  f'scale:{fv}', ch))
+                a = aux.get('acmd')
+                if a is not None and _informative(sim[fv] * a, sigma[fv]):
+                    terms.append(Term('wheel_slip', pt.name, {fv: _col(sim[fv] * a)},
+                                      'slip', ch))
+                else:
+                    cannot.append(f'{pt.name}: no commanded acceleration, so wheel slip '
+                                  'cannot be judged')
+            else:
+                cannot.append(f'{pt.name}: the simulated run does not drive, so wheel radius '
+                              'and slip cannot be judged')
+        if fw in fields:
+            if _informative(sim[fw], sigma[fw]):
+                terms.append(Term('track_width_scale', pt.name, {fw: _col(sim[fw])},
+                                  f'scale:{fw}', f'{pt.name}.{fw}'))
+            else:
+                cannot.append(f'{pt.name}: the simulated run does not turn, so the track '
+                              'width cannot be judged')
+    dyn = [f for f in fields if _informative(sim[f], sigma[f])]
+    if dyn:
+        tau_ref = pt.tau_xcorr if abs(pt.tau_xcorr) >= 0.2 * pt.dt else 0.2 * pt.dt
+        cols = {f: _col(shifted(pt, f, tau_ref) - pt.sim_reg[f]) for f in dyn}
+        best = max(dyn, key=lambda f: float(np.nanstd(sim[f]) / max(sigma[f], 1e-12)))
+        terms.append(Term('time_offset', pt.name, cols, 'time', f'{pt.name}.{best}',
+                          windowable=False, meta={'tau_ref': tau_ref}))
+    elif fields:
+        cannot.append(f'{pt.name}: no motion in the simulated run, so a time offset cannot be '
+                      'judged')
+    return terms, cannot
+
+
+def to_params(term: Term, beta: np.ndarray, cov: np.ndarray) -> tuple[dict, dict]:
+    """Return the effect's parameters and their standard deviations in the table's units.
+
+    :param term: the term
+    :param beta: its fitted linear coefficients
+    :param cov: their covariance
+    """
+    sd = np.sqrt(np.maximum(np.diag(cov), 0.0))
+    e = term.effect
+    if 'theta' in term.meta:
+        vals = np.asarray(term.meta['theta'], float) + np.asarray(beta, float)
+        names = SPECS[e].params
+        return ({k: float(v) for k, v in zip(names, vals)},
+                {k: float(s) for k, s in zip(names, sd)})
+    if e == 'gyro_bias_drift':
+        return ({'bias': float(beta[0]), 'drift': float(beta[1])},
+                {'bias': float(sd[0]), 'drift': float(sd[1])})
+    if e == 'imu_mounting_tilt':
+        return ({'roll': float(beta[0]), 'pitch': float(beta[1])},
+                {'roll': float(sd[0]), 'pitch': float(sd[1])})
+    if e == 'time_offset':
+        tr = term.meta['tau_ref']
+        return {'tau': float(beta[0] * tr)}, {'tau': float(abs(tr) * sd[0])}
+    if e == 'track_width_scale':
+        b = float(beta[0])
+        k = 1.0 / (1.0 + b) - 1.0
+        return {'scale': k}, {'scale': float(sd[0] / (1.0 + b) ** 2)}
+    name = SPECS[e].params[0]
+    return {name: float(beta[0])}, {name: float(sd[0])}
