@@ -543,7 +543,7 @@ def joint_fit(drive_type: str, segments: list[Segment], nominal: dict,
         new = d2 <= gate
         if new.sum() < max(3, x.size):
             new = inl
-        if it == sp.outlier_iterations or np.array_equal(new, inl):
+        if it == sp.outlier_iterations or (it >= 2 and np.array_equal(new, inl)):
             inl = new
             break
         inl = new
@@ -610,7 +610,10 @@ def verdict_of(drive_type: str, values: dict, stds: dict, content: dict, n_used:
     """
     problems = list(extra)
     if content['segments'] == 0:
-        return 'too little data: no usable segments (need wheel data and matching scans)'
+        problems.append('too little data: no usable segments (need wheel data and matching '
+                        'scans)')
+        text = '; '.join(dict.fromkeys(problems))
+        return text[0].upper() + text[1:]
     if n_used < sp.min_segments:
         problems.append(f'too little data ({n_used} usable segments, need {sp.min_segments})')
     if content['straight'] < sp.min_straight_segments and content['left'] + content['right'] \
@@ -752,8 +755,9 @@ class SeedSteeredCalibrator:
         radius = math.nan
         if accepted:
             d_odo = K.integrate_steps(
-                K.arc_pose(*K.steered_arc(seg.steps[None, :, 0], seg.steps[None, :, 1], 1.0,
-                                          p.wheel_base, comp, p.steering_scale)))[0]
+                K.arc_pose(*K.steered_arc(seg.steps[None, :, 0], seg.steps[None, :, 1],
+                                          p.wheel_radius, p.wheel_base, comp,
+                                          p.steering_scale)))[0] / p.wheel_radius
             c, s = math.cos(p.lidar_yaw), math.sin(p.lidar_yaw)
             d_scene = np.array([c * seg.sensor_motion[0] - s * seg.sensor_motion[1],
                                 s * seg.sensor_motion[0] + c * seg.sensor_motion[1]])
