@@ -17,9 +17,9 @@ STEER_TRUTH = {'steering_offset': 0.02, 'steering_scale': 1.03, 'wheel_radius': 
 
 
 def _params(drive, **kw):
-    base = dict(drive_type=drive, wheel_radius=0.05 if drive == 'differential' else 0.1,
-                wheel_base=1.0, track_width=0.3, lidar_x=0.1 if drive == 'differential'
-                else 0.5)
+    diff = drive == 'differential'
+    base = {'drive_type': drive, 'wheel_radius': 0.05 if diff else 0.1, 'wheel_base': 1.0,
+            'track_width': 0.3, 'lidar_x': 0.1 if diff else 0.5}
     base.update(kw)
     return W.WheelCalibParams(**base)
 
@@ -351,8 +351,8 @@ def test_censi_reproduces_the_authors(shared_data):
         assert abs(got[k] - ref[k]) < 0.05e-3  # diameter within 0.1 mm
     assert abs(got['track_width'] - ref['track_width']) < 0.3e-3
     assert abs(got['lidar_yaw'] - ref['lidar_yaw']) < math.radians(0.1)
-    res = W.calibrate('differential', segs, _params('differential', wheel_radius=0.02,
-                                                       track_width=0.09))
+    p = _params('differential', wheel_radius=0.02, track_width=0.09)
+    res = W.calibrate('differential', segs, p)
     assert abs(res.values['track_width'] - ref['track_width']) < 0.3e-3
     assert res.stds['track_width'] < 1e-3
 
