@@ -22,7 +22,6 @@ and ``ground_truth/odom`` start at 0, 0, 0), ``base_link`` on the axle centre,
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
 import json
 import math
 import os
@@ -34,6 +33,7 @@ import numpy as np
 from robot_calib.core import types as T
 from robot_calib.core.geometry import quat_from_rpy, wrap_angle
 from robot_calib.core.params import from_flat, ParamError, to_flat
+from robot_calib.sim import cdr as C
 from robot_calib.sim import sensors as S
 from robot_calib.sim.motion import State, TipOver
 from robot_calib.sim.params import SimParams, VECTOR_PARAMS
@@ -55,28 +55,39 @@ class SimError(ValueError):
     """A bad simulation request: unknown scenario, unknown ``--set`` key, bad value (one line)."""
 
 
-@dataclass
 class SimResult:
     """An in-memory simulation.
 
     ``messages``: list of (topic, core sample) in time order (``/tf_static``
-    carries a list of :class:`StaticTransform`); ``truth``: the truth.json
-    dict; ``true``: internal-rate true arrays (``t`` s from the start, ``x``,
-    ``y``, ``z`` m in the world, ``roll``, ``pitch``, ``yaw`` rad (yaw
-    unwrapped), ``v`` m/s, ``w`` rad/s, ``gyro_body`` rad/s (N, 3),
-    ``accel_body`` m/s^2 (N, 3), ...); ``sensors``: the per-sensor arrays
-    (``imu_t``, ``gyro``, ``accel``, ``odom_t``, ``odom_x`` ..., ``js_t``,
-    ``js_pos``, ``js_vel``, ``scan_t``, ``ranges``, ``cmd_t``, ``cmd_v``, ``cmd_w``,
-    ``gt_t``, ``gt_x``, ``gt_y``, ``gt_yaw``); ``world``, ``params``, ``start``.
+    carries a list of :class:`StaticTransform`; built on first access);
+    ``truth``: the truth.json dict; ``true``: internal-rate true arrays (``t`` s
+    from the start, ``x``, ``y``, ``z`` m in the world, ``roll``, ``pitch``,
+    ``yaw`` rad (yaw unwrapped), ``v`` m/s, ``w`` rad/s, ``gyro_body`` rad/s
+    (N, 3), ``accel_body`` m/s^2 (N, 3) at the IMU point in base_link axes,
+    ``tipped``); ``sensors``: the per-sensor arrays (``imu_t``, ``gyro``,
+    ``accel``, ``odom_t``, ``odom_x``, ``odom_y``, ``odom_yaw``, ``js_t``,
+    ``js_pos``, ``js_vel``, ``scan_t``, ``ranges``, ``cmd_t``, ``cmd_v``,
+    ``cmd_w``, ``gt_t``, ``gt_x``, ``gt_y``, ``gt_yaw``; times in s from the
+    start, without ``start_time``); ``world``, ``params``, ``start`` (world pose).
     """
 
-    messages: list
-    truth: dict
-    true: dict = field(default_factory=dict)
-    sensors: dict = field(default_factory=dict)
-    world: Any = None
-    params: Optional[SimParams] = None
-    start: tuple = (0.0, 0.0, 0.0)
+    def __init__(self, truth: dict, true: dict, sensors: dict, world: Any = None,
+                 params: Optional[SimParams] = None, start: tuple = (0.0, 0.0, 0.0)):
+        """Hold the results; messages are built lazily."""
+        self.truth = truth
+        self.true = true
+        self.sensors = sensors
+        self.world = world
+        self.params = params
+        self.start = start
+        self._messages: Optional[list] = None
+
+    @property
+    def messages(self) -> list:
+        """Return (topic, core sample) pairs in time order."""
+        if self._messages is None:
+            self._messages = build_messages(self.sensors, self.params)
+        return self._messages
 
     def topic(self, name: str) -> list:
         """Return the samples of one topic, in time order."""
@@ -131,6 +142,13 @@ def make_params(scenario: Optional[Scenario] = None,
     except ParamError as exc:
         raise SimError(str(exc).splitlines()[0]) from None
     values = to_flat(params)
+    for name, value in values.items():
+        if isinstance(value, list):
+            try:
+                values[name] = [float(v) for v in value]
+            except (TypeError, ValueError):
+                raise SimError(f'parameter {name}: expected numbers, got {value!r}') from None
+    params = from_flat(SimParams, values)
     for name in VECTOR_PARAMS:
         if len(values[name]) != 3:
             raise SimError(f'parameter {name}: expected 3 values (x, y, z), '
@@ -158,10 +176,14 @@ def _run_plan(plant: Plant, plan: Any, total_ticks: int, tick_dt: float) -> list
             if tip is not None:
                 tips.append(TipOver(**{**tip.__dict__, 't': plant.ticks * tick_dt}))
             continue
-        n = min(int(round(step.duration / tick_dt)), left)
+        n_full = int(round(step.duration / tick_dt))
+        n = min(n_full, left)
         if step.controller is None:
             if n > 0:
-                plant.advance(step.kind, step.values(n, tick_dt))
+                values = step.values(n, tick_dt)
+                if step.exact and n_full > 0:
+                    values = values * (step.duration / (n_full * tick_dt))
+                plant.advance(step.kind, values)
             continue
         for _ in range(n):
             cmd = step.controller(plant.state())
@@ -264,12 +286,16 @@ def run_setup(setup: Any, params: SimParams, duration: float, seed: int = 0,
     truth['frames'] = {'odom': p.odom.frame_id, 'base_link': p.odom.child_frame_id,
                        'imu': p.imu.frame_id, 'laser': p.lidar.frame_id}
     truth['params'] = to_flat(p)
-    messages = build_messages(sens, p)
-    counts: dict[str, int] = {}
-    for topic, _ in messages:
-        counts[topic] = counts.get(topic, 0) + 1
-    truth['topics'] = counts
-    return SimResult(messages, _jsonable(truth), tr, sens, setup.world, p, tuple(setup.start))
+    truth['topics'] = message_counts(sens)
+    return SimResult(_jsonable(truth), tr, sens, setup.world, p, tuple(setup.start))
+
+
+def message_counts(sens: dict[str, Any]) -> dict[str, int]:
+    """Return {topic: number of messages} of the sensor arrays."""
+    return {'/tf_static': 1, '/cmd_vel': int(sens['cmd_t'].size),
+            '/ground_truth/odom': int(sens['gt_t'].size), '/imu': int(sens['imu_t'].size),
+            '/joint_states': int(sens['js_t'].size), '/odom': int(sens['odom_t'].size),
+            '/scan': int(sens['scan_t'].size)}
 
 
 def simulate_sensors(tr: dict, p: SimParams, setup: Any, duration: float,
@@ -378,7 +404,7 @@ def simulate(scenario: str, out: Union[str, os.PathLike], seed: int = 0,
     tpath = truth_path(out)
     try:
         with BagWriter(out, storage) as writer:
-            write_messages(writer, result.messages)
+            write_bag(writer, result)
     except BagError as exc:
         raise SimError(str(exc)) from None
     tmp = tpath.with_name('.' + tpath.name + '.partial')
@@ -388,9 +414,92 @@ def simulate(scenario: str, out: Union[str, os.PathLike], seed: int = 0,
 
 
 def write_messages(writer: Any, messages: list) -> None:
-    """Write (topic, sample) pairs with a :class:`~robot_calib.io.bags.BagWriter`."""
+    """Write (topic, sample) pairs with a BagWriter, one by one (the reference path)."""
     for topic, sample in messages:
         writer.write(topic, sample)
+
+
+def encoded_streams(result: SimResult) -> list[tuple[str, str, np.ndarray, list]]:
+    """Return per topic (topic, msgtype, receive times ns, CDR bytes) of a result (fast path).
+
+    Every topic but ``/tf_static`` is encoded by :func:`robot_calib.sim.cdr.encode_stream`
+    from the arrays; a topic whose template cannot be patched falls back to rosbags.
+    """
+    from robot_calib.io import convert
+    sens, p = result.sensors, result.params
+    t0 = p.start_time
+    out = []
+    samples: dict[str, list] = {}
+
+    def first(topic: str) -> Any:
+        if topic not in samples:
+            samples[topic] = [s for tp, s in build_messages(_head(sens), p) if tp == topic]
+        return samples[topic][0]
+
+    def add(topic: str, times: np.ndarray, patches_fn) -> None:
+        ns, sn = C.stamps(times + t0)
+        sample = first(topic)
+        msgtype, msg = convert.to_msg(sample)
+        try:
+            data = C.encode_stream(msgtype, msg, patches_fn(sn))
+        except C.TemplateError:
+            data = [convert.serialize(s)[1] for tp, s in result.messages if tp == topic]
+        out.append((topic, msgtype, ns, data))
+
+    tf = _static_transforms(p, t0)
+    ns = np.array([int(round(t0 * 1e9))], dtype=np.int64)
+    out.append(('/tf_static', 'tf2_msgs/msg/TFMessage', ns, [convert.serialize(tf)[1]]))
+    zeros = np.zeros((sens['cmd_t'].size, 1))
+    add('/cmd_vel', sens['cmd_t'], lambda sn: [
+        ('linear', 'xyz', np.column_stack((sens['cmd_v'], zeros, zeros))),
+        ('angular', 'xyz', np.column_stack((zeros, zeros, sens['cmd_w'])))])
+    n = sens['gt_t'].size
+    zeros = np.zeros(n)
+    add('/ground_truth/odom', sens['gt_t'], lambda sn: [
+        ('header.stamp', 'stamp', sn),
+        ('pose.pose.position', 'xyz', np.column_stack((sens['gt_x'], sens['gt_y'],
+                                                       sens['gt_z']))),
+        ('pose.pose.orientation', 'xyzw', C.quat_xyzw(sens['gt_roll'], sens['gt_pitch'],
+                                                      np.atleast_1d(wrap_angle(sens['gt_yaw'])))),
+        ('twist.twist.linear', 'xyz', np.column_stack((sens['gt_v'], zeros, zeros))),
+        ('twist.twist.angular', 'xyz', np.column_stack((zeros, zeros, sens['gt_w'])))])
+    add('/imu', sens['imu_t'], lambda sn: [
+        ('header.stamp', 'stamp', sn), ('angular_velocity', 'xyz', sens['gyro']),
+        ('linear_acceleration', 'xyz', sens['accel'])])
+    add('/joint_states', sens['js_t'], lambda sn: [
+        ('header.stamp', 'stamp', sn), ('position', 'f8', sens['js_pos']),
+        ('velocity', 'f8', sens['js_vel'])])
+    n = sens['odom_t'].size
+    zeros = np.zeros(n)
+    add('/odom', sens['odom_t'], lambda sn: [
+        ('header.stamp', 'stamp', sn),
+        ('pose.pose.position', 'xyz', np.column_stack((sens['odom_x'], sens['odom_y'], zeros))),
+        ('pose.pose.orientation', 'xyzw',
+         C.quat_xyzw(zeros, zeros, np.atleast_1d(wrap_angle(sens['odom_yaw'])))),
+        ('twist.twist.linear', 'xyz', np.column_stack((sens['odom_vx'], zeros, zeros))),
+        ('twist.twist.angular', 'xyz', np.column_stack((zeros, zeros, sens['odom_wz'])))])
+    add('/scan', sens['scan_t'], lambda sn: [
+        ('header.stamp', 'stamp', sn), ('ranges', 'f4', sens['ranges'])])
+    return out
+
+
+def _head(sens: dict[str, Any]) -> dict[str, Any]:
+    """Return the sensor arrays cut to their first sample (to build template messages)."""
+    return {k: (v[:1] if isinstance(v, np.ndarray) and v.ndim >= 1 and v.size else v)
+            for k, v in sens.items()}
+
+
+def write_bag(writer: Any, result: SimResult) -> None:
+    """Write a result into an open BagWriter, all topics merged in time order (fast path)."""
+    streams = encoded_streams(result)
+    times = np.concatenate([ns for _, _, ns, _ in streams])
+    order = np.concatenate([np.full(ns.size, i) for i, (_, _, ns, _) in enumerate(streams)])
+    rows = np.concatenate([np.arange(ns.size) for _, _, ns, _ in streams])
+    idx = np.lexsort((order, times))
+    for i in idx.tolist():
+        topic, msgtype, ns, data = streams[order[i]]
+        j = rows[i]
+        writer.write_raw(topic, msgtype, data[j], int(ns[j]))
 
 
 def state_at(result: SimResult, t: float) -> State:

@@ -69,6 +69,8 @@ class Step:
     controller: Optional[Controller] = None
     event: Optional[dict] = None
     label: str = ''
+    exact: bool = False
+    """Scale the command so that its integral is exact despite whole control ticks."""
 
 
 @dataclass
@@ -132,11 +134,16 @@ class Plan:
         return float(sum(s.duration for s in self.steps))
 
     # -- open loop -----------------------------------------------------------------------
-    def twist(self, v: float, w: float, duration: float, label: str = 'twist') -> 'Plan':
-        """Command a constant twist: ``v`` (m/s) and ``w`` (rad/s) for ``duration`` (s)."""
+    def twist(self, v: float, w: float, duration: float, label: str = 'twist',
+              exact: bool = False) -> 'Plan':
+        """Command a constant twist: ``v`` (m/s) and ``w`` (rad/s) for ``duration`` (s).
+
+        The duration is rounded to whole control ticks; with ``exact`` the
+        command is scaled so that v * duration and w * duration are kept.
+        """
         cmd = np.array([float(v), float(w)])
         self.steps.append(Step(max(0.0, duration), TWIST,
-                               lambda n, dt: np.tile(cmd, (n, 1)), label=label))
+                               lambda n, dt: np.tile(cmd, (n, 1)), label=label, exact=exact))
         return self
 
     def stop(self, duration: float) -> 'Plan':
@@ -146,19 +153,21 @@ class Plan:
     def straight(self, distance: float, speed: float) -> 'Plan':
         """Drive ``distance`` (m, negative: backwards) at ``speed`` (m/s, > 0)."""
         speed = abs(speed)
-        return self.twist(math.copysign(speed, distance), 0.0, abs(distance) / speed, 'straight')
+        return self.twist(math.copysign(speed, distance), 0.0, abs(distance) / speed,
+                          'straight', True)
 
     def turn(self, angle: float, rate: float) -> 'Plan':
         """Turn in place by ``angle`` (rad, positive: counter-clockwise) at ``rate`` (rad/s)."""
         rate = abs(rate)
-        return self.twist(0.0, math.copysign(rate, angle), abs(angle) / rate, 'turn')
+        return self.twist(0.0, math.copysign(rate, angle), abs(angle) / rate, 'turn', True)
 
     def arc(self, radius: float, angle: float, speed: float) -> 'Plan':
         """Drive an arc of ``radius`` (m) turning by ``angle`` (rad, + left) at ``speed`` (m/s)."""
         speed = abs(speed)
         radius = abs(radius)
         length = radius * abs(angle)
-        return self.twist(speed, math.copysign(speed / radius, angle), length / speed, 'arc')
+        return self.twist(speed, math.copysign(speed / radius, angle), length / speed, 'arc',
+                          True)
 
     def wheels(self, left: float, right: float, duration: float) -> 'Plan':
         """Differential drive: wheel speeds ``left``, ``right`` (rad/s) for ``duration`` (s)."""

@@ -136,7 +136,6 @@ class Plant:
     # -- integration ---------------------------------------------------------------------
     def advance(self, kind: str, values: np.ndarray) -> None:
         """Apply K control ticks of commands ``values`` (K, 2) of ``kind``."""
-        from scipy.signal import lfilter
         tgt, twist = self.targets(kind, values)
         k = tgt.shape[0]
         if k == 0:
@@ -146,19 +145,20 @@ class Plant:
         ends = np.empty_like(tgt)
         starts = np.empty_like(tgt)
         for j in range(2):
-            big = self.big_a[j]
-            if k == 1:
-                ends[0, j] = tgt[0, j] + (self.act[j] - tgt[0, j]) * big
-            else:
-                ends[:, j] = lfilter([1.0 - big], [1.0, -big], tgt[:, j],
-                                     zi=[big * self.act[j]])[0]
+            big = float(self.big_a[j])
+            e = float(self.act[j])
+            col = tgt[:, j].tolist()
+            out = ends[:, j]
+            for i in range(k):
+                e = col[i] + (e - col[i]) * big
+                out[i] = e
             starts[0, j] = self.act[j]
             starts[1:, j] = ends[:-1, j]
         act = (tgt[:, None, :] + (starts - tgt)[:, None, :] * self.pw[None, :, :]).reshape(-1, 2)
         self.act = ends[-1].copy()
-        t = (self.ticks * n + np.arange(k * n)) * self.dt
+        t = (self.ticks * n + np.arange(k * n)) / self.p.rate
         self._integrate(t, act)
-        self.cmd_chunks.append(np.column_stack(((self.ticks + np.arange(k)) * n * self.dt,
+        self.cmd_chunks.append(np.column_stack(((self.ticks + np.arange(k)) * n / self.p.rate,
                                                 twist)))
         self.ticks += k
 

