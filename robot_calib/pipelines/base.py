@@ -174,7 +174,12 @@ def _finite_sample(sample: Any) -> bool:
     if not math.isfinite(sample.t):
         return False
     if isinstance(sample, T.ImuSample):
-        return bool(np.all(np.isfinite(sample.gyro)) and np.all(np.isfinite(sample.accel)))
+        g, a = sample.gyro, sample.accel
+        if len(g) == 3 and len(a) == 3:  # element-wise: ~10x faster than np.all (replay speed)
+            isf = math.isfinite
+            return (isf(g[0]) and isf(g[1]) and isf(g[2]) and isf(a[0]) and isf(a[1])
+                    and isf(a[2]))
+        return bool(np.all(np.isfinite(g)) and np.all(np.isfinite(a)))
     if isinstance(sample, T.OdomSample):
         return all(math.isfinite(v) for v in (sample.x, sample.y, sample.yaw, sample.vx,
                                               sample.vy, sample.wz))
