@@ -301,3 +301,23 @@ def test_messages_in_time_order(drive30):
         counts[topic] = counts.get(topic, 0) + 1
     assert counts == drive30.truth['topics']
     assert counts['/imu'] == 30 * 200 + 1 and counts['/scan'] == 30 * 10 + 1
+
+
+def test_fan_ray_casting_equals_brute_force():
+    rng = np.random.default_rng(1)
+    world = World().add_room(10.0, 8.0)
+    for _ in range(20):
+        world.add_circle(rng.uniform(1, 9), rng.uniform(1, 7), rng.uniform(0.05, 0.4), 12)
+    world.add_box(5.0, 4.0, 2.0, 0.1, yaw=0.7)
+    n_s, n_b = 60, 180
+    tt = np.arange(n_b) / n_b * 0.1
+    ox = rng.uniform(1, 9, n_s)[:, None] + rng.normal(0, 1.0, n_s)[:, None] * tt
+    oy = rng.uniform(1, 7, n_s)[:, None] + rng.normal(0, 1.0, n_s)[:, None] * tt
+    ang = (rng.uniform(-np.pi, np.pi, n_s)[:, None] + np.arange(n_b) * 2 * np.pi / n_b
+           + rng.normal(0, 3.0, n_s)[:, None] * tt)
+    brute = world.raycast(ox, oy, ang)
+    fan = world.raycast_fan(ox, oy, ang)
+    assert np.array_equal(np.isfinite(brute), np.isfinite(fan))
+    ok = np.isfinite(brute)
+    assert ok.mean() > 0.9
+    assert np.max(np.abs(brute[ok] - fan[ok])) < 1e-4

@@ -182,7 +182,7 @@ def lidar(tr: dict[str, np.ndarray], p: SimParams, world: Any, times: np.ndarray
     ox = x + c * li.x - s * li.y
     oy = y + s * li.x + c * li.y
     ang = yaw + li.yaw + amin + inc * np.arange(beams)[None, :]
-    ranges = world.raycast(ox, oy, ang, max_range=np.inf)
+    ranges = world.raycast_fan(ox, oy, ang)
     noise = rng.standard_normal(ranges.shape)
     drop = rng.random(ranges.shape)
     hit = np.isfinite(ranges)
