@@ -469,8 +469,8 @@ def _init_steered(x: np.ndarray, steps: np.ndarray, meas: np.ndarray) -> np.ndar
     dphi, reading = steps[..., 0], steps[..., 1]
     rot = meas[:, 2]
     best = (math.inf, x[0], x[1], x[2] / x[3])
-    scales = x[1] * np.geomspace(0.1, 10.0, 61)
-    offsets = x[0] + np.linspace(-0.3, 0.3, 61)
+    scales = x[1] * np.geomspace(0.1, 10.0, 41)
+    offsets = x[0] + np.linspace(-0.3, 0.3, 31)
     for sc in scales:
         ang = sc * reading[None] + offsets[:, None, None]
         g = np.sum(dphi[None] * np.sin(ang), axis=2)  # (O, S)
@@ -649,8 +649,12 @@ def verdict_of(drive_type: str, values: dict, stds: dict, content: dict, n_used:
 
 
 def calibrate(drive_type: str, segments: list[Segment], params: WheelCalibParams,
-              extra_problems: Iterable[str] = ()) -> CalibResult:
-    """Run the improved joint estimator and return a result with stds and a verdict."""
+              extra_problems: Iterable[str] = (), x0: Optional[np.ndarray] = None) -> CalibResult:
+    """Run the improved joint estimator and return a result with stds and a verdict.
+
+    ``x0`` (in :func:`keys_of` order) warm-starts the fit (streaming updates);
+    None starts from the global initialisation.
+    """
     sp = params.solver
     nominal = params.nominal()
     keys = keys_of(drive_type)
@@ -663,7 +667,7 @@ def calibrate(drive_type: str, segments: list[Segment], params: WheelCalibParams
         if verdict == 'converged':
             verdict = 'Too little data'
         return CalibResult(drive_type, values, stds, 0, verdict, {'content': content})
-    fit = joint_fit(drive_type, segments, nominal, sp)
+    fit = joint_fit(drive_type, segments, nominal, sp, x0=x0)
     x, cov = fit['x'], fit['cov']
     values = {k: float(v) for k, v in zip(keys, x)}
     values['lidar_yaw'] = wrap_angle(values['lidar_yaw'])
@@ -676,6 +680,7 @@ def calibrate(drive_type: str, segments: list[Segment], params: WheelCalibParams
     verdict = verdict_of(drive_type, values, stds, drive_content(inl_segs, sp), n_in, n_out,
                          sp, extra_problems)
     details = {'content': content, 'outliers': n_out, 'sigma': fit['sigma'].tolist(),
+               'x': x.tolist(),
                'covariance': cov.tolist(), 'keys': list(keys),
                'information_eigenvalues': np.linalg.eigvalsh(fit['info_data']).tolist()}
     return CalibResult(drive_type, values, stds, n_in, verdict, details)
@@ -918,6 +923,7 @@ class WheelCalibrator:
         self.seed = SeedSteeredCalibrator(p) if self.drive == 'steered_wheel' else None
         self._stage: list[Segment] = []
         self._stage_start: Optional[_KeyFrame] = None
+        self._warm: Optional[np.ndarray] = None
         self.counts = {'wheel_samples': 0, 'scans': 0, 'match_attempts': 0, 'match_failed': 0,
                        'wheel_gaps': 0, 'encoder_unwraps': 0, 'stages': 0,
                        'stage_match_failed': 0, 'scans_without_wheel_data': 0,
@@ -1233,7 +1239,10 @@ class WheelCalibrator:
         if self.params.mode == 'seed' and self.seed is not None:
             res = self.seed.result(extra)
         else:
-            res = calibrate(self.drive, self.segments, self.params, extra)
+            warm = None if final else self._warm
+            res = calibrate(self.drive, self.segments, self.params, extra, x0=warm)
+            if 'x' in res.details and np.all(np.isfinite(res.details['x'])):
+                self._warm = np.asarray(res.details['x'])
         res.details['counts'] = dict(self.counts)
         if self.seed is not None:
             res.details['seed_stages_needed'] = self.seed.stages_needed

@@ -46,10 +46,10 @@ class WheelCalibrationPipeline(Pipeline):
         self.calib = WheelCalibrator(self.params, matcher=matcher, prepare=prepare)
         self.result: Optional[CalibResult] = None
         self._last_update: Optional[float] = None
-        self._last_t = math.nan
-        self._last_stamp = -1
+        self._latest_t = math.nan
+        self._latest_stamp = -1
         self._sensor_frame: Optional[str] = None
-        self._n_solved = -1
+        self._n_solved = 0
 
     def on_static_transform(self, transform: T.StaticTransform) -> None:
         """Use a base_frame -> scan frame transform as the nominal lidar pose."""
@@ -78,13 +78,14 @@ class WheelCalibrationPipeline(Pipeline):
                 self._sensor_frame = sample.frame_id
                 self._apply_tf(sample.frame_id)
             self.calib.add_scan(sample)
-        self._last_t, self._last_stamp = sample.t, T.stamp_of(sample.t, sample.stamp_ns)
+        self._latest_t, self._latest_stamp = sample.t, T.stamp_of(sample.t, sample.stamp_ns)
         if self._last_update is None:
             self._last_update = sample.t
         if sample.t - self._last_update >= self.params.update_period:
             self._last_update = sample.t
+            # re-solve when the data grew by 10 % (or 10 segments): O(log n) solves per drive
             n = len(self.calib.segments) + self.calib.counts['stages']
-            if n != self._n_solved:
+            if self.result is None or n >= max(self._n_solved * 1.1, self._n_solved + 10):
                 self._n_solved = n
                 self.result = self.calib.solve()
             return [('status', self._status(final=False))]
@@ -93,7 +94,7 @@ class WheelCalibrationPipeline(Pipeline):
     def finish(self) -> list[Output]:
         """Solve once more with all data; publish the final status."""
         self.result = self.calib.solve(final=True)
-        if not math.isfinite(self._last_t):
+        if not math.isfinite(self._latest_t):
             return []
         return [('status', self._status(final=True))]
 
@@ -116,7 +117,7 @@ class WheelCalibrationPipeline(Pipeline):
         else:
             level, msg = 1, res.verdict
         status = T.DiagnosticStatus(STATUS_NAME, level, msg, '', tuple(values))
-        return T.DiagnosticSample(self._last_t, (status,), self._last_stamp)
+        return T.DiagnosticSample(self._latest_t, (status,), self._latest_stamp)
 
     def method_summary(self) -> dict[str, Any]:
         """Return the result, the drive content and the front end's counters."""
