@@ -321,3 +321,28 @@ def test_fan_ray_casting_equals_brute_force():
     ok = np.isfinite(brute)
     assert ok.mean() > 0.9
     assert np.max(np.abs(brute[ok] - fan[ok])) < 1e-4
+
+
+def test_follow_wall_keeps_its_distance():
+    world = World().add_room(6.0, 4.0).add_box(3.0, 2.0, 1.0, 1.0)
+    plan = Plan().follow_wall(60.0, side='right', distance=0.4, speed=0.3)
+    r = run_plan(plan, world=world, start=(1.0, 0.4, 0.0))
+    tr = r.true
+    d = np.array([world.nearest_distance(x, y) for x, y in zip(tr['x'][::100], tr['y'][::100])])
+    assert 0.15 < d.min() and d.max() < 0.65
+    assert np.median(d) == pytest.approx(0.4, abs=0.03)
+    assert np.ptp(tr['x']) > 4.5 and np.ptp(tr['y']) > 2.5  # it went round the room
+
+
+def test_tipped_lidar_sees_the_floor():
+    world = World().add_room(20.0, 20.0, -10.0, -10.0)
+    over = {'lidar.noise': 0.0, 'lidar.x': 0.0, 'lidar.z': 0.2, 'lidar.motion_distortion': 'false'}
+    r = run_plan(Plan().stop(1.0).tip_over(axis='pitch', direction=1, angle=0.3, duration=0.2)
+                 .stop(1.0), over, world, start=(0.0, 0.0, 0.0))
+    scan = r.sensors['ranges'][-1]
+    # pitched 0.3 rad nose down about the front caster (0.6 m ahead): the forward beam
+    # meets the floor; the backward beam points up and meets the wall at 10 m / cos(0.3)
+    z = r.true['pos'][-1, 2] + 0.2 * math.cos(0.3)
+    assert scan[180] == pytest.approx(z / math.sin(0.3), abs=1e-6)
+    behind = 10.0 + r.true['pos'][-1, 0] + 0.2 * math.sin(0.3)
+    assert scan[0] == pytest.approx(behind / math.cos(0.3), abs=1e-6)

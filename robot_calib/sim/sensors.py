@@ -16,7 +16,7 @@ from typing import Any, Optional
 import numpy as np
 
 from robot_calib.sim.params import SimParams
-from robot_calib.sim.robot import rotation_matrix, true_geometry
+from robot_calib.sim.robot import _rot_zyx, rotation_matrix, true_geometry
 
 
 def sample_times(rate: float, duration: float) -> np.ndarray:
@@ -169,7 +169,10 @@ def lidar(tr: dict[str, np.ndarray], p: SimParams, world: Any, times: np.ndarray
     Beam i of a scan is cast from the laser pose at ``t - latency + i * time_increment``
     (world frame, interpolated), adds Gaussian noise, and then: below
     ``range_min`` -> -inf, no return within ``range_max`` -> +inf (or NaN),
-    dropouts -> NaN.
+    dropouts -> NaN. When the robot is tilted (terrain, tip-over) the scan
+    plane tilts with it: walls (vertical) are hit along the beam's horizontal
+    projection at the 3D range, and beams pointing down hit the floor
+    (terrain height under the laser).
     """
     li = p.lidar
     amin, inc, tinc = lidar_geometry(p)
@@ -182,7 +185,11 @@ def lidar(tr: dict[str, np.ndarray], p: SimParams, world: Any, times: np.ndarray
     ox = x + c * li.x - s * li.y
     oy = y + s * li.x + c * li.y
     ang = yaw + li.yaw + amin + inc * np.arange(beams)[None, :]
-    ranges = world.raycast_fan(ox, oy, ang)
+    tilted = bool(np.any(tr['roll'] != 0.0) or np.any(tr['pitch'] != 0.0))
+    if not tilted:
+        ranges = world.raycast_fan(ox, oy, ang)
+    else:
+        ranges = _tilted_ranges(tr, li, world, bt, yaw, ang - yaw)
     noise = rng.standard_normal(ranges.shape)
     drop = rng.random(ranges.shape)
     hit = np.isfinite(ranges)
@@ -194,6 +201,27 @@ def lidar(tr: dict[str, np.ndarray], p: SimParams, world: Any, times: np.ndarray
     if li.dropout > 0:
         ranges[drop < li.dropout] = math.nan
     return ranges
+
+
+def _tilted_ranges(tr: dict[str, np.ndarray], li: Any, world: Any, bt: np.ndarray,
+                   yaw: np.ndarray, beam_b: np.ndarray) -> np.ndarray:
+    """Return 3D ranges (m) of beams at angles ``beam_b`` (rad, in base_link) of a tilted robot."""
+    roll = np.interp(bt, tr['t'], tr['roll'])
+    pitch = np.interp(bt, tr['t'], tr['pitch'])
+    rot = _rot_zyx(roll, pitch, yaw)
+    pos = [np.interp(bt, tr['t'], tr[k]) for k in ('x', 'y', 'z')]
+    lever = np.array([li.x, li.y, li.z])
+    origin = [pos[k] + rot[..., k, :] @ lever for k in range(3)]
+    cb, sb = np.cos(beam_b), np.sin(beam_b)
+    d = [rot[..., k, 0] * cb + rot[..., k, 1] * sb for k in range(3)]
+    horiz = np.hypot(d[0], d[1])
+    with np.errstate(divide='ignore', invalid='ignore'):
+        wall = world.raycast_fan(origin[0], origin[1], np.arctan2(d[1], d[0])) / horiz
+        ground = world.height(origin[0], origin[1]) if world.terrain else 0.0
+        floor = np.where(d[2] < -1e-9, (origin[2] - ground) / -d[2], np.inf)
+    floor = np.where(floor > 0, floor, np.inf)
+    out = np.minimum(np.where(np.isfinite(wall) & (wall > 0), wall, np.inf), floor)
+    return out
 
 
 def truth_values(p: SimParams, gyro_bias: np.ndarray) -> dict[str, Any]:
