@@ -251,10 +251,11 @@ def test_overrides_as_set_strings():
     assert r.sensors['ranges'].shape == (11, 90)
 
 
-@pytest.mark.parametrize('storage', ['mcap', 'sqlite3'])
+@pytest.mark.parametrize('storage', ['mcap', 'sqlite3', 'mcap-zstd'])
 def test_bag_round_trip_and_truth_json(tmp_path, storage):
     out = tmp_path / 'sim'
-    truth = simulate('drive', out, seed=5, duration=3.0, storage=storage)
+    truth = simulate('drive', out, seed=5, duration=3.0, storage=storage.split('-')[0],
+                     compress=storage.endswith('zstd'))
     saved = json.loads(truth_path(out).read_text())
     assert saved == truth
     for key in ('scenario', 'seed', 'duration', 'gyro_bias', 'wheel_radius', 'track_width',

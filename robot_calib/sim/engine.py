@@ -391,9 +391,10 @@ def truth_path(out: Union[str, os.PathLike]) -> Path:
 def simulate(scenario: str, out: Union[str, os.PathLike], seed: int = 0,
              duration: Optional[float] = None,
              overrides: Union[None, Mapping[str, Any], Iterable[str]] = None,
-             storage: str = 'mcap') -> dict:
+             storage: str = 'mcap', compress: bool = False) -> dict:
     """Simulate and write the ROS 2 bag folder ``out`` and ``<out>.truth.json``; return the truth.
 
+    ``compress`` zstd-compresses the mcap chunks (about 5x smaller, slower).
     Raises :class:`SimError` (one line) for an unknown scenario, a bad
     override, an existing or unwritable output.
     """
@@ -403,7 +404,8 @@ def simulate(scenario: str, out: Union[str, os.PathLike], seed: int = 0,
     result = run_scenario(scenario, seed, duration, overrides)
     tpath = truth_path(out)
     try:
-        with BagWriter(out, storage) as writer:
+        kwargs = {'compress': True} if compress else {}
+        with BagWriter(out, storage, **kwargs) as writer:
             write_bag(writer, result)
     except BagError as exc:
         raise SimError(str(exc)) from None
