@@ -46,6 +46,7 @@ Improved method (both drive types)
 
 from __future__ import annotations
 
+import bisect
 import dataclasses
 from dataclasses import dataclass, field
 import math
@@ -1067,7 +1068,7 @@ class WheelCalibrator:
 
     def _odom_at(self, t: float) -> tuple[np.ndarray, int]:
         """Return the nominal odometry pose interpolated at ``t`` and the sample index after."""
-        i = int(np.searchsorted(self._t, t))
+        i = bisect.bisect_left(self._t, t)
         if i == 0:
             return self._pose[0].copy(), 0
         if i >= len(self._t):
@@ -1078,7 +1079,7 @@ class WheelCalibrator:
         return p0 + w * (p1 - p0), i
 
     def _wheel_at(self, t: float) -> tuple[float, float]:
-        i = int(np.clip(np.searchsorted(self._t, t), 1, len(self._t) - 1))
+        i = min(max(bisect.bisect_left(self._t, t), 1), len(self._t) - 1)
         t0, t1 = self._t[i - 1], self._t[i]
         w = (t - t0) / (t1 - t0) if t1 > t0 else 1.0
         a = self._a[i - 1] + w * (self._a[i] - self._a[i - 1])
@@ -1087,15 +1088,14 @@ class WheelCalibrator:
 
     def _steps(self, t0: float, t1: float) -> Optional[np.ndarray]:
         """Return the wheel steps between t0 and t1 (None over a data gap)."""
-        tt = np.asarray(self._t)
-        inner = np.nonzero((tt > t0) & (tt < t1))[0]
-        times = np.concatenate(([t0], tt[inner], [t1]))
+        i0, i1 = bisect.bisect_right(self._t, t0), bisect.bisect_left(self._t, t1)
+        times = np.concatenate(([t0], self._t[i0:i1], [t1]))
         if np.max(np.diff(times)) > self.params.keyframe.max_wheel_gap:
             return None
         a0, b0 = self._wheel_at(t0)
         a1, b1 = self._wheel_at(t1)
-        aa = np.concatenate(([a0], np.asarray(self._a)[inner], [a1]))
-        bb = np.concatenate(([b0], np.asarray(self._b)[inner], [b1]))
+        aa = np.concatenate(([a0], self._a[i0:i1], [a1]))
+        bb = np.concatenate(([b0], self._b[i0:i1], [b1]))
         if self.drive == 'differential':
             return np.column_stack((np.diff(aa), np.diff(bb)))
         return np.column_stack((np.diff(aa), 0.5 * (bb[1:] + bb[:-1])))
@@ -1114,8 +1114,10 @@ class WheelCalibrator:
         pts = np.column_stack((r[idx] * np.cos(ang), r[idx] * np.sin(ang)))
         if not scan.time_increment > 0 or len(self._t) < 2 or not len(idx):
             return pts
-        tt = np.asarray(self._t)
-        poses = np.asarray(self._pose)
+        lo = max(bisect.bisect_left(self._t, scan.t) - 1, 0)
+        hi = bisect.bisect_right(self._t, _scan_end(scan)) + 1
+        tt = np.asarray(self._t[lo:hi])
+        poses = np.asarray(self._pose[lo:hi])
         ti = scan.t + scan.time_increment * idx
         at = np.column_stack([np.interp(ti, tt, poses[:, j]) for j in range(3)])
         a0 = np.array([np.interp(scan.t, tt, poses[:, j]) for j in range(3)])
@@ -1126,10 +1128,9 @@ class WheelCalibrator:
                                 srel[:, 1] + s * pts[:, 0] + c * pts[:, 1]))
 
     def _on_scan(self, scan: Any) -> None:
-        pts = self._deskewed_points(scan)
         odom, _ = self._odom_at(scan.t)
         if self._kf is None:
-            self._kf = _KeyFrame(scan.t, pts, None, odom)
+            self._kf = _KeyFrame(scan.t, self._deskewed_points(scan), None, odom)
             return
         kp = self.params.keyframe
         kf = self._kf
@@ -1139,8 +1140,9 @@ class WheelCalibrator:
         if not (dist >= kp.distance or ang >= kp.angle or
                 (scan.t - kf.t >= kp.max_time and moving)):
             if scan.t - kf.t >= kp.max_time:
-                self._kf = _KeyFrame(scan.t, pts, None, odom)
+                self._kf = _KeyFrame(scan.t, self._deskewed_points(scan), None, odom)
             return
+        pts = self._deskewed_points(scan)
         steps = self._steps(kf.t, scan.t)
         new_kf = _KeyFrame(scan.t, pts, None, odom)
         if steps is None:
