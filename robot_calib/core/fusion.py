@@ -144,13 +144,17 @@ class FusionParams:
     zero_velocity_threshold: float = param(1e-3, 'm/s or rad/s', 'Wheel speed and yaw rate '
                                            'below which the robot is taken as stationary',
                                            minimum=0.0)
-    gate_probability: float = param(0.999, '', 'Chi-square gate of each odometry channel '
+    gate_probability: float = param(0.9999, '', 'Chi-square gate of each odometry channel '
                                     '(1 dof); 1 disables gating', minimum=0.5, maximum=1.0)
     adaptive: bool = param(True, '', 'On-line odometry noise adaptation (IAE)')
+    adaptation: str = param('nis', '', 'nis: one scale per odometry channel on both its '
+                            'measurement and process noise, driven to E[NIS] = 1; iae: '
+                            "measurement noise only, R = C - H P H' (Mohamed & Schwarz)",
+                            choices=('nis', 'iae'))
     adapt_time: float = param(10.0, 's', 'Time constant of the innovation averaging',
                               minimum=0.1)
-    adapt_min: float = param(0.25, '', 'Lower bound of the noise scale factor', minimum=1e-3)
-    adapt_max: float = param(25.0, '', 'Upper bound of the noise scale factor', minimum=1.0)
+    adapt_min: float = param(0.01, '', 'Lower bound of the noise scale factor', minimum=1e-3)
+    adapt_max: float = param(100.0, '', 'Upper bound of the noise scale factor', minimum=1.0)
     nis_window: int = param(20, '', 'Odometry updates in the NIS moving average', minimum=1)
     max_speed: float = param(3.0, 'm/s', 'Physical speed limit: clamp of the speed state',
                              minimum=0.01)
@@ -566,11 +570,11 @@ class ImprovedFusion(_Base):
         acc[3] += c * dt
         acc[4] += s * dt
         self.t = t
-        if acc[0] >= 0.05:
+        if acc[0] >= 0.1:
             self._flush()
 
     def _flush(self) -> None:
-        """Propagate P over the pending chunk of prediction (<= 0.05 s): P = F P F' + Q."""
+        """Propagate P over the pending chunk of prediction (<= 0.1 s): P = F P F' + Q."""
         dt, dx, dy, sc, ss = self._cov_acc
         if dt <= 0.0:
             return
@@ -582,16 +586,18 @@ class ImprovedFusion(_Base):
         F[IY, IYAW] = dx
         F[IX, IV] = sc
         F[IY, IV] = ss
+        qs = self.lam if p.adaptation == 'nis' else (1.0, 1.0)
         if not stale:
             F[IYAW, IBG] = -dt
-            q_yaw = (p.gyro_noise ** 2) * dt
+            q_yaw = (p.gyro_noise ** 2) * dt * qs[1]
         else:
             q_yaw = (p.odom_yaw_rate_noise ** 2) * dt
         if use_acc and not stale:
             F[IV, IBA] = -dt
-            q_v = (p.accel_noise ** 2) * dt
+            q_v = (p.accel_noise ** 2) * dt * qs[0]
         else:
-            q_v = (0.5 ** 2) * dt  # no accelerometer: speed as a random walk, 0.5 m/s^2
+            # no accelerometer: speed as a random walk, 0.5 m/s^2/sqrt(Hz)
+            q_v = (0.5 ** 2) * dt * qs[0]
         P = F @ self.P @ F.T
         c, s = math.cos(self.x[IYAW]), math.sin(self.x[IYAW])
         lat = (p.lateral_slip * abs(self.x[IV])) ** 2 * dt
@@ -613,7 +619,10 @@ class ImprovedFusion(_Base):
 
     def _imu(self, t: float, gz: float, ax: float, use_acc: bool) -> Optional[str]:
         if self.t is not None and t < self.t:
-            return 'stale'
+            if self.t - t > self.p.max_lag:
+                return 'stale'
+            # a little older than the filter (sensor latency): use it from now on
+            self.count('late_imu')
         self._predict(t)
         self.imu_stale = False
         self.gz, self.ax, self.use_acc = gz, ax, use_acc
@@ -638,8 +647,12 @@ class ImprovedFusion(_Base):
             k[consider] = 0.0
         self.x += k * resid
         # Joseph form keeps P symmetric positive definite
-        A = _EYE8 - np.outer(k, h)
-        P = A @ self.P @ A.T + r * np.outer(k, k)
+        if consider is None:
+            P = self.P - np.outer(k, Ph)  # P = (I - K H) P, symmetrised below
+        else:
+            # any gain: Joseph form (I - K H) P (I - K H)' + K R K'
+            A = _EYE8 - np.outer(k, h)
+            P = A @ self.P @ A.T + r * np.outer(k, k)
         self.P = 0.5 * (P + P.T)
         return s, resid * resid / s
 
@@ -702,6 +715,8 @@ class ImprovedFusion(_Base):
             interval = t - self._last_upd_t if self._last_upd_t is not None else 0.1
             r_gyro = (x[IKW] ** 2) * (p.gyro_noise ** 2) / max(interval, 1e-3)
             s_pred = float(h @ self.P @ h)
+            if p.adaptation == 'nis':
+                r_gyro *= self.lam[1]
             r_eff = r_w * self.lam[1] + r_gyro
             s_w = s_pred + r_eff
             nis_w = res_w * res_w / s_w
@@ -746,11 +761,10 @@ class ImprovedFusion(_Base):
 
     def _adapt(self, i: int, resid: float, s_pred: float, r_nom: float, s_tot: float,
                t: float) -> None:
-        """Innovation-based adaptive estimation of the noise scale of channel ``i``."""
+        """Adapt the noise scale of channel ``i`` (0 speed, 1 yaw rate) from its innovation."""
         p = self.p
         if not p.adaptive:
             return
-        e2 = min(resid * resid, self._gate * s_tot)  # clipped: an outlier cannot dominate
         if self._c2 is None:
             self._c2 = [None, None]
             self._c2_t = [t, t]
@@ -759,15 +773,29 @@ class ImprovedFusion(_Base):
             self._c2_t[i] = t
         dt = max(t - self._c2_t[i], 0.0)
         self._c2_t[i] = t
-        a = min(1.0, max(dt, 0.01) / p.adapt_time)
-        self._c2[i] += a * (e2 - self._c2[i])
-        # IAE: R = C_nu - H P H', as a bounded scale of the nominal (Mohamed & Schwarz 1999)
-        lam = (self._c2[i] - s_pred) / r_nom
+        a = min(1.0, max(dt, 0.001) / p.adapt_time)
+        if p.adaptation == 'nis':
+            # stochastic approximation of E[NIS] = 1 on log(scale); the NIS is capped at 3
+            # so that a slip episode raises the scale by at most exp(2 a) per update
+            nis = resid * resid / s_tot
+            lam = self.lam[i] * math.exp(a * (min(nis, 3.0) - 1.0))
+        else:
+            e2 = min(resid * resid, self._gate * s_tot)  # clipped: an outlier cannot dominate
+            self._c2[i] += a * (e2 - self._c2[i])
+            # IAE: R = C_nu - H P H', as a bounded scale of the nominal (Mohamed & Schwarz 1999)
+            lam = (self._c2[i] - s_pred) / r_nom
         self.lam[i] = min(max(lam, p.adapt_min), p.adapt_max)
 
     def _record_nis(self, nis: float, dof: int) -> None:
+        """Record one update's NIS; count it inside or outside its two-sided 95 % band."""
         self.nis_hist.append(nis)
         self.nis_dof_hist.append(dof)
+        band1 = self._band.get((dof, 1))
+        if band1 is None:
+            band1 = self._band[(dof, 1)] = nis_band(dof, 1)
+        self.nis_checked += 1
+        if band1[0] <= nis <= band1[1]:
+            self.nis_in_band += 1
         self._nis_win.append(nis)
         self._nis_dof_win.append(dof)
         n = self.p.nis_window
@@ -778,15 +806,16 @@ class ImprovedFusion(_Base):
             total_dof = sum(self._nis_dof_win)
             band = self._band.get(total_dof)
             if band is None:
-                band = nis_band(1, total_dof)
-                band = (band[0] * total_dof / n, band[1] * total_dof / n)
-                self._band[total_dof] = band
+                lo, hi = nis_band(1, total_dof)
+                band = self._band[total_dof] = (lo * total_dof / n, hi * total_dof / n)
             self.nis_avg = sum(self._nis_win) / n
-            self.nis_checked += 1
+            self.nis_window_checked += 1
             if band[0] <= self.nis_avg <= band[1]:
-                self.nis_in_band += 1
+                self.nis_window_in_band += 1
             self.nis_band_now = band
 
+    nis_window_checked = 0
+    nis_window_in_band = 0
     nis_band_now = (float('nan'), float('nan'))
 
     def _guard(self, t: float, v: float) -> None:

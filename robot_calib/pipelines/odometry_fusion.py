@@ -96,11 +96,10 @@ class FusionPipeline(Pipeline):
         """Count message covariances that are zero, negative or absurd (they are not used)."""
         if cov is None:
             return
-        c = np.asarray(cov, dtype=float)
-        if np.all(np.isnan(c)):
+        d = (float(cov[0][0]), float(cov[1][1]), float(cov[2][2]))
+        if all(v != v for v in d):  # NaN: not provided
             return
-        d = np.diag(c)
-        if not np.all(np.isfinite(d)) or np.any(d <= 0) or np.any(d > 1e3):
+        if not all(0.0 < v <= 1e3 for v in d):  # zero, negative, NaN or absurd
             self._ignored_cov += 1
 
     def _estimate(self, sample: Any) -> list[Output]:
@@ -147,9 +146,13 @@ class FusionPipeline(Pipeline):
         if isinstance(f, F.ImprovedFusion):
             band = f.nis_band_now
             frac = f.nis_in_band / f.nis_checked if f.nis_checked else float('nan')
-            values += [('nis_avg', f'{f.nis_avg:.3f}'),
+            wfrac = f.nis_window_in_band / f.nis_window_checked if f.nis_window_checked \
+                else float('nan')
+            values += [('nis_last', f'{f.nis_hist[-1]:.3f}' if f.nis_hist else 'nan'),
+                       ('nis_avg', f'{f.nis_avg:.3f}'),
                        ('nis_band_low', f'{band[0]:.3f}'), ('nis_band_high', f'{band[1]:.3f}'),
-                       ('nis_in_band_fraction', f'{frac:.3f}')]
+                       ('nis_in_band_fraction', f'{frac:.3f}'),
+                       ('nis_window_in_band_fraction', f'{wfrac:.3f}')]
             values += [(k, f'{v:.6g}') for k, v in f.state_summary().items()]
             values.append(('imu_stale', str(f.imu_stale)))
             if math.isfinite(f.nis_avg) and not band[0] <= f.nis_avg <= band[1]:
@@ -193,6 +196,8 @@ class FusionPipeline(Pipeline):
                 'mean': float(np.mean(f.nis_hist)) if f.nis_hist else None,
                 'window': self.params.nis_window,
                 'in_band_fraction': f.nis_in_band / f.nis_checked if f.nis_checked else None,
+                'window_in_band_fraction': f.nis_window_in_band / f.nis_window_checked
+                if f.nis_window_checked else None,
             }
         else:
             out['estimates'] = f.state_summary()
