@@ -370,3 +370,11 @@ def test_tricycle_first_half_calibration_beats_nominal(shared_data):
         return float(np.mean(np.hypot(*(pred[:, :2] - data.tracker_pose[half:, :2]).T)))
     before, after = mean_error(data.nominal), mean_error(res.values)
     assert before > 2.0 and after < 0.5 < before
+
+
+def test_seed_mode_differential_is_censi_faithful():
+    segs = _diff_segments(np.random.default_rng(10), n=200, noise=(0.001, 0.001, 0.0005))
+    res = W.solve(_params('differential', mode='seed'), segs)
+    for k in W.DIFF_KEYS:
+        assert abs(res.values[k] - DIFF_TRUTH[k]) < 5 * res.stds[k], k
+    assert res.segments_used < 200  # the authors' trimming drops ~1 % per pass

@@ -146,7 +146,8 @@ class KeyframeParams:
 class WheelCalibParams:
     """Parameters of ``wheel_odometry_calibration`` (geometry named like the result keys)."""
 
-    mode: str = param('improved', '', 'improved (joint ML estimate) or seed (seed 003 stages)',
+    mode: str = param('improved', '', 'improved (joint ML estimate) or seed (seed 003 stages; '
+                      'differential drive: the Censi et al. closed form)',
                       choices=('improved', 'seed'))
     drive_type: str = param('differential', '', 'Drive type of the robot',
                             choices=('differential', 'steered_wheel'))
@@ -827,15 +828,41 @@ class SeedSteeredCalibrator:
         return CalibResult('steered_wheel', values, stds, used, verdict, details)
 
 
+def censi_result(segments: list[Segment], params: WheelCalibParams,
+                 extra_problems: Iterable[str] = ()) -> CalibResult:
+    """Return the Censi-faithful differential result (``mode: seed`` for differential drive).
+
+    Seed 003 covers the steered wheel only; for differential drive the
+    published baseline (Censi et al. 2013 closed form with the authors' outlier
+    trimming and Fisher-information uncertainty) is the reference mode.
+    """
+    sp = params.solver
+    content = drive_content(segments, sp)
+    out = censi_calibrate(segments) if len(segments) >= 3 else None
+    if out is None:
+        nominal = params.nominal()
+        values = {k: nominal[k] for k in DIFF_KEYS}
+        stds = {k: math.nan for k in DIFF_KEYS}
+        verdict = verdict_of('differential', values, stds, content, len(segments), 0, sp,
+                             list(extra_problems) + ['the closed form has no solution'])
+        return CalibResult('differential', values, stds, 0, verdict, {'content': content})
+    values = {k: float(v) for k, v in zip(DIFF_KEYS, out['x'])}
+    with np.errstate(invalid='ignore'):
+        stds = {k: float(v) for k, v in zip(DIFF_KEYS, np.sqrt(np.diag(out['cov'])))}
+    n_out = len(segments) - out['used']
+    verdict = verdict_of('differential', values, stds, content, out['used'], 0, sp,
+                         extra_problems)
+    return CalibResult('differential', values, stds, out['used'], verdict,
+                       {'content': content, 'outliers': n_out, 'sigma': out['sigma'].tolist()})
+
+
 def solve(params: WheelCalibParams, segments: list[Segment],
           stages: Optional[list[Segment]] = None,
           extra_problems: Iterable[str] = ()) -> CalibResult:
     """Return the result of the configured mode: the seed stages or the joint estimator."""
     if params.mode == 'seed':
         if params.drive_type != 'steered_wheel':
-            res = calibrate(params.drive_type, segments, params, extra_problems)
-            res.details['note'] = 'seed 003 covers the steered wheel only; improved estimator'
-            return res
+            return censi_result(segments, params, extra_problems)
         return SeedSteeredCalibrator(params).run(stages or [])
     return calibrate(params.drive_type, segments, params, extra_problems)
 
@@ -1240,6 +1267,8 @@ class WheelCalibrator:
         extra = self.problems()
         if self.params.mode == 'seed' and self.seed is not None:
             res = self.seed.result(extra)
+        elif self.params.mode == 'seed':
+            res = censi_result(self.segments, self.params, extra)
         else:
             warm = None if final else self._warm
             res = calibrate(self.drive, self.segments, self.params, extra, x0=warm)

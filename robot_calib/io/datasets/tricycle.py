@@ -117,3 +117,35 @@ def dead_reckon(data: TricycleData, values: dict, lo: int, hi: int) -> np.ndarra
         base = K.compose(base, st)
         poses.append(base)
     return K.compose(np.array(poses), np.broadcast_to(lp, (len(poses), 3)))
+
+
+def stages(data: TricycleData, lo: int, hi: int, straight: float = 0.05,
+           min_length: float = 1.0, max_length: float = 4.0) -> list[Segment]:
+    """Return the seed's straight stages between samples lo..hi, with the tracker's motion.
+
+    A stage is a run of samples whose steering angle with the nominal
+    conversion (``Ksteer * reading``) stays below ``straight`` (rad), at least
+    ``min_length`` and at most ``max_length`` of nominal travel (m); its
+    measured motion is the tracked sensor's relative pose between its first
+    and last sample (what the seed gets from matching the stage's first and
+    last scan).
+    """
+    ksteer, radius = data.nominal['steering_scale'], data.nominal['wheel_radius']
+    ok = np.abs(ksteer * data.reading) < straight
+    out = []
+    i = lo
+    while i < hi:
+        if not ok[i + 1] if i + 1 <= hi else True:
+            i += 1
+            continue
+        j, travel = i, 0.0
+        while j < hi and ok[j + 1] and travel < max_length:
+            travel += abs(radius * (data.traction[j + 1] - data.traction[j]))
+            j += 1
+        if travel >= min_length:
+            steps = np.column_stack((np.diff(data.traction[i:j + 1]), data.reading[i + 1:j + 1]))
+            rel = K.compose(K.inverse(data.tracker_pose[i]), data.tracker_pose[j])
+            rel[2] = math.atan2(math.sin(rel[2]), math.cos(rel[2]))
+            out.append(Segment(float(data.t[i]), float(data.t[j]), steps, rel))
+        i = max(j, i + 1)
+    return out
