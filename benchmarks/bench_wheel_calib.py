@@ -1,6 +1,7 @@
 # Copyright 2026 robot_calib contributors
 # SPDX-License-Identifier: Apache-2.0
-"""Benchmark of wheel_odometry_calibration (issue 7): real data and simulated seeds.
+"""
+Benchmark of wheel_odometry_calibration (issue 7): real data and simulated seeds.
 
 Run from the repository root::
 

@@ -161,7 +161,7 @@ def test_too_little_data():
 
 # -- seed 003 gate / counter ---------------------------------------------------------------
 def _stage(offset_true, comp_reading=0.0, travel_rad=30.0, params=None, scene_noise=0.0):
-    """A straight stage: constant reading, the scene rotation the true offset produces."""
+    """Return a straight stage: constant reading, the scene rotation the true offset gives."""
     p = params
     k = 20
     steps = np.column_stack((np.full(k, travel_rad / k), np.full(k, comp_reading)))

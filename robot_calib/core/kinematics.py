@@ -1,6 +1,7 @@
 # Copyright 2026 robot_calib contributors
 # SPDX-License-Identifier: Apache-2.0
-"""Planar wheel kinematics of the two drive types that wheel calibration handles.
+"""
+Planar wheel kinematics of the two drive types that wheel calibration handles.
 
 Differential drive
     ``base_link`` midway between the two driven wheels, x forward. A step with
@@ -30,7 +31,8 @@ import numpy as np
 
 
 def diff_arc(dphi_l, dphi_r, r_l: float, r_r: float, track: float):
-    """Return arc increments (ds m, dtheta rad) of a differential drive step.
+    """
+    Return arc increments (ds m, dtheta rad) of a differential drive step.
 
     :param dphi_l: left wheel rotation(s) (rad)
     :param dphi_r: right wheel rotation(s) (rad)
@@ -45,7 +47,8 @@ def diff_arc(dphi_l, dphi_r, r_l: float, r_r: float, track: float):
 
 def steered_arc(dphi, reading, radius: float, wheel_base: float, offset: float = 0.0,
                 scale: float = 1.0):
-    """Return arc increments (ds m, dtheta rad) of a steered-drive-wheel step.
+    """
+    Return arc increments (ds m, dtheta rad) of a steered-drive-wheel step.
 
     :param dphi: traction wheel rotation(s) (rad)
     :param reading: steering encoder reading(s) (rad), converted by ``scale * reading + offset``
@@ -60,7 +63,8 @@ def steered_arc(dphi, reading, radius: float, wheel_base: float, offset: float =
 
 
 def arc_pose(ds, dtheta) -> np.ndarray:
-    """Return relative poses ``[..., 3]`` (x m, y m, yaw rad) of constant-curvature arcs.
+    """
+    Return relative poses ``[..., 3]`` (x m, y m, yaw rad) of constant-curvature arcs.
 
     :param ds: arc length(s) travelled by the reference point (m)
     :param dtheta: heading change(s) over the arc (rad)
@@ -90,7 +94,8 @@ def inverse(a: np.ndarray) -> np.ndarray:
 
 
 def integrate_steps(steps: np.ndarray) -> np.ndarray:
-    """Compose padded step poses ``[S, K, 3]`` along K into segment motions ``[S, 3]``.
+    """
+    Compose padded step poses ``[S, K, 3]`` along K into segment motions ``[S, 3]``.
 
     Padding steps must be zero poses. Yaw is not wrapped (segments stay short).
     """
@@ -102,7 +107,8 @@ def integrate_steps(steps: np.ndarray) -> np.ndarray:
 
 
 def sensor_motion(base_motion: np.ndarray, sensor_pose) -> np.ndarray:
-    """Return the sensor's own motion ``l^-1 (+) o (+) l`` for base motions ``o`` [..., 3].
+    """
+    Return the sensor's own motion ``l^-1 (+) o (+) l`` for base motions ``o`` [..., 3].
 
     :param base_motion: relative motion(s) of ``base_link`` (x m, y m, yaw rad)
     :param sensor_pose: sensor pose in ``base_link`` (x m, y m, yaw rad)

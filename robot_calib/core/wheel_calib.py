@@ -1,6 +1,7 @@
 # Copyright 2026 robot_calib contributors
 # SPDX-License-Identifier: Apache-2.0
-"""Wheel odometry calibration against a scene sensor (seed 003 and an improved ML estimator).
+"""
+Wheel odometry calibration against a scene sensor (seed 003 and an improved ML estimator).
 
 Data model
     A *segment* is a stretch of driving between two scene-sensor (lidar) key
@@ -201,7 +202,8 @@ def keys_of(drive_type: str) -> tuple[str, ...]:
 # ------------------------------------------------------------------------------------------
 @dataclass
 class Segment:
-    """Wheel steps between two key frames and the sensor motion measured between them.
+    """
+    Wheel steps between two key frames and the sensor motion measured between them.
 
     ``steps`` is (K, 2): differential ``(dphi_l, dphi_r)`` rad; steered wheel
     ``(dphi, reading)`` (traction rotation rad, steering reading rad).
@@ -276,7 +278,8 @@ def pad_steps(segments: list[Segment]) -> np.ndarray:
 
 
 def base_motion(drive_type: str, x: np.ndarray, steps: np.ndarray) -> np.ndarray:
-    """Return the base_link motion (S, 3) of padded steps (S, K, 2) for parameters ``x``.
+    """
+    Return the base_link motion (S, 3) of padded steps (S, K, 2) for parameters ``x``.
 
     ``x`` is in :func:`keys_of` order; padding steps (zeros) add nothing.
     """
@@ -304,7 +307,8 @@ def residuals(drive_type: str, x: np.ndarray, steps: np.ndarray,
 # Censi et al. closed form (differential drive)
 # ------------------------------------------------------------------------------------------
 def censi_closed_form(segments: list[Segment]) -> Optional[np.ndarray]:
-    """Return Censi's closed-form estimate ``[r_l, r_r, b, lx, ly, lyaw]``, or None.
+    """
+    Return Censi's closed-form estimate ``[r_l, r_r, b, lx, ly, lyaw]``, or None.
 
     Each segment's wheel rotations are summed (the method assumes constant
     wheel speeds inside a segment). Step 1: ``theta_sm = J21 phi_l + J22
@@ -362,7 +366,8 @@ def censi_closed_form(segments: list[Segment]) -> Optional[np.ndarray]:
 
 def censi_calibrate(segments: list[Segment], outlier_iterations: int = 4,
                     outlier_fraction: float = 0.01) -> Optional[dict]:
-    """Return Censi's closed form with the authors' outlier trimming and their uncertainty.
+    """
+    Return Censi's closed form with the authors' outlier trimming and their uncertainty.
 
     Each iteration solves, then drops the segments above the ``1 -
     outlier_fraction`` quantile of |theta| or xy disagreement. The noise of the
@@ -459,7 +464,8 @@ def _init_lidar_yaw(drive_type: str, x: np.ndarray, steps: np.ndarray,
 
 
 def _init_steered(x: np.ndarray, steps: np.ndarray, meas: np.ndarray) -> np.ndarray:
-    """Return a global initial guess of the steered-wheel intrinsics from rotations and travel.
+    """
+    Return a global initial guess of the steered-wheel intrinsics from rotations and travel.
 
     The rotation of a segment, ``sum r dphi sin(scale reading + offset) / L``,
     does not depend on the sensor pose: a grid over (scale, offset) with the
@@ -496,7 +502,8 @@ def _init_steered(x: np.ndarray, steps: np.ndarray, meas: np.ndarray) -> np.ndar
 
 def joint_fit(drive_type: str, segments: list[Segment], nominal: dict,
               sp: Optional[SolverParams] = None, x0: Optional[np.ndarray] = None) -> dict:
-    """Fit all parameters of a drive type over all segments (ML with outlier rejection).
+    """
+    Fit all parameters of a drive type over all segments (ML with outlier rejection).
 
     Minimises ``sum_k |(predict_k(x) - sm_k) / sigma|^2 + |(x - x_nom) / sigma_prior|^2``
     (Censi 2013, eq. 9, plus a weak prior that only matters along directions
@@ -604,7 +611,8 @@ _ADVICE = {
 
 def verdict_of(drive_type: str, values: dict, stds: dict, content: dict, n_used: int,
                n_outliers: int, sp: SolverParams, extra: Iterable[str] = ()) -> str:
-    """Return 'converged' or a sentence saying what the drive lacked.
+    """
+    Return 'converged' or a sentence saying what the drive lacked.
 
     Checks the drive's content (segments, straight segments, turns each way),
     the outlier fraction and every parameter's standard deviation against its
@@ -652,7 +660,8 @@ def verdict_of(drive_type: str, values: dict, stds: dict, content: dict, n_used:
 
 def calibrate(drive_type: str, segments: list[Segment], params: WheelCalibParams,
               extra_problems: Iterable[str] = (), x0: Optional[np.ndarray] = None) -> CalibResult:
-    """Run the improved joint estimator and return a result with stds and a verdict.
+    """
+    Run the improved joint estimator and return a result with stds and a verdict.
 
     ``x0`` (in :func:`keys_of` order) warm-starts the fit (streaming updates);
     None starts from the global initialisation.
@@ -705,7 +714,8 @@ class StageRecord:
 
 
 class SeedSteeredCalibrator:
-    """Seed 003 (steered drive wheel): stage-by-stage zero offset, then the wheel radius.
+    """
+    Seed 003 (steered drive wheel): stage-by-stage zero offset, then the wheel radius.
 
     Feed straight stages with :meth:`update` (streaming) or all at once with
     :meth:`run`. The wheel base and steering scale are taken as nominal (the
@@ -725,7 +735,8 @@ class SeedSteeredCalibrator:
         self.stages_needed: Optional[int] = None
 
     def stage_offset(self, seg: Segment) -> float:
-        """Solve "scene rotation = odometry rotation" for the stage's zero offset (rad).
+        """
+        Solve "scene rotation = odometry rotation" for the stage's zero offset (rad).
 
         ``sum_j r dphi_j sin(scale reading_j + c) / L = scene_rotation``
         (kinematics of :mod:`robot_calib.core.kinematics`) solved for ``c`` by
@@ -830,7 +841,8 @@ class SeedSteeredCalibrator:
 
 def censi_result(segments: list[Segment], params: WheelCalibParams,
                  extra_problems: Iterable[str] = ()) -> CalibResult:
-    """Return the Censi-faithful differential result (``mode: seed`` for differential drive).
+    """
+    Return the Censi-faithful differential result (``mode: seed`` for differential drive).
 
     Seed 003 covers the steered wheel only; for differential drive the
     published baseline (Censi et al. 2013 closed form with the authors' outlier
@@ -880,7 +892,8 @@ def _scan_end(scan: Any) -> float:
 # streaming front end: wheel data + scans -> segments (and seed stages) -> result
 # ------------------------------------------------------------------------------------------
 def default_matcher(source: np.ndarray, target: Any, guess: np.ndarray) -> Optional[tuple]:
-    """Register ``source`` points to a prepared ``target`` (robot_calib.core.scan_match).
+    """
+    Register ``source`` points to a prepared ``target`` (robot_calib.core.scan_match).
 
     Returns ``(pose, info)`` (pose of the source frame in the target frame, m,
     m, rad) or None when the match failed or is degenerate.
@@ -908,7 +921,8 @@ class _KeyFrame:
 
 
 class WheelCalibrator:
-    """Cut a calibration drive into segments between key-frame scans and calibrate.
+    """
+    Cut a calibration drive into segments between key-frame scans and calibrate.
 
     Feed samples with :meth:`update` (streaming: wheel data as ``JointStateSample``
     or ``OdomSample``, scans as ``ScanSample``) or a whole recording with
@@ -979,7 +993,8 @@ class WheelCalibrator:
 
     def add_wheel(self, t: float, a: float, b: float, va: float = math.nan,
                   vb: float = math.nan) -> None:
-        """Add one wheel sample: differential (phi_l, phi_r) or steered (traction, reading).
+        """
+        Add one wheel sample: differential (phi_l, phi_r) or steered (traction, reading).
 
         :param t: time (s)
         :param a: left wheel / traction joint position (rad)
@@ -1128,7 +1143,8 @@ class WheelCalibrator:
         return np.column_stack((np.diff(aa), 0.5 * (bb[1:] + bb[:-1])))
 
     def _deskewed_points(self, scan: Any) -> np.ndarray:
-        """Return the scan's points (m) in its frame at the stamp, motion-compensated.
+        """
+        Return the scan's points (m) in its frame at the stamp, motion-compensated.
 
         A rotating lidar measures beam i at ``t + i * time_increment``; the
         nominal wheel odometry moves each point into the sensor frame at the

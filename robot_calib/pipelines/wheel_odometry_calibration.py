@@ -1,6 +1,7 @@
 # Copyright 2026 robot_calib contributors
 # SPDX-License-Identifier: Apache-2.0
-"""Pipeline of ``wheel_odometry_calibration``: wheel data + scans in, estimates out.
+"""
+Pipeline of ``wheel_odometry_calibration``: wheel data + scans in, estimates out.
 
 Inputs: ``odom`` (nav_msgs/Odometry) or ``joint_states`` (sensor_msgs/JointState;
 preferred once the named joints appear), ``scan`` (sensor_msgs/LaserScan) and

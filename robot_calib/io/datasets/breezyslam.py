@@ -1,6 +1,7 @@
 # Copyright 2026 robot_calib contributors
 # SPDX-License-Identifier: Apache-2.0
-"""Loader of BreezySLAM's Mines ParisTech rover logs (``exp1.dat``, ``exp2.dat``).
+"""
+Loader of BreezySLAM's Mines ParisTech rover logs (``exp1.dat``, ``exp2.dat``).
 
 Format (as BreezySLAM's ``examples`` readers parse it): one line per scan,
 whitespace separated; field 0 is the timestamp (microseconds), fields 2 and
@@ -39,7 +40,8 @@ FOV = math.radians(240.0)
 
 
 def load(path: Union[str, Path], swap_wheels: bool = False) -> list:
-    """Return time-ordered core samples: JointStateSample (wheel angles, rad) and ScanSample.
+    """
+    Return time-ordered core samples: JointStateSample (wheel angles, rad) and ScanSample.
 
     :param path: the ``.dat`` file
     :param swap_wheels: take field 3 as the left wheel (to test the assignment)

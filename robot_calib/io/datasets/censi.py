@@ -1,6 +1,7 @@
 # Copyright 2026 robot_calib contributors
 # SPDX-License-Identifier: Apache-2.0
-"""Loader of the Censi et al. (T-RO 2013) calibration tuples and the authors' results.
+"""
+Loader of the Censi et al. (T-RO 2013) calibration tuples and the authors' results.
 
 Each line of a ``*.tuple`` file is a JSON object ``{"T": s, "phi_l": ..., "phi_r":
 ..., "sm": [x, y, theta]}``: ``T`` is the interval (s), ``phi_l`` and
@@ -28,7 +29,8 @@ FILES = ('l90', 'l90_0', 'l90_1', 'l90_2', 'lmov', 'lmov_0', 'lmov_1', 'lmov_2',
 
 
 def load_tuples(path: Union[str, Path]) -> list[Segment]:
-    """Read a ``*.tuple`` file into differential-drive segments (one step each).
+    """
+    Read a ``*.tuple`` file into differential-drive segments (one step each).
 
     Lines that are not valid tuples or hold non-finite numbers are skipped.
 
@@ -55,7 +57,8 @@ def load_tuples(path: Union[str, Path]) -> list[Segment]:
 
 
 def load_results(path: Union[str, Path]) -> Optional[dict]:
-    """Read an authors' ``*_results.json`` into SI names, with their standard deviations.
+    """
+    Read an authors' ``*_results.json`` into SI names, with their standard deviations.
 
     Returns ``left_wheel_radius``, ``right_wheel_radius``, ``track_width``,
     ``lidar_x``, ``lidar_y``, ``lidar_yaw`` and the ``_std`` twins (radius std

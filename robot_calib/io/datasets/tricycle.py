@@ -1,6 +1,7 @@
 # Copyright 2026 robot_calib contributors
 # SPDX-License-Identifier: Apache-2.0
-"""Loader of the front-tractor tricycle data set (steered drive wheel with an external tracker).
+"""
+Loader of the front-tractor tricycle data set (steered drive wheel with an external tracker).
 
 ``dataset.txt`` lines: ``time: T ticks: STEER TRACTION model_pose: X Y TH
 tracker_pose: X Y TH``. ``STEER`` is an absolute encoder (0..8191) that wraps:
@@ -50,7 +51,8 @@ class TricycleData:
 
 
 def load(path: Union[str, Path]) -> TricycleData:
-    """Parse ``dataset.txt``; unwrap both encoders.
+    """
+    Parse ``dataset.txt``; unwrap both encoders.
 
     :param path: the data file
     """
@@ -80,7 +82,8 @@ def load(path: Union[str, Path]) -> TricycleData:
 
 
 def segments(data: TricycleData, lo: int = 0, hi: int = -1, window: int = 10) -> list[Segment]:
-    """Cut samples ``lo..hi`` into segments of ``window`` steps with the tracker's motion.
+    """
+    Cut samples ``lo..hi`` into segments of ``window`` steps with the tracker's motion.
 
     A step uses the traction increment between samples i and i+1 and the
     steering reading at sample i+1 (this is how the recorded ``model_pose``
@@ -99,7 +102,8 @@ def segments(data: TricycleData, lo: int = 0, hi: int = -1, window: int = 10) ->
 
 
 def dead_reckon(data: TricycleData, values: dict, lo: int, hi: int) -> np.ndarray:
-    """Return the sensor poses (N, 3) predicted from samples lo..hi, anchored at the tracker.
+    """
+    Return the sensor poses (N, 3) predicted from samples lo..hi, anchored at the tracker.
 
     Odometry from the encoders with ``values`` (steering_offset,
     steering_scale, wheel_radius, wheel_base, lidar_x, lidar_y, lidar_yaw),
@@ -121,7 +125,8 @@ def dead_reckon(data: TricycleData, values: dict, lo: int, hi: int) -> np.ndarra
 
 def stages(data: TricycleData, lo: int, hi: int, straight: float = 0.05,
            min_length: float = 1.0, max_length: float = 4.0) -> list[Segment]:
-    """Return the seed's straight stages between samples lo..hi, with the tracker's motion.
+    """
+    Return the seed's straight stages between samples lo..hi, with the tracker's motion.
 
     A stage is a run of samples whose steering angle with the nominal
     conversion (``Ksteer * reading``) stays below ``straight`` (rad), at least

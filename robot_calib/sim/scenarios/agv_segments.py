@@ -1,6 +1,7 @@
 # Copyright 2026 robot_calib contributors
 # SPDX-License-Identifier: Apache-2.0
-"""Scenario ``agv_segments``: a steered-drive-wheel AGV drives straight stages and turns.
+"""
+Scenario ``agv_segments``: a steered-drive-wheel AGV drives straight stages and turns.
 
 The calibration drive of seed 003 in a 16 m x 12 m room with a few boxes:
 rectangles of 8 m and 6 m straight stages driven counter-clockwise and then

@@ -1,6 +1,7 @@
 # Copyright 2026 robot_calib contributors
 # SPDX-License-Identifier: Apache-2.0
-"""Scenario ``diff_segments``: a differential-drive calibration drive in a room.
+"""
+Scenario ``diff_segments``: a differential-drive calibration drive in a room.
 
 In a 12 m x 9 m room with a few boxes: a rectangle of 6 m and 4 m straight
 segments counter-clockwise, then clockwise (waypoint following), a full turn
