@@ -14,7 +14,7 @@ from robot_calib import pipelines
 from robot_calib.core import types as T
 from robot_calib.core.params import param, ParamError
 from robot_calib.io import bags
-from robot_calib.pipelines.base import InputSpec, OutputSpec, Pipeline
+from robot_calib.pipelines.base import InputSpec, KINDS, OutputSpec, Pipeline
 from robot_calib.replay import parse_overrides, parse_remaps, replay, ReplayError
 
 ECHO = f'{__name__}:EchoPipeline'
@@ -359,3 +359,30 @@ def test_registered_pipelines_on_sample_bag(repo_root, tmp_path):
         assert all(v.get('read', 0) > 0 for v in node['inputs'].values()), name
         assert not node['errors'], (name, node.get('first_errors'))
     assert math.isclose(s['duration'], 395.3, abs_tol=0.1)
+
+
+def test_registered_pipelines_on_simulated_bag(tmp_path):
+    try:
+        from robot_calib import sim
+        simulate = sim.simulate
+    except (ImportError, AttributeError):
+        pytest.skip('robot_calib.sim.simulate is not available yet')
+    if not pipelines.available():
+        pytest.skip('no registered pipeline is installed yet')
+    bag = tmp_path / 'drive'
+    simulate('drive', bag, seed=1, duration=20.0)
+    s = replay(bag, tmp_path / 'o', progress=False)
+    assert s['nodes'], s['skipped']
+    out_topics = bags.list_topics([tmp_path / 'o' / 'output.mcap'])
+    for name, node in s['nodes'].items():
+        assert not node['errors'], (name, node.get('first_errors'))
+        assert all(v.get('read', 0) > 0 for v in node['inputs'].values()), name
+        cls = pipelines.load(name)
+        for spec in cls.outputs:
+            topic = '/' + spec.topic.lstrip('/')
+            if topic in out_topics:  # same type as the live node publishes
+                assert out_topics[topic][0] == KINDS[spec.kind][0], topic
+    assert s['topics']['/ground_truth/odom']['read'] > 0
+    assert 'plots/trajectories.png' in s['plots']
+    if 'wheel_odometry_calibration' in s['nodes']:
+        assert (tmp_path / 'o' / 'wheel_calibration.yaml').is_file()
