@@ -672,7 +672,6 @@ class ImprovedFusion(_Base):
         self.imu_stale = imu_stale
         kw = self.x[IKW] if abs(self.x[IKW]) > 1e-3 else 1.0
         self._w_fallback = w / kw
-        prev_pos = (self.x[IX], self.x[IY])
         self._predict(t)
         self._flush()
         if gap:
@@ -752,12 +751,16 @@ class ImprovedFusion(_Base):
         if dof:
             self._record_nis(nis_total, dof)
         self._guard(t, v)
-        self.path_length += math.hypot(self.x[IX] - prev_pos[0], self.x[IY] - prev_pos[1])
+        prev = self._pl_last
+        if prev is not None:
+            self.path_length += math.hypot(self.x[IX] - prev[0], self.x[IY] - prev[1])
+        self._pl_last = (float(self.x[IX]), float(self.x[IY]))
         if rejected:
             return None if dof else 'gated_' + rejected[0]
         return None
 
     _last_upd_t: Optional[float] = None
+    _pl_last: Optional[tuple] = None
 
     def _adapt(self, i: int, resid: float, s_pred: float, r_nom: float, s_tot: float,
                t: float) -> None:
