@@ -197,6 +197,11 @@ def _markdown(rows, runs: int) -> str:
         if label == 'replay end to end' and storage != 'ROS 1 test1.bag':
             goal = f'goal >= {GOAL:,.0f}: ' + ('**met**' if rate >= GOAL else '**missed**')
         lines.append(f'| {storage} | {label} | {n} | {seconds:.3f} | {rate:,.0f} | {goal} |')
+    e2e = {st: rate for st, label, _, _, rate in rows if label == 'replay end to end'}
+    if e2e:
+        verdict = 'met' if all(r >= GOAL for r in e2e.values()) else 'missed'
+        lines += ['', f'**Result: goal {verdict}** (replay end to end, median: ' + ', '.join(
+            f'{st} {r:,.0f} messages/s' for st, r in e2e.items()) + f'; goal {GOAL:,.0f}).']
     lines += ['', 'What each row times:', '',
               '- *rosbags raw*: `rosbags.rosbag2.Reader.messages()` only (the floor: '
               'reading the file, no decoding).',
@@ -211,7 +216,28 @@ def _markdown(rows, runs: int) -> str:
               '- *replay end to end*: the whole `robot_calib.replay.replay()` call with a '
               'trivial pipeline (the base class validates every sample: finite values, '
               'stamp order, gaps; per-message timing), writing `output.mcap` (empty), '
-              '`summary.json` and `report.md`.', '']
+              '`summary.json` and `report.md`.',
+              '- *ROS 1 test1.bag*: the real robot_localization bag (Imu, Odometry, NavSatFix); '
+              'not part of the goal.', '',
+              'What it took (and what we learned):', '',
+              '- the rosbags deserializer plus building the core sample costs more than the '
+              'whole 20 us/message budget; decoding sensor_msgs/Imu and nav_msgs/Odometry '
+              'straight from the CDR bytes (stamp, frame_id, then fixed doubles) is about 2x '
+              'faster than deserialize + convert. Big-endian CDR and every other type take '
+              'the generic path.',
+              '- For mcap, the per-record loop of rosbags (a BytesIO read per field) was a '
+              'third of the remaining time. `bags._mcap_messages` keeps its index parsing and '
+              'chunk decompression and only walks each decompressed chunk with '
+              '`struct.unpack_from`, yielding the same messages in the same order (tested '
+              'against rosbags, including out-of-order chunks; chunks that overlap in time '
+              'fall back to rosbags).',
+              '- The NaN/inf check of the pipeline base class used `np.all(np.isfinite(...))` '
+              '(about 5 us per IMU sample); an element-wise `math.isfinite` gives the same '
+              'answer about 10x faster.',
+              '- What is left per message in *replay end to end* beyond *fast read+convert* is '
+              'the pipeline contract itself (validation, counters, per-message timing).',
+              '- ROS 1 bags are read through the rosbag1 reader of rosbags (compressed chunks); '
+              'they reach 15-20k messages/s here, enough for the sample bags.', '']
     return '\n'.join(lines)
 
 
