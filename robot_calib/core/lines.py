@@ -1,0 +1,336 @@
+# Copyright 2026 robot_calib contributors
+# SPDX-License-Identifier: Apache-2.0
+"""Obstacle grid, wall-segment extraction and line fitting (seed 000, condition 1).
+
+The obstacle grid keeps, per cell of ``resolution`` metres, the running mean
+of the scan hits that fell into it (a sub-cell centroid, so the fitted angle
+is not limited by the cell size) and the time it was last hit. It is bounded
+in memory for a whole-life run: cells not hit for ``cell_lifetime`` seconds
+are cleared, at most ``max_cells`` cells are kept (the stalest go first), and
+the owner clears it after a heading correction or an odometry reset (its hits
+were placed with the old pose).
+
+Segment extraction: the cells hit by the current scan, in beam order, are
+split where two consecutive cells are farther apart than ``max_gap``, then
+split recursively at the cell farthest from the chord while it is farther
+than ``split_distance`` (iterative end-point fit). Each piece is a candidate
+wall and must pass condition 1.
+
+Condition 1 (seed 000, S11-S13): least-squares line fit of the cells; drop
+it when it is shorter than ``min_length``; pass when the variance of the
+cell-to-line distances is at most ``max_variance``; otherwise remove the
+``remove_count`` farthest cells and refit, until it passes, or it is shorter
+than ``min_length`` (or has fewer than ``min_cells`` cells) and is dropped.
+
+The fit is TOTAL least squares (principal axis of the cells' scatter, i.e.
+the perpendicular distances are minimised), not ordinary least squares
+(``y = a x + b``, vertical residuals): walls come in every direction, OLS is
+biased for steep lines and undefined for vertical ones, and condition 1
+itself measures perpendicular cell-to-line distances. ``fit_method =
+'ordinary'`` keeps OLS for comparison only (see the tests).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from functools import cached_property
+import math
+from typing import Optional
+
+import numpy as np
+
+from robot_calib.core.geometry import wrap_half_pi
+from robot_calib.core.params import param
+
+
+@dataclass
+class LineParams:
+    """Obstacle grid, segment extraction and condition 1 parameters."""
+
+    resolution: float = param(0.05, 'm', 'Obstacle grid cell size.', minimum=0.005)
+    max_cells: int = param(20000, '', 'Most grid cells kept (the stalest are dropped first).',
+                           minimum=100)
+    cell_lifetime: float = param(3.0, 's', 'A cell not hit for this long is cleared.',
+                                 minimum=0.0)
+    max_hits_per_cell: int = param(20, '', 'Hits averaged per cell (older hits fade).',
+                                   minimum=1)
+    max_range: float = param(6.0, 'm', 'Beams longer than this are not put into the grid.',
+                             minimum=0.1)
+    max_gap: float = param(0.2, 'm', 'Consecutive cells farther apart start a new segment.',
+                           minimum=0.0)
+    split_distance: float = param(0.06, 'm', 'Split a segment at a cell this far from its chord.',
+                                  minimum=0.0)
+    min_length: float = param(0.6, 'm', 'Condition 1: shortest line kept (seed preset length).',
+                              minimum=0.0)
+    max_variance: float = param(1.0e-4, 'm^2', 'Condition 1: largest variance of cell-to-line '
+                                'distances (seed preset value).', minimum=0.0)
+    remove_count: int = param(2, '', 'Condition 1: farthest cells removed before a refit.',
+                              minimum=1)
+    min_cells: int = param(8, '', 'Fewest cells in a line.', minimum=2)
+    fit_method: str = param('total', '', 'Least-squares fit: total (perpendicular) or '
+                            'ordinary (y on x, for comparison only).',
+                            choices=('total', 'ordinary'))
+
+
+@dataclass(frozen=True)
+class Line:
+    """A fitted wall line in the grid (world) frame.
+
+    :ivar p1: start point (m); endpoints are ordered along the direction
+        ``(cos angle, sin angle)``, so start and end are comparable between lines.
+    :ivar p2: end point (m).
+    :ivar angle: direction to the x axis (rad), modulo pi in (-pi/2, pi/2].
+    :ivar length: |p2 - p1| (m).
+    :ivar variance: mean squared cell-to-line distance (m^2).
+    :ivar n_cells: cells used.
+    :ivar t: time of the scan it was fitted in (s).
+    """
+
+    p1: np.ndarray
+    p2: np.ndarray
+    angle: float
+    length: float
+    variance: float
+    n_cells: int
+    t: float = 0.0
+
+    @cached_property
+    def midpoint(self) -> np.ndarray:
+        """Return the middle of the segment (m)."""
+        return 0.5 * (self.p1 + self.p2)
+
+    @cached_property
+    def direction(self) -> np.ndarray:
+        """Return the unit vector along the line, (cos angle, sin angle)."""
+        return np.array([math.cos(self.angle), math.sin(self.angle)])
+
+    @cached_property
+    def normal(self) -> np.ndarray:
+        """Return the unit vector across the line, (-sin angle, cos angle)."""
+        return np.array([-math.sin(self.angle), math.cos(self.angle)])
+
+    @cached_property
+    def rho(self) -> float:
+        """Return the signed distance (m) of the line from the origin along :attr:`normal`."""
+        return float(self.normal @ self.midpoint)
+
+    def angle_sigma(self) -> float:
+        """Return the 1-sigma angle uncertainty (rad) of the fit from its scatter.
+
+        Total least squares with n points spread uniformly over length L and
+        perpendicular noise variance s2: var(angle) = 12 s2 / (n L^2).
+        """
+        s2 = max(self.variance, 1e-6)
+        return math.sqrt(12.0 * s2 / (max(self.n_cells, 2) * max(self.length, 1e-3) ** 2))
+
+
+def line_from_endpoints(p1, p2, t: float = 0.0, variance: float = 0.0,
+                        n_cells: int = 2) -> Line:
+    """Return a :class:`Line` through two points (m), endpoints ordered canonically."""
+    p1 = np.asarray(p1, dtype=float)
+    p2 = np.asarray(p2, dtype=float)
+    d = p2 - p1
+    angle = wrap_half_pi(math.atan2(d[1], d[0]))
+    u = np.array([math.cos(angle), math.sin(angle)])
+    if u @ p1 > u @ p2:
+        p1, p2 = p2, p1
+    return Line(p1, p2, angle, float(np.linalg.norm(d)), float(variance), int(n_cells), t)
+
+
+class ObstacleGrid:
+    """A sparse obstacle grid of hit centroids, bounded in memory.
+
+    Cells live in fixed numpy arrays (``max_cells`` slots) addressed through a
+    dict from the packed cell index, so a scan updates its cells with a few
+    vector operations.
+
+    :param params: the grid parameters.
+    """
+
+    def __init__(self, params: Optional[LineParams] = None):
+        """Create an empty grid."""
+        self.params = params if params is not None else LineParams()
+        cap = int(self.params.max_cells)
+        self._sum = np.zeros((cap, 2))
+        self._n = np.zeros(cap)
+        self._t = np.full(cap, -np.inf)
+        self._key = np.zeros(cap, dtype=np.int64)
+        self._used = np.zeros(cap, dtype=bool)
+        self._index: dict[int, int] = {}
+        self._free: list[int] = list(range(cap - 1, -1, -1))
+        self._last_prune = -math.inf
+        self.cleared = 0
+
+    def __len__(self) -> int:
+        """Return the number of occupied cells."""
+        return len(self._index)
+
+    def clear(self) -> None:
+        """Forget every cell (after a heading correction or an odometry reset)."""
+        if self._index:
+            self._release(np.flatnonzero(self._used))
+        self.cleared += 1
+
+    def _release(self, slots: np.ndarray) -> None:
+        index = self._index
+        for k in self._key[slots].tolist():
+            index.pop(k, None)
+        self._used[slots] = False
+        self._n[slots] = 0.0
+        self._sum[slots] = 0.0
+        self._free.extend(slots.tolist())
+
+    def _keys(self, pts: np.ndarray) -> np.ndarray:
+        ij = np.floor(pts / self.params.resolution).astype(np.int64)
+        return (ij[:, 0] << 32) + (ij[:, 1] & 0xFFFFFFFF)
+
+    def add_points(self, pts: np.ndarray, t: float) -> np.ndarray:
+        """Add world hits (N, 2) (m) at time ``t`` (s); return the hit cells' centroids in order.
+
+        The returned (M, 2) array lists every distinct cell hit, in the order of
+        the input points (beam order), each cell's centroid over its recent hits.
+        """
+        pts = np.asarray(pts, dtype=float).reshape(-1, 2)
+        self.prune(t)
+        if pts.shape[0] == 0:
+            return np.zeros((0, 2))
+        keys = self._keys(pts)
+        change = np.ones(keys.size, dtype=bool)
+        change[1:] = keys[1:] != keys[:-1]
+        starts = np.flatnonzero(change)
+        sums = np.add.reduceat(pts, starts, axis=0)
+        counts = np.diff(np.append(starts, keys.size)).astype(float)
+        ukeys = keys[starts].tolist()
+        index = self._index
+        slots = [index.get(k, -1) for k in ukeys]
+        for i, sl in enumerate(slots):
+            if sl < 0:
+                sl = index.get(ukeys[i], -1)  # a cell new in this scan, hit twice
+                if sl < 0:
+                    if not self._free:
+                        self._evict()
+                    sl = self._free.pop()
+                    index[ukeys[i]] = sl
+                    self._key[sl] = ukeys[i]
+                    self._used[sl] = True
+                slots[i] = sl
+        slots = np.asarray(slots, dtype=np.int64)
+        np.add.at(self._sum, slots, sums)
+        np.add.at(self._n, slots, counts)
+        self._t[slots] = t
+        over = self._n[slots] > self.params.max_hits_per_cell
+        if np.any(over):
+            o = slots[over]
+            f = self.params.max_hits_per_cell / self._n[o]
+            self._sum[o] *= f[:, None]
+            self._n[o] = self.params.max_hits_per_cell
+        _, first = np.unique(slots, return_index=True)
+        order = slots[np.sort(first)]
+        return self._sum[order] / self._n[order, None]
+
+    def prune(self, t: float) -> None:
+        """Clear cells not hit for ``cell_lifetime`` seconds (at most once per 0.5 s)."""
+        if t - self._last_prune < 0.5 and t >= self._last_prune:
+            return
+        self._last_prune = t
+        stale = self._used & ((self._t < t - self.params.cell_lifetime) | (self._t > t + 1.0))
+        if np.any(stale):
+            self._release(np.flatnonzero(stale))
+
+    def _evict(self) -> None:
+        """Free the stalest tenth of the cells (the grid is full)."""
+        used = np.flatnonzero(self._used)
+        n_drop = max(1, used.size // 10)
+        self._release(used[np.argsort(self._t[used])[:n_drop]])
+
+    def centroids(self) -> np.ndarray:
+        """Return every cell's centroid (N, 2) (m)."""
+        used = np.flatnonzero(self._used)
+        return self._sum[used] / self._n[used, None]
+
+
+def fit_line(pts: np.ndarray, method: str = 'total') -> tuple[np.ndarray, np.ndarray]:
+    """Return (centroid, unit direction) of the least-squares line through (N, 2) points (m).
+
+    ``total``: principal axis of the scatter (minimises perpendicular distances).
+    ``ordinary``: regression of y on x (minimises vertical distances; undefined
+    for a vertical line, where it returns the x axis direction of a degenerate fit).
+    """
+    c = pts.mean(axis=0)
+    d = pts - c
+    if method == 'ordinary':
+        sxx = float(d[:, 0] @ d[:, 0])
+        slope = float(d[:, 0] @ d[:, 1]) / sxx if sxx > 1e-12 else 0.0
+        u = np.array([1.0, slope]) / math.hypot(1.0, slope)
+        return c, u
+    cov = d.T @ d
+    # closed-form principal direction of a 2x2 symmetric matrix
+    phi = 0.5 * math.atan2(2.0 * cov[0, 1], cov[0, 0] - cov[1, 1])
+    return c, np.array([math.cos(phi), math.sin(phi)])
+
+
+def condition1(pts: np.ndarray, params: LineParams, t: float = 0.0) -> Optional[Line]:
+    """Apply the seed's condition 1 loop to candidate cells (N, 2) (m); return the line or None.
+
+    Seed 000, S11-S13: fit; drop when shorter than the preset length; pass when
+    the variance of the cells' distances to the line is at most the preset;
+    else remove the preset number of farthest cells and refit.
+    """
+    pts = np.asarray(pts, dtype=float)
+    while pts.shape[0] >= max(params.min_cells, 2):
+        c, u = fit_line(pts, params.fit_method)
+        n = np.array([-u[1], u[0]])
+        along = (pts - c) @ u
+        dist = (pts - c) @ n
+        length = float(along.max() - along.min())
+        if length < params.min_length:  # seed S11
+            return None
+        var = float(np.mean(dist ** 2))  # seed S12
+        if var <= params.max_variance:
+            p1 = c + along.min() * u
+            p2 = c + along.max() * u
+            line = line_from_endpoints(p1, p2, t, var, pts.shape[0])
+            return line
+        # seed S13: remove the farthest cells and refit
+        keep = np.argsort(np.abs(dist))[:pts.shape[0] - params.remove_count]
+        keep.sort()
+        pts = pts[keep]
+    return None
+
+
+def split_segments(pts: np.ndarray, params: LineParams) -> list[np.ndarray]:
+    """Split ordered cells (N, 2) (m) into candidate wall segments (gaps, then end-point fit)."""
+    pts = np.asarray(pts, dtype=float).reshape(-1, 2)
+    if pts.shape[0] < params.min_cells:
+        return []
+    steps = np.linalg.norm(np.diff(pts, axis=0), axis=1)
+    cuts = np.flatnonzero(steps > params.max_gap) + 1
+    out = []
+    stack = [p for p in np.split(pts, cuts) if p.shape[0] >= params.min_cells]
+    while stack:
+        seg = stack.pop()
+        a, b = seg[0], seg[-1]
+        chord = b - a
+        norm = math.hypot(chord[0], chord[1])
+        if norm < 1e-9:
+            d = np.linalg.norm(seg - a, axis=1)
+        else:
+            d = np.abs((seg - a) @ np.array([-chord[1], chord[0]]) / norm)
+        k = int(np.argmax(d))
+        if d[k] > params.split_distance and 0 < k < seg.shape[0] - 1:
+            for part in (seg[:k + 1], seg[k:]):
+                if part.shape[0] >= params.min_cells:
+                    stack.append(part)
+            continue
+        out.append(seg)
+    return out
+
+
+def extract_lines(pts: np.ndarray, params: LineParams, t: float = 0.0) -> list[Line]:
+    """Return every line passing condition 1 among the segments of ordered cells (N, 2) (m)."""
+    lines = []
+    for seg in split_segments(pts, params):
+        line = condition1(seg, params, t)
+        if line is not None:
+            lines.append(line)
+    return lines
