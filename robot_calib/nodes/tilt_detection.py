@@ -1,0 +1,24 @@
+# Copyright 2026 robot_calib contributors
+# SPDX-License-Identifier: Apache-2.0
+"""The ``tilt_detection`` node: ``imu`` in; ``tilt/imu``, ``tilt/fall_alert``, ``/diagnostics``.
+
+A thin wrapper of :class:`robot_calib.pipelines.tilt_detection.TiltPipeline`
+through :mod:`robot_calib.nodes.base` (parameters from
+:class:`robot_calib.core.tilt.TiltParams`).
+"""
+
+from __future__ import annotations
+
+import sys
+from typing import Optional
+
+
+def main(args: Optional[list[str]] = None) -> None:
+    """Run the node until shutdown."""
+    from robot_calib.nodes.base import run
+    from robot_calib.pipelines.tilt_detection import TiltPipeline
+    sys.exit(run(TiltPipeline, args))
+
+
+if __name__ == '__main__':
+    main()

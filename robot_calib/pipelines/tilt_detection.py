@@ -1,0 +1,239 @@
+# Copyright 2026 robot_calib contributors
+# SPDX-License-Identifier: Apache-2.0
+"""Pipeline of ``tilt_detection``: IMU in; attitude, latched fall alert and diagnostics out.
+
+Inputs: ``imu`` (sensor_msgs/Imu: raw gyro rad/s, specific force m/s^2) and
+``/tf_static`` (a ``base_frame`` -> IMU frame transform gives the mounting
+rotation; otherwise the ``mounting_rpy`` parameter).
+
+Outputs:
+
+- ``tilt/imu`` (sensor_msgs/Imu): the input rates and specific force with the
+  orientation filled (gravity-aligned attitude; yaw is not meaningful and has
+  a huge covariance). When a mounting rotation is set, vectors and
+  orientation are expressed in ``base_frame``.
+- ``tilt/fall_alert`` (std_msgs/Bool, reliable + transient local, depth 1):
+  False at the first sample, then on every change.
+- ``/diagnostics`` (diagnostic_msgs/DiagnosticArray): status
+  ``tilt_detection`` every ``diagnostics_period`` s of data time and on every
+  alert change: level ERROR while fallen, WARN after a filter restart or
+  rejected samples in the period, OK otherwise; reason and margins as values.
+- ``cmd_vel`` (geometry_msgs/Twist): zero velocity while fallen, only with
+  ``stop_on_alert`` (off by default; the seed's "cut the drive").
+
+Bad input: non-finite values, repeated or backwards stamps (base class),
+specific force above ``max_accel``, rates above ``max_gyro`` and an all-zero
+accelerometer are rejected and counted; a gap above ``max_dt`` restarts the
+filter from the accelerometer with a warning (the alert state is kept).
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any, Optional
+
+import numpy as np
+
+from robot_calib.core import types as T
+from robot_calib.core.tilt import TiltEstimator, TiltParams, TiltState
+from robot_calib.pipelines.base import InputSpec, Output, OutputSpec, Pipeline
+
+STATUS_NAME = 'tilt_detection'
+_IDENTITY = (1.0, 0.0, 0.0, 0.0)
+
+
+def _rotate(q: tuple, v: np.ndarray) -> np.ndarray:
+    w, x, y, z = q
+    m = np.array([[1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
+                  [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
+                  [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)]])
+    return m @ v
+
+
+class TiltPipeline(Pipeline):
+    """Estimate the attitude, detect falls and publish a latched alert."""
+
+    name = 'tilt_detection'
+    params_type = TiltParams
+    inputs = (InputSpec('imu', 'imu', 'imu'),
+              InputSpec('tf_static', '/tf_static', 'tf_static', optional=True))
+    outputs = (OutputSpec('imu', 'tilt/imu', 'imu'),
+               OutputSpec('fall_alert', 'tilt/fall_alert', 'bool', qos='latched'),
+               OutputSpec('diagnostics', '/diagnostics', 'diagnostics'),
+               OutputSpec('cmd_vel', 'cmd_vel', 'cmd_vel'))
+    max_gap = 0.5
+
+    def __init__(self, params: Optional[TiltParams] = None, log: Any = None):
+        """Create the estimator from ``params`` (defaults when None)."""
+        super().__init__(params, log)
+        p = self.params
+        self.est = TiltEstimator(p)
+        self.mounting = tuple(float(v) for v in self.est.mount)
+        self.mount_source = 'parameter' if any(p.mounting_rpy) else 'none'
+        self.imu_frame: Optional[str] = None
+        self.alerts: list[list[float]] = []
+        self.last: Optional[TiltState] = None
+        self._first = True
+        self._last_diag: Optional[float] = None
+        self._rejected_at_diag = 0
+        self._restarts_at_diag = 0
+        self._last_stop: Optional[float] = None
+        self._reason = 'upright'
+        self._cov = self._orientation_cov()
+
+    # -- configuration -----------------------------------------------------------------------
+    def _orientation_cov(self) -> np.ndarray:
+        rp = 0.02 ** 2 if self.params.mode == 'improved' else 0.05 ** 2
+        return np.diag([rp, rp, 1e3])
+
+    def on_static_transform(self, transform: T.StaticTransform) -> None:
+        """Take the IMU mounting rotation from base_frame -> IMU frame when it arrives."""
+        if self.imu_frame is not None:
+            self._apply_tf(self.imu_frame)
+
+    def _apply_tf(self, frame: str) -> None:
+        p = self.params
+        if not p.use_tf_static or frame == p.base_frame:
+            return
+        tf = self.static_transforms.get((p.base_frame, frame))
+        if tf is None:
+            return
+        q = tuple(float(v) for v in tf.rotation)
+        if q == self.mounting and self.mount_source == '/tf_static':
+            return
+        self.est.set_mounting(q)
+        self.mounting = tuple(float(v) for v in self.est.mount)
+        self.mount_source = '/tf_static'
+        self.log('info', f'IMU mounting from /tf_static {p.base_frame} -> {frame}: '
+                 f'q = ({", ".join(f"{v:.4f}" for v in self.mounting)})')
+
+    # -- samples ---------------------------------------------------------------------------
+    def handle(self, key: str, sample: Any) -> list[Output]:
+        """Process one IMU sample; return tilt/imu plus alert, diagnostics and stop outputs."""
+        if key != 'imu':
+            return []
+        p = self.params
+        g = sample.gyro
+        a = sample.accel
+        gx, gy, gz = float(g[0]), float(g[1]), float(g[2])
+        ax, ay, az = float(a[0]), float(a[1]), float(a[2])
+        a2 = ax * ax + ay * ay + az * az
+        if a2 > p.max_accel * p.max_accel:
+            return self.reject(key, 'accel_out_of_range')
+        if a2 < 1e-12:
+            return self.reject(key, 'accel_zero')
+        if gx * gx + gy * gy + gz * gz > p.max_gyro * p.max_gyro:
+            return self.reject(key, 'gyro_out_of_range')
+        if self.imu_frame is None:
+            self.imu_frame = sample.frame_id
+            self._apply_tf(sample.frame_id)
+        restarts = self.est.restarts
+        last_t = self.est.last_t
+        s = self.est.update(sample.t, (gx, gy, gz), (ax, ay, az))
+        if self.est.restarts != restarts:
+            self.log('warn', f'IMU gap of {sample.t - last_t:.2f} s (> max_dt {p.max_dt} s): '
+                     'attitude filter restarted from the accelerometer')
+        self.last = s
+        stamp = T.stamp_of(sample.t, sample.stamp_ns)
+        outs: list[Output] = [('imu', self._imu_out(sample, s, stamp))]
+        if s.changed or self._first:
+            if s.changed:
+                self._on_change(s)
+            outs.append(('fall_alert', T.BoolSample(sample.t, s.alert, stamp)))
+        if s.changed or self._first or self._last_diag is None \
+                or sample.t - self._last_diag >= p.diagnostics_period:
+            outs.append(('diagnostics', self._diagnostics(s, stamp)))
+            self._last_diag = sample.t
+        if p.stop_on_alert and s.alert and (self._last_stop is None or s.changed
+                                            or sample.t - self._last_stop >= 0.05):
+            outs.append(('cmd_vel', T.TwistSample(sample.t, 0.0, 0.0, 0.0, stamp)))
+            self._last_stop = sample.t
+        self._first = False
+        return outs
+
+    def _imu_out(self, sample: T.ImuSample, s: TiltState, stamp: int) -> T.ImuSample:
+        if self.mounting == _IDENTITY:
+            return T.ImuSample(sample.t, sample.gyro, sample.accel, sample.frame_id,
+                               np.array(s.quat), self._cov, sample.gyro_cov, sample.accel_cov,
+                               stamp)
+        m = self.mounting
+        return T.ImuSample(sample.t, _rotate(m, np.asarray(sample.gyro, dtype=float)),
+                           _rotate(m, np.asarray(sample.accel, dtype=float)),
+                           self.params.base_frame, np.array(s.quat), self._cov,
+                           None, None, stamp)
+
+    def _on_change(self, s: TiltState) -> None:
+        p = self.params
+        if s.alert:
+            self.alerts.append([s.t, math.nan])
+            self._reason = (f'fallen: tilt {math.degrees(s.tilt):.1f} deg above fall_angle '
+                            f'{math.degrees(p.fall_angle):.1f} deg for '
+                            f'>= {p.fall_min_duration:.3f} s')
+            self.log('warn', f'FALL ALERT at t = {s.t:.3f} s: {self._reason}')
+        else:
+            if self.alerts:
+                self.alerts[-1][1] = s.t
+            self._reason = (f'upright again: tilt below clear_angle '
+                            f'{math.degrees(p.effective_clear_angle()):.1f} deg for '
+                            f'{p.clear_duration:.2f} s')
+            self.log('info', f'fall alert cleared at t = {s.t:.3f} s')
+
+    def _diagnostics(self, s: TiltState, stamp: int) -> T.DiagnosticSample:
+        p = self.params
+        rejected = self.counts['imu'].get('rejected', 0)
+        new_rejects = rejected - self._rejected_at_diag
+        new_restarts = self.est.restarts - self._restarts_at_diag
+        self._rejected_at_diag = rejected
+        self._restarts_at_diag = self.est.restarts
+        if s.alert:
+            level, message = 2, self._reason
+        elif new_restarts:
+            level, message = 1, 'attitude filter restarted after an IMU gap'
+        elif new_rejects:
+            level, message = 1, f'{new_rejects} IMU sample(s) rejected'
+        else:
+            level, message = 0, 'upright'
+        deg = math.degrees
+        values = (
+            ('alert', str(s.alert).lower()),
+            ('reason', self._reason),
+            ('mode', p.mode),
+            ('tilt_deg', f'{deg(s.tilt):.2f}'),
+            ('roll_deg', f'{deg(s.roll):.2f}'),
+            ('pitch_deg', f'{deg(s.pitch):.2f}'),
+            ('fall_angle_deg', f'{deg(p.fall_angle):.2f}'),
+            ('clear_angle_deg', f'{deg(p.effective_clear_angle()):.2f}'),
+            ('margin_to_fall_deg', f'{deg(p.fall_angle - s.tilt):.2f}'),
+            ('margin_to_clear_deg', f'{deg(p.effective_clear_angle() - s.tilt):.2f}'),
+            ('alert_episodes', str(self.est.detector.episodes)),
+            ('gyro_bias_rad_s', ' '.join(f'{b:.5f}' for b in s.bias)),
+            ('at_rest', str(s.rest).lower()),
+            ('mounting', self.mount_source),
+            ('filter_restarts', str(self.est.restarts)),
+            ('samples_rejected', str(rejected)),
+        )
+        return T.DiagnosticSample(s.t, (T.DiagnosticStatus(STATUS_NAME, level, message,
+                                                           self.imu_frame or '', values),),
+                                  stamp)
+
+    # -- results ---------------------------------------------------------------------------
+    def method_summary(self) -> dict[str, Any]:
+        """Return alert episodes, final state, restarts and the gyro bias for summary.json."""
+        last = self.last
+        return {
+            'mode': self.params.mode,
+            'alerts': len(self.alerts),
+            'alert_episodes': [{'start': a, 'end': (None if math.isnan(b) else b)}
+                               for a, b in self.alerts],
+            'alert_active': bool(last.alert) if last else False,
+            'final_tilt_deg': math.degrees(last.tilt) if last else None,
+            'max_tilt_deg': math.degrees(self.est.max_tilt),
+            'gyro_bias': list(last.bias) if last else None,
+            'filter_restarts': self.est.restarts,
+            'mounting': self.mount_source,
+            'mounting_quat': list(self.mounting),
+        }
+
+    def plot(self, out_dir: str) -> list[str]:
+        """No plot: the tilt is in the output bag (tilt/imu)."""
+        return []
