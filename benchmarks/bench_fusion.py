@@ -135,13 +135,13 @@ def real_husky(lines: list) -> dict:
     gps_end = float(np.hypot(*(ref[-1, 1:3] - ref[0, 1:3])))
     rows = [('raw wheel odometry', score(**odom_track(odoms), ref=ref), None, None)]
     runs = [
-        ('seed-faithful (mode seed)', dict(mode='seed', imu_rpy=HUSKY_IMU_RPY)),
-        ('improved, default (extrinsic as parameter)', dict(imu_rpy=HUSKY_IMU_RPY)),
-        ('improved, no extrinsic given (up axis from gravity)', dict()),
-        ('improved, adaptation iae (R only)', dict(imu_rpy=HUSKY_IMU_RPY, adaptation='iae')),
-        ('improved, no adaptation', dict(imu_rpy=HUSKY_IMU_RPY, adaptive=False)),
+        ('seed-faithful (mode seed)', {'mode': 'seed', 'imu_rpy': HUSKY_IMU_RPY}),
+        ('improved, default (extrinsic as parameter)', {'imu_rpy': HUSKY_IMU_RPY}),
+        ('improved, no extrinsic given (up axis from gravity)', {}),
+        ('improved, adaptation iae (R only)', {'imu_rpy': HUSKY_IMU_RPY, 'adaptation': 'iae'}),
+        ('improved, no adaptation', {'imu_rpy': HUSKY_IMU_RPY, 'adaptive': False}),
         ('improved, wheel yaw rate also corrects the gyro bias',
-         dict(imu_rpy=HUSKY_IMU_RPY, bias_from_wheels=True)),
+         {'imu_rpy': HUSKY_IMU_RPY, 'bias_from_wheels': True}),
     ]
     result = {}
     for name, kw in runs:
@@ -178,7 +178,7 @@ def real_gps_data(lines: list) -> None:
     ref = enu(fixes)
     rows = [('raw wheel odometry (/encoder)', score(**odom_track(odoms), ref=ref), odoms[-1])]
     units = ''
-    for name, kw in [('seed-faithful', dict(mode='seed')), ('improved, default', dict())]:
+    for name, kw in [('seed-faithful', {'mode': 'seed'}), ('improved, default', {})]:
         tr, f, _ = run_filter(seq, **kw)
         o = f.output()
         rows.append((name, score(**tr, ref=ref), o))
@@ -187,7 +187,7 @@ def real_gps_data(lines: list) -> None:
               f'IMU acceleration units: `accel_units: auto` -> **{units}** (the median |a| of '
               'the first 10 samples is about 1, so the filter multiplies by g and logs a '
               'warning). No IMU extrinsic is known for this bag: the up axis comes from gravity '
-              '(`imu_extrinsic: auto`). robot_pose_ekf\'s own test expects its final (x, y) at '
+              "(`imu_extrinsic: auto`). robot_pose_ekf's own test expects its final (x, y) at "
               '(1.670, -3.850) +- 0.1 m in its `odom_combined` frame.', '',
               '| estimate | ATE vs GPS (m) | final error (m) | final x, y in odom frame (m) |',
               '|---|---|---|---|']
@@ -347,7 +347,8 @@ def simulation(lines: list, seeds: int, duration: float, jobs: int) -> None:
               f'Default final heading error: median {np.median(head):.2f} deg. '
               f'Mean per-update NIS (2 dof expected 2): '
               f'{np.median([r["nis_mean"] for r in res]):.2f}. The 20-update moving average '
-              f'of the NIS is in its (narrower) band {np.median([r["nis_window"] for r in res]) * 100:.0f} % '
+              'of the NIS is in its (narrower) band '
+              f'{np.median([r["nis_window"] for r in res]) * 100:.0f} % '
               'of the time: the innovations are time-correlated (wheel-speed lag and '
               'slip), which the averaged test exposes and the per-update test does not. '
               f'Core rate in simulation: {np.median([r["rate"] for r in res]):,.0f} msgs/s.',

@@ -94,6 +94,9 @@ class FusionParams:
                           'base_link -> IMU rotation as roll, pitch, yaw (R = Rz Ry Rx)')
     accel_units: str = param('auto', '', 'IMU acceleration units: auto (detected from the '
                              'gravity magnitude), mps2 or g', choices=('auto', 'mps2', 'g'))
+    wheel_source: str = param('auto', '', 'Wheel input: auto (odom; joint_states only when no '
+                              'odom arrives within 1 s of it), odom or joint_states',
+                              choices=('auto', 'odom', 'joint_states'))
     drive_type: str = param('differential', '', 'Drive of joint_states input',
                             choices=('differential',))
     wheel_radius: float = param(0.1, 'm', 'Nominal wheel radius (joint_states input)',

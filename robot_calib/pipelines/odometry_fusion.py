@@ -79,6 +79,9 @@ class FusionPipeline(Pipeline):
                     sample.t - f.last_odom_t > self.params.sensor_timeout:
                 outs += self._estimate(sample)
         elif key in ('odom', 'joint_states'):
+            if not self._wheel_source_ok(key, sample.t):
+                self.reject(key, 'other_wheel_source_used')
+                return self._diagnostics(sample)
             if key == 'odom':
                 self._check_cov(sample.twist_cov)
             reason = f.odom(sample) if key == 'odom' else f.wheels(sample)
@@ -91,6 +94,24 @@ class FusionPipeline(Pipeline):
         outs += self._diagnostics(sample)
         self._flush_events()
         return outs
+
+    def _wheel_source_ok(self, key: str, t: float) -> bool:
+        """Use one wheel source only: odometry, or joint states when no odometry comes."""
+        want = self.params.wheel_source
+        if want != 'auto':
+            return key == want
+        if self._wheel_key is None:
+            if key == 'joint_states':
+                if self._js_first is None:
+                    self._js_first = t
+                if t - self._js_first < 1.0:
+                    return False  # wait up to 1 s for odometry
+            self._wheel_key = key
+            self.log('info', f'wheel input: {key}')
+        return key == self._wheel_key
+
+    _wheel_key = None
+    _js_first = None
 
     def _check_cov(self, cov: Any) -> None:
         """Count message covariances that are zero, negative or absurd (they are not used)."""
