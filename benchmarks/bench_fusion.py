@@ -1,6 +1,7 @@
 # Copyright 2026 robot_calib contributors
 # SPDX-License-Identifier: Apache-2.0
-"""Benchmark of ``odometry_fusion`` (issue 4): real Husky bags, the fusion_drive simulation, speed.
+"""
+Benchmark of ``odometry_fusion`` (issue 4): real Husky bags, the fusion_drive simulation, speed.
 
 Run from the repository root::
 
@@ -63,7 +64,8 @@ def enu(fixes: list) -> np.ndarray:
 
 
 def align(t: np.ndarray, xy: np.ndarray, ref: np.ndarray) -> tuple[np.ndarray, float]:
-    """Align an estimate (interpolated at ``ref[:, 0]``) to ``ref[:, 1:3]`` with one SE(2).
+    """
+    Align an estimate (interpolated at ``ref[:, 0]``) to ``ref[:, 1:3]`` with one SE(2).
 
     :return: (errors m at each reference sample, rotation rad of the alignment)
     """
@@ -357,7 +359,7 @@ def simulation(lines: list, seeds: int, duration: float, jobs: int) -> None:
 
 def main() -> int:
     """Run the benchmark; write docs/bench/4-fusion.md."""
-    ap = argparse.ArgumentParser(description=__doc__.split('\n')[0])
+    ap = argparse.ArgumentParser(description=__doc__.strip().split('\n')[0])
     ap.add_argument('--seeds', type=int, default=20)
     ap.add_argument('--duration', type=float, default=600.0)
     ap.add_argument('--jobs', type=int, default=2)

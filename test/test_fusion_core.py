@@ -20,7 +20,8 @@ HUSKY_RPY = [math.pi / 2, 0.0, -math.pi / 2]
 def drive(duration=120.0, seed=0, gyro_bias=0.01, radius_err=0.03, yaw_scale=1.1,
           imu_rpy=(0.0, 0.0, 0.0), slip=(), stops=True, imu_rate=100.0, odom_rate=20.0,
           accel_g=False):
-    """Return (samples as (kind, sample), truth array t, x, y, yaw) of a mixed drive.
+    """
+    Return (samples as (kind, sample), truth array t, x, y, yaw) of a mixed drive.
 
     Segments: straight, arcs, turns in place and (optionally) stops; the IMU may be
     mounted rotated (imu_rpy: base_link -> IMU); slip: list of (t0, t1, ratio) where the

@@ -1,6 +1,7 @@
 # Copyright 2026 robot_calib contributors
 # SPDX-License-Identifier: Apache-2.0
-"""IMU + wheel-odometry fusion (seed 004): the seed-faithful filter and an improved planar EKF.
+"""
+IMU + wheel-odometry fusion (seed 004): the seed-faithful filter and an improved planar EKF.
 
 Two filters share one streaming interface (``imu()``, ``odom()``, ``wheels()``)
 and a batch :func:`run`:
@@ -185,7 +186,8 @@ def _wrap(a: float) -> float:
 
 
 def lidar_accuracy(d: float, d_lidar: float) -> tuple[float, bool]:
-    """Return the seed's accuracy ``1 - |d - d_l| / d_l`` and whether it is valid (>= 0.95).
+    """
+    Return the seed's accuracy ``1 - |d - d_l| / d_l`` and whether it is valid (>= 0.95).
 
     :param d: travelled distance from the fused positions (m)
     :param d_lidar: travelled distance measured by the lidar (m)
@@ -198,7 +200,8 @@ def lidar_accuracy(d: float, d_lidar: float) -> tuple[float, bool]:
 
 
 def nis_band(dof: int, window: int, prob: float = 0.95) -> tuple[float, float]:
-    """Return the two-sided ``prob`` band of the mean of ``window`` NIS values of ``dof`` dof.
+    """
+    Return the two-sided ``prob`` band of the mean of ``window`` NIS values of ``dof`` dof.
 
     :param dof: degrees of freedom of one NIS value
     :param window: number of values averaged
@@ -212,7 +215,8 @@ def nis_band(dof: int, window: int, prob: float = 0.95) -> tuple[float, float]:
 
 def wheel_twist(params: FusionParams, sample: T.JointStateSample,
                 last: Optional[T.JointStateSample]) -> Optional[tuple[float, float]]:
-    """Return (v m/s, w rad/s) of a differential drive from joint states, or None.
+    """
+    Return (v m/s, w rad/s) of a differential drive from joint states, or None.
 
     Wheel velocities (rad/s) are used when present, else position differences
     with the previous sample. Speed as seed 004 writes it with rev/s
@@ -268,7 +272,8 @@ class _ImuFrontEnd:
         self.forward_known = source in ('param', 'tf')
 
     def convert(self, s: T.ImuSample) -> Optional[tuple[float, float, bool]]:
-        """Return (gyro z rad/s, forward specific force m/s^2, accel usable) in base_link.
+        """
+        Return (gyro z rad/s, forward specific force m/s^2, accel usable) in base_link.
 
         None while the units or the gravity axis are still being determined.
         """
@@ -638,7 +643,8 @@ class ImprovedFusion(_Base):
     # -- odometry update -------------------------------------------------------------------
     def _scalar_update(self, h: np.ndarray, resid: float, r: float,
                        consider: Optional[np.ndarray] = None) -> tuple[float, float]:
-        """Kalman update with one scalar observation; return (innovation variance, NIS).
+        """
+        Kalman update with one scalar observation; return (innovation variance, NIS).
 
         ``consider`` masks states left uncorrected (Schmidt-Kalman consider update):
         their uncertainty enters the innovation variance, their values are kept.
@@ -1002,7 +1008,8 @@ def make_filter(params: Optional[FusionParams] = None) -> _Base:
 
 def run(samples: Iterable[tuple[str, object]], params: Optional[FusionParams] = None,
         ) -> tuple[list[FusionOutput], _Base]:
-    """Run a filter over a time-ordered recording and return (estimates, filter).
+    """
+    Run a filter over a time-ordered recording and return (estimates, filter).
 
     :param samples: (kind, sample) pairs; kind is 'imu', 'odom', 'joint_states',
         'lidar_odom' or 'tf_static'
@@ -1030,7 +1037,8 @@ def run(samples: Iterable[tuple[str, object]], params: Optional[FusionParams] = 
 
 def apply_static_transform(f: _Base, tf: T.StaticTransform, known: list,
                            params: FusionParams, imu_frame: Optional[str] = None) -> bool:
-    """Use a static transform chain base_frame -> IMU frame as the IMU extrinsic.
+    """
+    Use a static transform chain base_frame -> IMU frame as the IMU extrinsic.
 
     :param f: the filter
     :param tf: the new transform (appended to ``known``)

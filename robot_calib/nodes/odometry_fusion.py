@@ -1,6 +1,7 @@
 # Copyright 2026 robot_calib contributors
 # SPDX-License-Identifier: Apache-2.0
-"""The ``odometry_fusion`` node: ``imu`` + ``odom`` (or ``joint_states``) -> ``odometry/fused``.
+"""
+The ``odometry_fusion`` node: ``imu`` + ``odom`` (or ``joint_states``) -> ``odometry/fused``.
 
 A thin wrapper of :class:`robot_calib.pipelines.odometry_fusion.FusionPipeline`
 through :mod:`robot_calib.nodes.base`; it also publishes ``/diagnostics``.

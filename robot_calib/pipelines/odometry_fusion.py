@@ -1,6 +1,7 @@
 # Copyright 2026 robot_calib contributors
 # SPDX-License-Identifier: Apache-2.0
-"""Pipeline of the ``odometry_fusion`` node: IMU + wheel odometry -> ``odometry/fused``.
+"""
+Pipeline of the ``odometry_fusion`` node: IMU + wheel odometry -> ``odometry/fused``.
 
 Glue only: samples go to :mod:`robot_calib.core.fusion`, estimates come back as
 nav_msgs/Odometry samples stamped with the input that produced them, and a

@@ -1,6 +1,7 @@
 # Copyright 2026 robot_calib contributors
 # SPDX-License-Identifier: Apache-2.0
-"""Scenario ``fusion_drive``: 10 minutes of mixed driving for IMU + wheel-odometry fusion.
+"""
+Scenario ``fusion_drive``: 10 minutes of mixed driving for IMU + wheel-odometry fusion.
 
 A differential-drive robot drives a random (seeded) sequence of straight runs,
 arcs, turns on the spot and short stops in an open yard (walls 200 m away), with the
@@ -13,7 +14,7 @@ errors a fusion filter must cope with:
   (+4 %), so raw odometry drifts in heading and scale;
 - three wheel slip episodes (one wheel or both losing 20-50 % of their speed
   for 2-4 s);
-- wheel speed noise and 4096-tick encoders.
+- wheel speed noise and 4096-tick encoders; a 100 Hz IMU, 50 Hz odometry.
 
 Ground truth is in the bag (``ground_truth/odom``), the true parameters in
 ``truth.json`` (``slip_episodes`` as [t0, t1, left, right] lists).
@@ -63,6 +64,7 @@ SCENARIO = Scenario(
     build=build,
     duration=600.0,
     defaults={
+        'imu.rate': 100.0,
         'imu.gyro_bias': [0.0, 0.0, 0.005],
         'imu.gyro_bias_sigma': 0.003,
         'imu.gyro_bias_drift': [0.0, 0.0, 2e-6],
