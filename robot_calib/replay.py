@@ -45,7 +45,7 @@ from robot_calib import pipelines
 from robot_calib.core import types as T
 from robot_calib.core.params import describe, flatten_nested, from_flat, ParamError
 from robot_calib.io import convert
-from robot_calib.io.bags import BagError, BagSet, BagWriter, normalize_topic
+from robot_calib.io.bags import BagError, BagSet, BagWriter, normalize_topic, serialize
 from robot_calib.pipelines.base import KINDS, Pipeline
 
 OUTPUT_BAG = 'output.mcap'
@@ -518,7 +518,7 @@ def _run(bagset: BagSet, bag_list: list, runs: list[_Node], skipped: dict[str, s
                 try:
                     if spec is None:
                         raise KeyError(f'output {out_key!r} is not declared in outputs')
-                    msgtype, data = convert.serialize(sample)
+                    msgtype, data = serialize(sample)
                     if msgtype != spec[1]:
                         raise TypeError(f'output {out_key!r} is {msgtype}, declared {spec[1]}')
                     writer.write_raw(spec[0], msgtype, data, convert.sample_time_ns(

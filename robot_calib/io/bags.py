@@ -20,6 +20,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 import heapq
+import math
 from operator import itemgetter
 import os
 from pathlib import Path
@@ -30,7 +31,7 @@ from typing import Any, Callable, Iterable, Iterator, Optional
 import numpy as np
 
 from robot_calib.core import types as T
-from robot_calib.core.geometry import quat_normalize, quat_to_rpy
+from robot_calib.core.geometry import quat_from_rpy, quat_normalize, quat_to_rpy
 from robot_calib.io import convert
 
 
@@ -169,6 +170,92 @@ def odom_from_ros1(raw: bytes) -> T.OdomSample:
     child = bytes(raw[pos + 4:pos + 4 + m]).decode()
     v = np.frombuffer(raw, '<f8', 85, pos + 4 + m)
     return _odom_sample(sec * 1_000_000_000 + nsec, frame, child, v)
+
+
+# ---------------------------------------------------------------------------------------
+# fast encoders (little-endian CDR), byte-identical to convert.serialize
+# ---------------------------------------------------------------------------------------
+_CDR_LE = b'\x00\x01\x00\x00'
+_POSE_FLAT = np.ravel_multi_index(convert._POSE_IDX, (6, 6)).ravel().tolist()
+_D37 = struct.Struct('<37d')
+_D85 = struct.Struct('<85d')
+
+
+def _cdr_header(ns: int, frame: str) -> bytearray:
+    """Return encapsulation + std_msgs/Header (stamp, frame_id) without trailing padding."""
+    fb = frame.encode()
+    out = bytearray(_CDR_LE)
+    out += _STAMP2.pack(ns // 1_000_000_000, ns % 1_000_000_000, len(fb) + 1)
+    out += fb
+    out += b'\x00'
+    return out
+
+
+def _pad(buf: bytearray, align: int) -> None:
+    buf += bytes(-(len(buf) - 4) % align)
+
+
+def _cov9(cov: Optional[np.ndarray], unknown: float) -> list:
+    """Return 9 covariance values as convert._cov_out does (unknown in [0] when absent)."""
+    if cov is not None:
+        c = np.asarray(cov, dtype=float).ravel().tolist()
+        if len(c) == 9 and all(map(math.isfinite, c)):
+            return c
+    return [unknown, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0]
+
+
+def _cov36(cov3: np.ndarray) -> list:
+    """Return a 6x6 covariance as convert._cov6 builds it (1e6 on z, roll, pitch)."""
+    out = [0.0] * 36
+    out[14] = out[21] = out[28] = 1e6
+    isf = math.isfinite
+    for i, v in zip(_POSE_FLAT, np.asarray(cov3, dtype=float).ravel().tolist()):
+        out[i] = v if isf(v) else 0.0
+    return out
+
+
+def imu_to_cdr(s: T.ImuSample) -> bytes:
+    """Serialize an :class:`ImuSample` as convert.serialize does, without building a message."""
+    buf = _cdr_header(T.stamp_of(s.t, s.stamp_ns), s.frame_id)
+    _pad(buf, 8)
+    if s.orientation is None:
+        q, ocov = (1.0, 0.0, 0.0, 0.0), _cov9(None, -1.0)
+    else:
+        q, ocov = s.orientation, _cov9(s.orientation_cov, 0.0)
+    g, a = s.gyro, s.accel
+    buf += _D37.pack(float(q[1]), float(q[2]), float(q[3]), float(q[0]), *ocov,
+                     float(g[0]), float(g[1]), float(g[2]), *_cov9(s.gyro_cov, 0.0),
+                     float(a[0]), float(a[1]), float(a[2]), *_cov9(s.accel_cov, 0.0))
+    return bytes(buf)
+
+
+def odom_to_cdr(s: T.OdomSample) -> bytes:
+    """Serialize an :class:`OdomSample` as convert.serialize does, without building a message."""
+    buf = _cdr_header(T.stamp_of(s.t, s.stamp_ns), s.frame_id)
+    _pad(buf, 4)
+    cb = s.child_frame_id.encode()
+    buf += _U32.pack(len(cb) + 1)
+    buf += cb
+    buf += b'\x00'
+    _pad(buf, 8)
+    q = quat_from_rpy(s.roll, s.pitch, s.yaw)
+    buf += _D85.pack(float(s.x), float(s.y), float(s.z), float(q[1]), float(q[2]), float(q[3]),
+                     float(q[0]), *_cov36(s.pose_cov), float(s.vx), float(s.vy), 0.0, 0.0, 0.0,
+                     float(s.wz), *_cov36(s.twist_cov))
+    return bytes(buf)
+
+
+_TO_CDR = {T.ImuSample: ('sensor_msgs/msg/Imu', imu_to_cdr),
+           T.OdomSample: ('nav_msgs/msg/Odometry', odom_to_cdr)}
+
+
+def serialize(sample: Any) -> tuple[str, bytes]:
+    """Return (msgtype, CDR bytes) of a core sample: fast for Imu/Odometry, else convert's."""
+    fast = _TO_CDR.get(type(sample))
+    if fast is not None and sample.stamp_ns < 2**62 and (sample.stamp_ns >= 0 or (
+            0 <= sample.t < 2**31)):
+        return fast[0], fast[1](sample)
+    return convert.serialize(sample)
 
 
 _FAST_CDR = {'sensor_msgs/msg/Imu': imu_from_cdr, 'nav_msgs/msg/Odometry': odom_from_cdr}
@@ -535,10 +622,14 @@ class BagWriter:
 
     def write(self, topic: str, sample: Any, time_ns: Optional[int] = None) -> None:
         """Write one core sample on ``topic`` at receive time ``time_ns`` (default: its stamp)."""
-        msgtype, msg = convert.to_msg(sample)
-        self.write_msg(topic, msgtype, msg, time_ns if time_ns is not None else (
-            convert.sample_time_ns(sample) if not isinstance(sample, list) else
-            (convert.sample_time_ns(sample[0]) if sample else 0)))
+        if isinstance(sample, list):
+            msgtype, msg = convert.to_msg(sample)
+            self.write_msg(topic, msgtype, msg, time_ns if time_ns is not None else (
+                convert.sample_time_ns(sample[0]) if sample else 0))
+            return
+        msgtype, data = serialize(sample)
+        self.write_raw(topic, msgtype, data, time_ns if time_ns is not None else
+                       convert.sample_time_ns(sample))
 
     def write_msg(self, topic: str, msgtype: str, msg: Any, time_ns: int) -> None:
         """Write an already built rosbags message."""
