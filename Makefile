@@ -21,7 +21,10 @@ $(STAMP): requirements.txt requirements-bench.txt setup.py
 	touch $(STAMP)
 
 demo: venv
-	$(VENV)/bin/robot-calib replay bags/husky_test1 --out demo_out
+	rm -rf demo_out && mkdir -p demo_out
+	$(VENV)/bin/robot-calib replay bags/sim_drive --out demo_out/sim_drive
+	$(VENV)/bin/robot-calib replay bags/husky_test1 --out demo_out/husky_test1
+	@echo "reports: demo_out/sim_drive/report.md demo_out/husky_test1/report.md"
 
 test: venv
 	$(PY) -m pytest -q test
