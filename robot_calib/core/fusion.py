@@ -15,31 +15,54 @@ and a batch :func:`run`:
   ``P_o = F P_o F' + R_o``, the "novel" covariance ``S = P + P_o`` and gain
   ``K = P S^-1``.
 * :class:`ImprovedFusion` (``mode: improved``, the default) is an error-aware
-  planar EKF with state ``[x, y, yaw, v, b_g, b_a, k_w]``: pose (m, m, rad),
-  forward speed (m/s), gyro z bias (rad/s), forward accelerometer bias
-  (m/s^2) and the odometry yaw-rate scale (a skid-steer or track-width error,
-  dimensionless). The IMU (gyro z and forward specific force, rotated into
-  ``base_link`` by the mounting extrinsic) drives the prediction; the wheel
+  planar EKF with state ``[x, y, yaw, v, b_g, b_a, k_w, k_v]``: pose (m, m,
+  rad), forward speed (m/s), gyro z bias (rad/s), forward accelerometer bias
+  (m/s^2), the odometry yaw-rate scale (a skid-steer or track-width error,
+  dimensionless) and the odometry yaw rate per unit speed (a left/right wheel
+  radius mismatch, rad/m). The IMU (gyro z and forward specific force,
+  rotated into ``base_link`` by the mounting extrinsic from a parameter,
+  ``/tf_static`` or, failing both, the gravity direction) drives the
+  prediction; the wheel
   odometry's forward speed and yaw rate are scalar observations, each gated
   by its innovation (chi-square, 1 dof) so wheel slip and outliers are
   rejected and counted. A stationary robot (wheels exactly still) gives a
   zero-velocity update that pins the gyro bias.
 
-Noise adaptation (improved mode) is innovation-based adaptive estimation
-(IAE, Mohamed & Schwarz 1999), one scalar per odometry channel: the
-exponentially weighted mean of the squared innovation (each clipped to the
-gate, so one outlier cannot blow it up) minus the predicted part ``H P H'``
-estimates the measurement variance, and the ratio to the nominal variance is
-clamped to ``[adapt_min, adapt_max]``. A clamped positive scalar on a
-positive nominal keeps R bounded and positive definite by construction,
-unlike plain Sage-Husa whose ``C - H P H'`` can go negative; with only two
-scalar channels this is identifiable at 10 Hz, and it costs a few flops per
-update where variational-Bayes adaptation iterates per step.
+Noise adaptation (improved mode, ``adaptation: nis``, the default) keeps one
+bounded scale factor per odometry channel (speed, yaw rate) that multiplies
+both that channel's measurement noise and the process noise feeding it
+(accelerometer noise for the speed, gyro noise for the yaw rate). The scale
+follows a stochastic approximation of ``E[NIS] = 1`` in log space
+(``log s += (dt / adapt_time) * (min(NIS, 3) - 1)``), clamped to
+``[adapt_min, adapt_max]``. Why: from a scalar innovation stream only the
+total innovation variance is identifiable, not the split between Q and R, so
+we adapt the total and keep the nominal split (physically motivated
+defaults); the multiplicative update on a positive nominal keeps every
+covariance positive definite and bounded by construction, unlike plain
+Sage-Husa whose ``C - H P H'`` can go negative; the NIS cap of 3 stops a
+slip episode from inflating the noise fast enough to let the slip in; and it
+costs a few flops per update where variational-Bayes adaptation iterates
+per step. ``adaptation: iae`` is the classic innovation-based adaptive
+estimation of R alone (Mohamed & Schwarz 1999, ``R = C - H P H'`` from the
+windowed innovation covariance, clipped to the same bounds), kept for
+comparison.
+
+The gyro bias is learnt at standstill (zero-velocity update: the gyro must
+read its bias) and, by default, NOT from the wheel yaw rate: wheel slip,
+skid steering and a left/right radius mismatch all mimic a gyro bias there,
+so that update is a Schmidt-Kalman consider update that corrects only the
+wheel yaw-rate scale and per-speed offset (``bias_from_wheels: true``
+turns it into a full update).
 
 Consistency is monitored with the normalised innovation squared (NIS) of
-each odometry update (2 dof when both channels are used); its moving average
-over ``nis_window`` updates is compared with the two-sided 95 % chi-square
-band of that average.
+each odometry update (2 dof when both channels are used), counted inside or
+outside its two-sided 95 % chi-square band; its moving average over
+``nis_window`` updates is also compared with the (narrower) band of that
+average, which exposes time-correlated innovations.
+
+Sensor latency: an IMU sample or odometry up to ``max_lag`` older than the
+filter time is applied at the filter time (counted); older ones are
+rejected. Equations are tagged ``seed 004`` where they come from the seed.
 """
 
 from __future__ import annotations
@@ -257,6 +280,7 @@ class _ImuFrontEnd:
         self.units_source = params.accel_units if self.accel_scale else 'pending'
         self._norms: list[float] = []
         self._acc_sum = np.zeros(3)
+        self._n_up = 0
         self.warnings: list[str] = []
         rpy = list(params.imu_rpy) + [0.0] * 3
         if params.imu_extrinsic == 'param' or (params.imu_extrinsic == 'auto'
@@ -271,16 +295,15 @@ class _ImuFrontEnd:
         self.rot_source = source
         self.forward_known = source in ('param', 'tf')
 
-    def convert(self, s: T.ImuSample) -> Optional[tuple[float, float, bool]]:
+    def convert(self, s: T.ImuSample, g: tuple, acc: tuple
+                ) -> Optional[tuple[float, float, bool]]:
         """
         Return (gyro z rad/s, forward specific force m/s^2, accel usable) in base_link.
 
         None while the units or the gravity axis are still being determined.
         """
-        acc = s.accel
         if self.accel_scale is None:
-            acc = np.asarray(acc, dtype=float)
-            self._norms.append(float(np.linalg.norm(acc)))
+            self._norms.append(math.sqrt(acc[0] ** 2 + acc[1] ** 2 + acc[2] ** 2))
             if len(self._norms) >= 10:
                 med = float(np.median(self._norms))
                 if 0.5 < med < 1.5:
@@ -297,14 +320,19 @@ class _ImuFrontEnd:
             if self.p.imu_extrinsic == 'tf':
                 return None
             self._acc_sum += np.asarray(acc, dtype=float)
-            if len(self._norms) < 10 and self.accel_scale is None:
+            self._n_up += 1
+            if self._n_up < 10 or self.accel_scale is None:
                 return None
-            up = self._acc_sum / max(np.linalg.norm(self._acc_sum), 1e-12)
-            self.set_rotation(_rotation_to_up(up), 'gravity')
+            mean = self._acc_sum / self._n_up
+            if np.linalg.norm(mean) * self.accel_scale < 0.5 * G:
+                self.warnings.append('no gravity in the IMU acceleration: taking the IMU z '
+                                     'axis as up (set imu_rpy or publish /tf_static)')
+                self.set_rotation(np.eye(3), 'gravity')
+            else:
+                self.set_rotation(_rotation_to_up(mean / np.linalg.norm(mean)), 'gravity')
         if self.rot is None or self.accel_scale is None:
             return None
         r2, r0 = self._r2, self._r0
-        g = s.gyro
         gz = r2[0] * g[0] + r2[1] * g[1] + r2[2] * g[2]
         use_acc = self.forward_known and self.units_source != 'unknown'
         ax = (r0[0] * acc[0] + r0[1] * acc[1] + r0[2] * acc[2]) * self.accel_scale \
@@ -370,8 +398,8 @@ class _Base:
     # -- input adapters --------------------------------------------------------------------
     def imu(self, s: T.ImuSample) -> Optional[str]:
         """Feed one IMU sample; return a rejection reason or None when used."""
-        gx, gy, gz = (float(v) for v in s.gyro)
-        ax, ay, az = (float(v) for v in s.accel)
+        gx, gy, gz = np.asarray(s.gyro, dtype=float).tolist()
+        ax, ay, az = np.asarray(s.accel, dtype=float).tolist()
         if not math.isfinite(gx + gy + gz + ax + ay + az + s.t):
             return 'non_finite'
         if max(abs(gx), abs(gy), abs(gz)) > self.p.max_gyro:
@@ -381,7 +409,7 @@ class _Base:
             return 'accel_out_of_range'
         if self.last_imu_t is not None and s.t <= self.last_imu_t:
             return 'out_of_order'
-        conv = self.front.convert(s)
+        conv = self.front.convert(s, (gx, gy, gz), (ax, ay, az))
         while self.front.warnings:
             self.warn(s.t, self.front.warnings.pop(0))
         if conv is None:
@@ -408,7 +436,7 @@ class _Base:
             c, sn = math.cos(last.yaw), math.sin(last.yaw)
             dx, dy = s.x - last.x, s.y - last.y
             fwd = c * dx + sn * dy
-            dyaw = wrap_angle(s.yaw - last.yaw)
+            dyaw = _wrap(s.yaw - last.yaw)
             moved = math.hypot(dx, dy)
             twist_zero = s.vx == 0.0 and s.wz == 0.0 and last.vx == 0.0 and last.wz == 0.0
             expect = max(abs(s.vx), abs(last.vx)) * dt
@@ -589,7 +617,7 @@ class ImprovedFusion(_Base):
         self._cov_acc = [0.0, 0.0, 0.0, 0.0, 0.0]
         p = self.p
         stale, use_acc = self._cov_mode
-        F = np.eye(8)
+        F = _EYE8.copy()
         F[IX, IYAW] = -dy  # d(displacement)/d(yaw): the displacement rotated by 90 deg
         F[IY, IYAW] = dx
         F[IX, IV] = sc
