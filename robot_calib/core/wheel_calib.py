@@ -175,6 +175,10 @@ class WheelCalibParams:
     lidar_y: float = param(0.0, 'm', 'Nominal lidar y in base_link')
     lidar_yaw: float = param(0.0, 'rad', 'Nominal lidar yaw in base_link')
     base_frame: str = param('base_link', '', 'Robot base frame for /tf_static look-ups')
+    scan_time_offset: float = param(
+        0.0, 's', 'Added to every scan stamp before it is paired with the wheel data (a '
+        'negative value for a lidar whose stamps lag the measurement)', minimum=-1.0,
+        maximum=1.0)
     update_period: float = param(2.0, 's', 'Period of the estimate update and status message',
                                  minimum=0.0)
     keyframe: KeyframeParams = field(default_factory=KeyframeParams)
@@ -733,6 +737,7 @@ class SeedSteeredCalibrator:
         self.offset: Optional[float] = None
         self.radius: Optional[float] = None
         self.stages_needed: Optional[int] = None
+        self._final: tuple = ([], [])
 
     def stage_offset(self, seg: Segment) -> float:
         """
@@ -794,6 +799,7 @@ class SeedSteeredCalibrator:
             radii = [float(ds @ g / max(g @ g, 1e-12)) for ds, g in self.candidates]
             self.radius = float(np.mean(radii))
             self.stages_needed = len(self.records)
+            self._final = (radii, [r.offset for r in self.records[-len(radii):]])
         if math.isfinite(off):
             self.compensation = off  # next stage compensates with this stage's offset
         return rec
@@ -816,12 +822,13 @@ class SeedSteeredCalibrator:
         if self.offset is not None:
             values['steering_offset'] = self.offset
             values['wheel_radius'] = self.radius
-            radii = [float(ds @ g / max(g @ g, 1e-12)) for ds, g in self.candidates]
-            offs = [r.offset for r in self.records[-len(self.candidates):]]
+            radii, offs = self._final
             n = len(radii)
             if n > 1:
                 stds['wheel_radius'] = float(np.std(radii, ddof=1) / math.sqrt(n))
-                stds['steering_offset'] = float(np.std(offs, ddof=1) / math.sqrt(n))
+                # the offset is one stage's solution (the compensation in effect): its
+                # spread over the consistent stages, not divided by sqrt(n)
+                stds['steering_offset'] = float(np.std(offs, ddof=1))
             verdict = 'converged' if not problems else '; '.join(problems)
         else:
             n_stages = len(self.records)
@@ -833,7 +840,7 @@ class SeedSteeredCalibrator:
                     f'consecutive consistent, need {p.seed.consecutive_stages})')
             verdict = '; '.join(problems)
             verdict = verdict[0].upper() + verdict[1:]
-        used = len(self.candidates) if self.offset is not None else 0
+        used = len(self._final[0]) if self.offset is not None else 0
         details = {'stages': [dataclasses.asdict(r) for r in self.records],
                    'stages_needed': self.stages_needed}
         return CalibResult('steered_wheel', values, stds, used, verdict, details)
@@ -1094,6 +1101,8 @@ class WheelCalibrator:
     def add_scan(self, scan: Any) -> None:
         """Add a ``ScanSample`` (processed once wheel data covers its time)."""
         self.counts['scans'] += 1
+        if self.params.scan_time_offset:
+            scan = dataclasses.replace(scan, t=scan.t + self.params.scan_time_offset)
         self._pending.append(scan)
         if len(self._pending) > 200:
             self._pending.pop(0)
