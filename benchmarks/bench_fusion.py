@@ -235,11 +235,19 @@ def speed(lines: list, seq: list) -> None:
                          f'>= 20,000 msgs/s | {"met" if n / el >= 2e4 else "MISSED"} |')
         except Exception as exc:  # noqa: B902 - report, do not fail the benchmark
             lines.append(f'| replay | failed: {exc} | | |')
-    p99 = node_p99(seq)
-    if p99 is not None:
-        lines.append(f'| node callback p99 (in-process rclpy node, serialized test1 messages) '
-                     f'| {p99 * 1e3:.3f} ms | < 1 ms | {"met" if p99 < 1e-3 else "MISSED"} |')
-    lines += ['', 'The machine is shared (2 cores, several jobs): rates are lower bounds.', '']
+    res = node_p99(seq)
+    if res is not None:
+        p99, cpu99 = res
+        lines.append(f'| node callback p99, wall clock (in-process rclpy node: decode, fuse, '
+                     f'encode, publish; test1 messages) | {p99 * 1e3:.3f} ms | < 1 ms | '
+                     f'{"met" if p99 < 1e-3 else "MISSED"} |')
+        lines.append(f'| node callback p99, CPU time of the callback thread (same run) | '
+                     f'{cpu99 * 1e3:.3f} ms | < 1 ms | {"met" if cpu99 < 1e-3 else "MISSED"} |')
+    lines += ['', 'The machine is shared (2 cores, several jobs at once): rates are lower '
+              'bounds and the wall-clock p99 includes time the callback was preempted; the CPU '
+              'time p99 is what the callback itself costs. The end-to-end replay rate is '
+              'bounded by bag reading and output writing (robot_calib.replay), not the filter.',
+              '']
 
 
 def node_p99(seq: list):
@@ -258,11 +266,14 @@ def node_p99(seq: list):
         for kind, s in seq:
             msgtype, raw = convert.serialize(s)
             msgs.append((kind, msgtype, raw))
+        cpu = []
         for kind, msgtype, raw in msgs:
+            c0 = time.thread_time()
             node._on_message(kind, msgtype, raw)
+            cpu.append(time.thread_time() - c0)
         p99 = node.callback_p99()
         node.destroy_node()
-        return p99
+        return p99, float(np.percentile(cpu, 99))
     finally:
         rclpy.try_shutdown()
 

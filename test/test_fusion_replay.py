@@ -83,3 +83,33 @@ def test_replay_of_the_real_husky_bag(tmp_path):
     # GPS is not an input of the filter; it only scores the result
     assert _ate(est, gps) < _ate(raw, gps)
     assert summ['filter_counts'].get('reinitialisations', 0) == 0
+
+
+def test_joint_states_of_the_simulator_with_its_geometry():
+    sim = pytest.importorskip('robot_calib.sim')
+    from robot_calib.core.fusion import FusionParams
+    from robot_calib.pipelines.odometry_fusion import FusionPipeline
+    res = sim.run_scenario('fusion_drive', seed=2, duration=60.0)
+    nominal = res.truth.get('nominal', {})
+    radius = nominal.get('wheel_radius', 0.05)
+    track = nominal.get('track_width', 0.30)
+    keys = {'/imu': 'imu', '/odom': 'odom', '/joint_states': 'joint_states',
+            '/tf_static': 'tf_static'}
+
+    def run(**kw):
+        pipe = FusionPipeline(FusionParams(wheel_radius=radius, track_width=track, **kw))
+        outs = []
+        for topic, s in res.messages:
+            if topic in keys:
+                for x in (s if isinstance(s, list) else [s]):
+                    outs += pipe.process(keys[topic], x)
+        return pipe, np.array([(o.t, o.x, o.y, o.yaw) for k, o in outs if k == 'odom'])
+    gt = np.array([(s.t, s.x, s.y, s.yaw) for tp, s in res.messages
+                   if tp == '/ground_truth/odom'])
+    pipe, est = run()  # auto: odometry wins, joint states are counted as not used
+    assert pipe.summary()['inputs']['joint_states']['rejected_other_wheel_source_used'] > 100
+    pipe_js, est_js = run(wheel_source='joint_states', initial_pose_from_odom=False)
+    assert pipe_js.summary()['inputs']['odom']['rejected_other_wheel_source_used'] > 100
+    raw = np.array([(s.t, s.x, s.y, s.yaw) for tp, s in res.messages if tp == '/odom'])
+    assert _ate(est_js, gt) < 0.5 * _ate(raw, gt) + 0.1
+    assert _ate(est_js, gt) < 2.0 * _ate(est, gt) + 0.2
