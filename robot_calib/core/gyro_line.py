@@ -192,12 +192,14 @@ class GyroLineParams:
                                  minimum=0.0)
     carried_rate: float = param(0.3, 'rad/s', 'Gyro rate while the odometry is stopped that '
                                 'means the robot is carried.', minimum=0.0)
-    carried_scan_change: float = param(0.5, '', 'Fraction of beams changing by > 0.1 m while '
+    carried_scan_change: float = param(0.3, '', 'Fraction of beams changing by > 5 cm while '
                                        'stopped that means the robot is carried.',
                                        minimum=0.0, maximum=1.0)
     untrusted_hold: float = param(2.0, 's', 'Time after the last untrusted event before lines '
                                   'are used again.', minimum=0.0)
     min_valid_beams: int = param(20, '', 'Fewer valid beams reject the scan.', minimum=1)
+    diagnostics_period: float = param(1.0, 's', 'Period of /diagnostics (sensor time); also '
+                                      'published at every correction.', minimum=0.0)
     lines: LineParams = field(default_factory=LineParams)
     match: MatchParams = field(default_factory=MatchParams)
     seed: SeedParams = field(default_factory=SeedParams)
@@ -255,7 +257,7 @@ def condition2(ref: Line, new: Line, match: MatchParams) -> Optional[float]:
         return None
     err = wrap_half_pi(ref.angle - new.angle)
     p1, p2 = new.p1, new.p2
-    if abs(err) > math.pi / 4:  # directions flipped across +-pi/2: compare reversed ends
+    if abs(ref.angle - new.angle) > math.pi / 2:  # directions flipped across +-pi/2
         p1, p2 = p2, p1
     if (np.linalg.norm(ref.p1 - p1) > match.endpoint_tolerance
             or np.linalg.norm(ref.p2 - p2) > match.endpoint_tolerance):  # S32
@@ -288,7 +290,7 @@ def condition2_many(refs: np.ndarray, new: Line, match: MatchParams) -> np.ndarr
     if refs.shape[0] == 0:
         return np.zeros(0)
     err = _wrap_half(refs[:, 4] - new.angle)
-    flip = np.abs(err) > math.pi / 4
+    flip = np.abs(refs[:, 4] - new.angle) > math.pi / 2
     n1 = np.where(flip[:, None], new.p2, new.p1)
     n2 = np.where(flip[:, None], new.p1, new.p2)
     ok = np.abs(refs[:, 5] - new.length) <= match.length_tolerance  # S31
@@ -383,6 +385,13 @@ class GyroLineCalibrator:
         """Return the 1-sigma heading uncertainty (rad) (improved mode's filter)."""
         self._flush_gyro()
         return math.sqrt(max(self.P[2, 2], 0.0))
+
+    @property
+    def rate(self) -> float:
+        """Return the corrected yaw speed (rad/s): gyro minus bias, or the odometry one."""
+        if self._imu_t is not None and self._use_gyro(self._imu_t):
+            return float(self._last_imu_rate * (1.0 - self.x[4]) - self.x[3])
+        return float(self._odom_rate)
 
     @property
     def gyro_bias(self) -> float:
@@ -604,7 +613,7 @@ class GyroLineCalibrator:
             both = np.isfinite(r) & np.isfinite(prev)
             if both.sum() < self.params.min_valid_beams:
                 return False
-            changed = np.abs(r[both] - prev[both]) > 0.1
+            changed = np.abs(r[both] - prev[both]) > 0.05
         return float(changed.mean()) > self.params.carried_scan_change
 
     def update_scan(self, s: T.ScanSample) -> tuple[list[Correction], Optional[str]]:
@@ -823,6 +832,17 @@ class GyroLineCalibrator:
             return []
         return self._filter_update(matches, t)
 
+    def _replace(self, line: Line, before: np.ndarray) -> Line:
+        """Return ``line`` moved from pose ``before`` to the current pose estimate."""
+        dth = float(self.x[2] - before[2])
+        if dth == 0.0 and self.x[0] == before[0] and self.x[1] == before[1]:
+            return line
+        R = rot2(dth)
+        o = before[:2]
+        p1 = R @ (line.p1 - o) + self.x[:2]
+        p2 = R @ (line.p2 - o) + self.x[:2]
+        return line_from_endpoints(p1, p2, line.t, line.variance, line.n_cells)
+
     def _refine(self, ref: Reference, line: Line) -> None:
         """Fuse a matched observation into a reference (angle and distance, Kalman weights).
 
@@ -939,7 +959,8 @@ class GyroLineCalibrator:
             for line, ref, y, H, R in keep:
                 self._refine(ref, line)
         for line, ref, y, H, R in keep:
-            y, H, s = self._line_model(ref.line, line)  # relinearise after earlier updates
+            line = self._replace(line, before)  # re-place with the pose updated so far
+            y, H, s = self._line_model(ref.line, line)
             A = np.array([[1.0, 0.0], [s, 1.0]])
             R = A @ ref.cov @ A.T + self._line_noise(line)
             if not ip.correct_position:

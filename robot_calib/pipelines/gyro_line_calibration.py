@@ -1,0 +1,181 @@
+# Copyright 2026 robot_calib contributors
+# SPDX-License-Identifier: Apache-2.0
+"""Pipeline of the ``gyro_line_calibration`` node: imu + odom + scan -> ``gyro_line/odom``.
+
+Glue only: samples go to :class:`robot_calib.core.gyro_line.GyroLineCalibrator`.
+On every accepted odometry sample the pose with the corrected heading is
+published on ``gyro_line/odom`` (nav_msgs/Odometry, same stamp and frames as
+the input odometry; pose covariance of x, y, yaw from the filter). A
+diagnostic_msgs/DiagnosticArray on ``/diagnostics`` reports the corrections
+(count, last one in degrees), the references, the heading uncertainty and the
+gyro bias estimate, and every rejection and untrusted-data count, once per
+``diagnostics_period`` of sensor time and at every correction.
+
+The seed mode's phase comes from the ``seed.phase`` parameter, from
+``seed.phase_switch_time``, or from the optional ``gyro_line/edge_following``
+topic (std_msgs/Bool: true = edge following).
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import numpy as np
+
+from robot_calib.core import types as T
+from robot_calib.core.gyro_line import GyroLineCalibrator, GyroLineParams
+from robot_calib.pipelines.base import InputSpec, Output, OutputSpec, Pipeline
+
+
+class GyroLinePipeline(Pipeline):
+    """Gyro heading calibration from wall lines (seed 000; automatic mode by default)."""
+
+    name = 'gyro_line_calibration'
+    params_type = GyroLineParams
+    inputs = (
+        InputSpec('imu', 'imu', 'imu', optional=True),
+        InputSpec('odom', 'odom', 'odom'),
+        InputSpec('scan', 'scan', 'scan'),
+        InputSpec('edge_following', 'gyro_line/edge_following', 'bool', optional=True),
+        InputSpec('tf_static', '/tf_static', 'tf_static', optional=True),
+    )
+    outputs = (
+        OutputSpec('odom', 'gyro_line/odom', 'odom'),
+        OutputSpec('diagnostics', '/diagnostics', 'diagnostics'),
+    )
+
+    def __init__(self, params: Any = None, log: Any = None):
+        """Create the pipeline and its calibrator."""
+        super().__init__(params, log)
+        self.core = GyroLineCalibrator(self.params)
+        self._next_diag = None
+        self._trace: list[tuple[float, float, float, float]] = []
+
+    def on_static_transform(self, transform: T.StaticTransform) -> None:
+        """Take the IMU and laser mountings from /tf_static."""
+        self.core.set_transform(transform)
+
+    def handle(self, key: str, sample: Any) -> list[Output]:
+        """Feed one accepted sample to the core; return the corrected pose and diagnostics."""
+        core = self.core
+        if key == 'imu':
+            core.update_imu(sample)
+            return []
+        if key == 'edge_following':
+            core.set_phase(bool(sample.value), sample.t)
+            return []
+        if key == 'scan':
+            before = len(core.corrections)
+            _, reason = core.update_scan(sample)
+            if reason is not None:
+                self.reject('scan', reason)
+            if len(core.corrections) > before:
+                c = core.corrections[-1]
+                self.log('debug', f'heading corrected by {math.degrees(c.delta):+.3f} deg '
+                         f'({c.kind}, references {list(c.reference_ids)})')
+                return self._diagnostics(sample, force=True)
+            return []
+        resets = core.counts.get('odom_resets', 0)
+        pose = core.update_odom(sample)
+        if core.counts.get('odom_resets', 0) > resets:
+            self.log('warn', 'odometry reset or jump: pose kept, lines distrusted for a while')
+        if not core.initialized:
+            return []
+        if not self._trace or sample.t - self._trace[-1][0] >= 0.1:
+            self._trace.append((sample.t, float(pose[0]), float(pose[1]), float(pose[2])))
+        cov = np.array(core.P[:3, :3])
+        out = T.OdomSample(sample.t, float(pose[0]), float(pose[1]), float(pose[2]),
+                           sample.vx, sample.vy, core.rate, sample.frame_id,
+                           sample.child_frame_id, cov, sample.twist_cov, sample.z,
+                           sample.roll, sample.pitch, sample.stamp_ns)
+        return [('odom', out)] + self._diagnostics(sample)
+
+    # -- diagnostics -----------------------------------------------------------------------
+    def _diagnostics(self, sample: Any, force: bool = False) -> list[Output]:
+        if not force and self._next_diag is not None and sample.t < self._next_diag:
+            return []
+        self._next_diag = sample.t + self.params.diagnostics_period
+        return [('diagnostics', T.DiagnosticSample(sample.t, (self.status(sample.t),),
+                                                   sample.stamp_ns))]
+
+    def status(self, t: float) -> T.DiagnosticStatus:
+        """Return the diagnostic status at time ``t`` (s)."""
+        core = self.core
+        last = core.corrections[-1] if core.corrections else None
+        rejected = {f'rejected_{k}.{r[9:]}': v for k, c in self.counts.items()
+                    for r, v in c.items() if r.startswith('rejected_')}
+        values = [
+            ('mode', self.params.mode),
+            ('phase', 'edge_following' if core.edge_following else 'work'),
+            ('corrections', str(len(core.corrections))),
+            ('last_correction_deg', f'{math.degrees(last.delta):.4f}' if last else 'none'),
+            ('last_correction_time', f'{last.t:.3f}' if last else 'none'),
+            ('references', str(len(core.references))),
+            ('tentative_references', str(len(core.tentative))),
+            ('heading_sigma_deg', f'{math.degrees(core.heading_sigma):.4f}'),
+            ('gyro_bias_deg_per_h', f'{math.degrees(core.gyro_bias) * 3600.0:.3f}'),
+            ('trusted', str(core.trusted(t))),
+        ]
+        values += [(k, str(v)) for k, v in sorted(rejected.items())]
+        values += [(f'events.{k}', str(v)) for k, v in sorted(core.counts.items())
+                   if k not in ('lines',)]
+        level, msg = 0, 'ok'
+        if not core.trusted(t):
+            level, msg = 1, 'lines not used: untrusted data (carried, odometry reset or gap)'
+        elif not core.corrections:
+            msg = 'no correction yet'
+        return T.DiagnosticStatus('gyro_line_calibration: heading', level, msg,
+                                  'gyro_line_calibration', tuple(values))
+
+    # -- results ---------------------------------------------------------------------------
+    def method_summary(self) -> dict[str, Any]:
+        """Return corrections, references, bias estimate and event counts."""
+        core = self.core
+        deltas = np.array([c.delta for c in core.corrections])
+        return {
+            'mode': self.params.mode,
+            'corrections': len(core.corrections),
+            'correction_total_deg': float(np.degrees(deltas.sum())) if deltas.size else 0.0,
+            'correction_abs_max_deg': float(np.degrees(np.abs(deltas).max()))
+            if deltas.size else 0.0,
+            'corrections_list': [
+                {'t': c.t, 'delta_deg': math.degrees(c.delta), 'kind': c.kind,
+                 'angle_error_deg': math.degrees(c.angle_error),
+                 'references': list(c.reference_ids)} for c in core.corrections[:500]],
+            'references': len(core.references),
+            'gyro_bias': core.gyro_bias,
+            'heading_sigma': core.heading_sigma,
+            'final_pose': [float(v) for v in core.pose] if core.initialized else None,
+            'events': dict(core.counts),
+        }
+
+    def plot(self, out_dir: str) -> list[str]:
+        """Draw the corrected trajectory and the heading corrections over time."""
+        if not self._trace:
+            return []
+        try:
+            import matplotlib
+            matplotlib.use('Agg')
+            import matplotlib.pyplot as plt
+        except ImportError:
+            return []
+        from pathlib import Path
+        tr = np.array(self._trace)
+        fig, ax = plt.subplots(1, 2, figsize=(11, 4.5))
+        ax[0].plot(tr[:, 1], tr[:, 2], lw=0.7)
+        for ref in self.core.references:
+            ax[0].plot([ref.line.p1[0], ref.line.p2[0]], [ref.line.p1[1], ref.line.p2[1]],
+                       'k-', lw=1.5)
+        ax[0].set_aspect('equal')
+        ax[0].set_title('corrected trajectory and reference lines (m)')
+        if self.core.corrections:
+            c = np.array([(x.t, math.degrees(x.delta)) for x in self.core.corrections])
+            ax[1].plot(c[:, 0], np.cumsum(c[:, 1]), '.-', ms=2)
+        ax[1].set_xlabel('t (s)')
+        ax[1].set_ylabel('cumulative heading correction (deg)')
+        fig.tight_layout()
+        name = 'gyro_line_calibration.png'
+        fig.savefig(Path(out_dir) / name, dpi=90)
+        plt.close(fig)
+        return [name]

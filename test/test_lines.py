@@ -1,0 +1,113 @@
+# Copyright 2026 robot_calib contributors
+# SPDX-License-Identifier: Apache-2.0
+"""Obstacle grid, segment extraction and condition 1 against exact geometry."""
+
+import math
+
+import numpy as np
+import pytest
+
+from robot_calib.core.lines import (condition1, extract_lines, fit_line, line_from_endpoints,
+                                    LineParams, ObstacleGrid, split_segments)
+
+
+def _segment(p1, p2, n=40, noise=0.0, seed=0):
+    rng = np.random.default_rng(seed)
+    s = np.linspace(0.0, 1.0, n)[:, None]
+    pts = np.asarray(p1, float) + s * (np.asarray(p2, float) - np.asarray(p1, float))
+    d = np.asarray(p2, float) - np.asarray(p1, float)
+    nrm = np.array([-d[1], d[0]]) / np.linalg.norm(d)
+    return pts + rng.normal(0.0, noise, (n, 1)) * nrm if noise else pts
+
+
+@pytest.mark.parametrize('deg', [0.0, 17.0, 45.0, 89.0, 90.0, 120.0, -60.0])
+def test_total_least_squares_exact_in_every_direction(deg):
+    a = math.radians(deg)
+    pts = _segment((1.0, 2.0), (1.0 + 2.0 * math.cos(a), 2.0 + 2.0 * math.sin(a)))
+    line = condition1(pts, LineParams())
+    assert line is not None
+    err = (line.angle - a + math.pi / 2) % math.pi - math.pi / 2
+    assert abs(err) < 1e-9
+    assert line.length == pytest.approx(2.0)
+    assert line.variance < 1e-20
+    assert -math.pi / 2 < line.angle <= math.pi / 2
+
+
+def test_ordinary_least_squares_fails_on_a_vertical_wall():
+    pts = _segment((0.0, 0.0), (0.0, 2.0))
+    _, u_tls = fit_line(pts, 'total')
+    _, u_ols = fit_line(pts, 'ordinary')
+    assert abs(u_tls[1]) == pytest.approx(1.0)     # total LS: the vertical direction
+    assert abs(u_ols[1]) < 0.1                     # ordinary LS (y on x): meaningless
+
+
+def test_condition1_drops_short_lines():
+    p = LineParams(min_length=0.6)
+    assert condition1(_segment((0, 0), (0.5, 0.0), n=20), p) is None
+    assert condition1(_segment((0, 0), (0.7, 0.0), n=20), p) is not None
+
+
+def test_condition1_removes_farthest_cells_and_refits():
+    p = LineParams(max_variance=1e-4, remove_count=2)
+    pts = _segment((0, 0), (2.0, 0.0), n=40)
+    pts[10] += [0.0, 0.3]   # two outliers (a chair leg next to the wall)
+    pts[25] += [0.0, -0.25]
+    line = condition1(pts, p)
+    assert line is not None
+    assert line.n_cells == 38
+    assert abs(line.angle) < 1e-9
+    assert line.variance < 1e-12
+
+
+def test_condition1_gives_up_when_too_noisy():
+    p = LineParams(max_variance=1e-4, remove_count=2, min_length=0.6, min_cells=20)
+    pts = _segment((0, 0), (1.0, 0.0), n=30, noise=0.05)
+    assert condition1(pts, p) is None      # 5 refits leave 20 cells, still too scattered
+    p = LineParams(max_variance=1e-4, remove_count=2, min_length=0.6, min_cells=2)
+    a = np.linspace(-1.0, 1.0, 40)
+    arc = 0.5 * np.column_stack((np.cos(a), np.sin(a)))    # a round pillar, 0.84 m chord
+    assert condition1(arc, p) is None      # refits shorten it below the preset length
+
+
+def test_endpoints_are_ordered_along_the_direction():
+    a = line_from_endpoints((2.0, 1.0), (0.0, 1.0))
+    b = line_from_endpoints((0.0, 1.0), (2.0, 1.0))
+    assert np.allclose(a.p1, b.p1) and np.allclose(a.p2, b.p2)
+    assert np.allclose(a.p1, (0.0, 1.0))
+    assert a.rho == pytest.approx(1.0)
+
+
+def test_split_segments_separates_a_corner_and_a_gap():
+    p = LineParams()
+    wall_a = _segment((0.0, 0.0), (2.0, 0.0), n=41)
+    wall_b = _segment((2.0, 0.0), (2.0, 1.5), n=31)[1:]
+    wall_c = _segment((2.0, 2.5), (2.0, 3.5), n=21)         # after a 1 m gap (a door)
+    pts = np.vstack((wall_a, wall_b, wall_c))
+    segs = split_segments(pts, p)
+    assert len(segs) == 3
+    lines = extract_lines(pts, p)
+    angles = sorted(round(math.degrees(line.angle)) for line in lines)
+    assert angles == [0, 90, 90]
+
+
+def test_grid_centroids_average_hits_and_keep_beam_order():
+    g = ObstacleGrid(LineParams(resolution=0.1))
+    pts = np.array([[0.01, 0.01], [0.03, 0.05], [0.55, 0.05], [0.05, 0.03]])
+    out = g.add_points(pts, 0.0)
+    assert out.shape == (2, 2)
+    assert np.allclose(out[0], [0.03, 0.03])   # cell (0, 0) averages its three hits
+    assert np.allclose(out[1], [0.55, 0.05])
+    assert len(g) == 2
+
+
+def test_grid_is_bounded_and_forgets_stale_cells():
+    p = LineParams(resolution=0.05, max_cells=500, cell_lifetime=2.0)
+    g = ObstacleGrid(p)
+    rng = np.random.default_rng(0)
+    for k in range(100):
+        g.add_points(rng.uniform(-50, 50, (200, 2)), 0.1 * k)
+        assert len(g) <= 500
+    g.add_points(np.array([[0.0, 0.0]]), 100.0)
+    assert len(g) == 1            # everything older than the lifetime is gone
+    g.clear()
+    assert len(g) == 0 and g.centroids().shape == (0, 2)
