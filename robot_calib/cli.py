@@ -104,6 +104,8 @@ def _replay(args: argparse.Namespace) -> int:
         stats = live.play(args.bags, rate=args.rate, remaps=args.remap)
         print(f'published {stats["messages"]} messages on {len(stats["topics"])} topics '
               f'in {stats["wall_seconds"]:.1f} s')
+        for topic, why in stats['skipped'].items():
+            print(f'not published {topic}: {why}')
         return 0
     if not args.out:
         raise ValueError('replay needs --out DIR (or --live)')
