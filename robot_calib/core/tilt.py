@@ -88,6 +88,8 @@ class ImprovedFilterParams:
                                         minimum=1e-12)
     bias_sigma_rest: float = param(0.03, 'deg/s', 'Noise of the bias measurement at rest',
                                    minimum=1e-6)
+    bias_update_period: float = param(0.02, 's', 'Period of the gyro bias Kalman update (the '
+                                      'corrections in between are averaged)', minimum=0.0)
     motion_bias: bool = param(True, '', 'Estimate the gyro bias in motion')
     rest_bias: bool = param(True, '', 'Estimate the gyro bias at rest')
     rest_min_time: float = param(1.5, 's', 'Time the IMU must be still to count as at rest',
@@ -404,8 +406,11 @@ class AttitudeEstimator:
         self.acc_lp = _LowPass(3, p.tau_acc, ts)
         self.rest_gyr_lp = _LowPass(3, p.rest_tau, ts)
         self.rest_acc_lp = _LowPass(3, p.rest_tau, ts)
-        self.r_lp = _LowPass(9, p.tau_acc, ts)
-        self.rb_lp = _LowPass(2, p.tau_acc, ts)
+        self._bias_every = max(1, int(round(p.bias_update_period / ts)))
+        self._acc_n = 0
+        self._acc_x = self._acc_y = self._acc_dt = 0.0
+        self.r_lp = _LowPass(9, p.tau_acc, ts * self._bias_every)
+        self.rb_lp = _LowPass(2, p.tau_acc, ts * self._bias_every)
         self.lin_pow = 0.0
         self.rot_pow = 0.0
         self.tau_eff = p.tau_acc
@@ -421,8 +426,11 @@ class AttitudeEstimator:
 
     def _set_ts(self, ts: float) -> None:
         self.ts = ts
-        for f in (self.acc_lp, self.rest_gyr_lp, self.rest_acc_lp, self.r_lp, self.rb_lp):
+        for f in (self.acc_lp, self.rest_gyr_lp, self.rest_acc_lp):
             f.set_ts(ts)
+        self._bias_every = max(1, int(round(self.p.bias_update_period / ts)))
+        for f in (self.r_lp, self.rb_lp):
+            f.set_ts(ts * self._bias_every)
 
     @property
     def quat(self) -> tuple:
@@ -466,7 +474,15 @@ class AttitudeEstimator:
             ex, ey, ez = ex / n, ey / n, ez / n
             self.q_inc = _qnorm(_qmul(_align_up(ex, ey, ez), self.q_inc))
         if p.motion_bias or p.rest_bias:
-            self._bias_update(ex, ey, dt)
+            # Average the corrections over bias_update_period, then one Kalman update.
+            self._acc_x += ex
+            self._acc_y += ey
+            self._acc_dt += dt
+            self._acc_n += 1
+            if self._acc_n >= self._bias_every:
+                self._bias_update(self._acc_x, self._acc_y, self._acc_dt)
+                self._acc_n = 0
+                self._acc_x = self._acc_y = self._acc_dt = 0.0
         return self.quat
 
     def _adapt(self, a_i: tuple, lp: list, gx: float, gy: float, gz: float,
@@ -523,7 +539,11 @@ class AttitudeEstimator:
             self.rest = False
 
     def _bias_update(self, ex: float, ey: float, dt: float) -> None:
-        """Kalman update of the gyro bias (3 states, rad/s) from rest or from the correction."""
+        """Kalman update of the gyro bias (3 states, rad/s) from rest or from the correction.
+
+        ``ex``, ``ey``: summed inclination corrections (rad, about earth y and -x) over the
+        last ``dt`` seconds.
+        """
         p = self.p
         deg = self._deg
         b = self.bias
@@ -569,13 +589,14 @@ class AttitudeEstimator:
         Si = _inv3(S)
         if Si is None:
             return
-        K = [[sum(PHt[i][k] * Si[k][j] for k in range(3)) for j in range(3)] for i in range(3)]
+        K = [[PHt[i][0] * Si[0][j] + PHt[i][1] * Si[1][j] + PHt[i][2] * Si[2][j]
+              for j in range(3)] for i in range(3)]
         for i in range(3):
             b[i] += K[i][0] * e[0] + K[i][1] * e[1] + K[i][2] * e[2]
             b[i] = min(clip, max(-clip, b[i]))
-        KH = [[sum(K[i][k] * H[k * 3 + j] for k in range(3)) for j in range(3)] for i in range(3)]
-        self.P = [[P[i][j] - sum(KH[i][k] * P[k][j] for k in range(3)) for j in range(3)]
-                  for i in range(3)]
+        # H P = (P H')' for a symmetric P, so K H P = K PHt'
+        self.P = [[P[i][j] - (K[i][0] * PHt[j][0] + K[i][1] * PHt[j][1] + K[i][2] * PHt[j][2])
+                   for j in range(3)] for i in range(3)]
 
 
 def _inv3(m: list) -> Optional[list]:
