@@ -385,3 +385,24 @@ def test_fast_encoders_are_byte_identical():
         assert bags.serialize(s) == convert.serialize(s)
     twist = T.TwistSample(1.0, 0.5)
     assert bags.serialize(twist) == convert.serialize(twist)  # other types: generic path
+
+
+def test_bare_mcap_file(tmp_path):
+    folder = tmp_path / 'bag'
+    _write_imu_bag(folder, 'mcap', n=50)
+    bare = tmp_path / 'copy.mcap'
+    bare.write_bytes(next(folder.glob('*.mcap')).read_bytes())
+    assert bags.list_topics([bare]) == bags.list_topics([folder])
+    a = [(m.topic, m.time_ns) for m in bags.read_messages([bare])]
+    b = [(m.topic, m.time_ns) for m in bags.read_messages([folder])]
+    assert a == b and len(a) == 50
+    # A file inside a bag folder means the folder.
+    assert len(list(bags.read_messages([next(folder.glob('*.mcap'))]))) == 50
+    junk = tmp_path / 'junk.mcap'
+    junk.write_bytes(b'not an mcap file')
+    with pytest.raises(bags.BagError, match='cannot read'):
+        bags.list_topics([junk])
+    lone_db = tmp_path / 'lone.db3'
+    lone_db.write_bytes(b'')
+    with pytest.raises(bags.BagError, match='metadata.yaml'):
+        bags.list_topics([lone_db])

@@ -65,12 +65,14 @@ def _reader_paths(paths: Iterable[os.PathLike | str]) -> list[Path]:
         path = Path(p)
         if not path.exists():
             raise BagError(f'bag not found: {path} (expected a ROS 2 bag folder with '
-                           'metadata.yaml or a ROS 1 .bag file)')
+                           'metadata.yaml, a ROS 2 .mcap file or a ROS 1 .bag file)')
         if path.is_file() and path.suffix in ('.mcap', '.db3'):
-            if not (path.parent / 'metadata.yaml').exists():
-                raise BagError(f'{path}: a ROS 2 bag is a folder with metadata.yaml; '
+            if (path.parent / 'metadata.yaml').exists():
+                path = path.parent
+            elif path.suffix == '.db3':
+                raise BagError(f'{path}: a ROS 2 sqlite3 bag is a folder with metadata.yaml; '
                                'give the folder')
-            path = path.parent
+            # else: a bare ROS 2 .mcap file (its own index names the topics)
         if path.is_dir() and not (path / 'metadata.yaml').exists():
             raise BagError(f'{path}: not a ROS 2 bag (no metadata.yaml in the folder)')
         out.append(path)
@@ -317,6 +319,39 @@ class Stream:
             self.decode = _fast_cdr(fast, generic)
 
 
+class _BareMcap:
+    """A single ROS 2 ``.mcap`` file without metadata.yaml, read through rosbags' McapReader."""
+
+    def __init__(self, path: Path):
+        from rosbags.rosbag2.storage_mcap import McapReader
+        self.mcap = McapReader(path)
+
+    def open(self) -> None:  # noqa: A003 - the reader interface rosbags defines
+        self.mcap.open()
+
+    def close(self) -> None:
+        self.mcap.close()
+
+    @property
+    def connections(self) -> list:
+        return self.mcap.connections
+
+    @property
+    def message_count(self) -> int:
+        return self.mcap.metadata.message_count
+
+    @property
+    def start_time(self) -> int:
+        return self.mcap.metadata.start_time
+
+    @property
+    def end_time(self) -> int:
+        return self.mcap.metadata.end_time
+
+    def messages(self, connections: Iterable[Any] = ()) -> Iterator[tuple[Any, int, bytes]]:
+        return self.mcap.messages(list(connections) or self.mcap.connections)
+
+
 def _is_latched(conn: Any) -> bool:
     try:
         from rosbags.interfaces import QosDurability
@@ -348,11 +383,13 @@ class BagSet:
             raise
 
     def _open(self, path: Path) -> None:
-        ros1 = path.is_file()
+        ros1 = path.is_file() and path.suffix != '.mcap'
         try:
             if ros1:
                 from rosbags.highlevel import AnyReader
                 reader = AnyReader([path], default_typestore=convert.typestore())
+            elif path.is_file():
+                reader = _BareMcap(path)
             else:
                 from rosbags.rosbag2 import Reader
                 reader = Reader(path)
@@ -472,10 +509,13 @@ def _mcap_messages(reader: Any, conns: list, streams: dict[int, 'Stream']
     return None.
     """
     from rosbags.rosbag2.storage_mcap import decompress, McapReader
-    storage = getattr(reader, 'storage', None)
-    subs = getattr(storage, 'storages', None)
-    if not subs or getattr(storage.metadata, 'compression_mode', None) == 'message':
-        return None
+    if isinstance(reader, _BareMcap):
+        subs = [reader.mcap]
+    else:
+        storage = getattr(reader, 'storage', None)
+        subs = getattr(storage, 'storages', None)
+        if not subs or getattr(storage.metadata, 'compression_mode', None) == 'message':
+            return None
     plans = []
     for sub in subs:
         if not isinstance(sub, McapReader) or not sub.chunks or sub.bio is None:
