@@ -19,6 +19,7 @@ from typing import Any
 import numpy as np
 
 _MAX_POINTS = 20000
+GROUND_TRUTH = '/ground_truth/odom'
 
 
 def _thin(a: np.ndarray) -> np.ndarray:
@@ -52,8 +53,7 @@ def generic_plots(plot_dir: Path, inputs: dict[str, np.ndarray], outputs: dict[s
     fig, ax = plt.subplots(figsize=(7, 6))
     for topic, arr, kind in series:
         a = _thin(arr)
-        style = '-' if kind == 'output' else ('--' if topic != '/ground_truth/odom' else ':')
-        ax.plot(a[:, 1], a[:, 2], style, lw=1.2, label=f'{topic} ({kind})')
+        ax.plot(a[:, 1], a[:, 2], **_style(topic, kind))
         ax.plot(a[:1, 1], a[:1, 2], 'k.', ms=4)
     ax.set_xlabel('x [m]')
     ax.set_ylabel('y [m]')
@@ -69,18 +69,23 @@ def generic_plots(plot_dir: Path, inputs: dict[str, np.ndarray], outputs: dict[s
     fig, ax = plt.subplots(figsize=(9, 4))
     for topic, arr, kind in series:
         a = _thin(arr)
-        ax.plot(a[:, 0] - t0, np.degrees(a[:, 3]), '-' if kind == 'output' else '--', lw=1.0,
-                label=f'{topic} ({kind})')
+        ax.plot(a[:, 0] - t0, np.degrees(np.unwrap(a[:, 3])), **_style(topic, kind))
     ax.set_xlabel('time from bag start [s]')
     ax.set_ylabel('heading [deg]')
     ax.grid(True, alpha=0.3)
     ax.legend(fontsize=8)
-    ax.set_title('Heading over time')
+    ax.set_title('Heading over time (unwrapped)')
     fig.tight_layout()
     fig.savefig(plot_dir / 'heading.png', dpi=100)
     plt.close(fig)
     written.append('plots/heading.png')
     return written
+
+
+def _style(topic: str, kind: str) -> dict:
+    if topic == GROUND_TRUTH:
+        return {'color': 'k', 'ls': ':', 'lw': 1.5, 'label': f'{topic} (reference)'}
+    return {'ls': '-' if kind == 'output' else '--', 'lw': 1.2, 'label': f'{topic} ({kind})'}
 
 
 def _fmt(value: Any) -> str:
