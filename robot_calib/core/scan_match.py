@@ -77,8 +77,10 @@ class ScanMatchParams:
                                              'first (wide) pass', minimum=0.01)
     coarse_kernel: float = param(0.3, 'm', 'kiss-icp Geman-McClure kernel scale of the first '
                                  'pass (the second pass uses a third of both)', minimum=0.001)
-    coarse_iterations: int = param(50, '', 'kiss-icp iterations per pass', minimum=1)
-    refine_iterations: int = param(30, '', 'point-to-line Gauss-Newton iterations', minimum=1)
+    coarse_iterations: int = param(20, '', 'kiss-icp iterations per pass', minimum=1)
+    refine_iterations: int = param(20, '', 'point-to-line Gauss-Newton iterations', minimum=2)
+    refine_anneal_iterations: int = param(8, '', 'iterations over which the gate shrinks from '
+                                          'the wide to the narrow value', minimum=1)
     refine_max_correspondence: float = param(0.5, 'm', 'initial correspondence gate of the '
                                              'refinement', minimum=0.001)
     refine_min_correspondence: float = param(0.1, 'm', 'final correspondence gate of the '
@@ -89,9 +91,9 @@ class ScanMatchParams:
                                    minimum=3)
     max_line_spread: float = param(0.3, '', 'largest ratio of the smaller to the larger PCA '
                                    'eigenvalue for a usable line normal', minimum=0.0)
-    convergence_translation: float = param(1e-5, 'm', 'translation update that ends the '
+    convergence_translation: float = param(1e-4, 'm', 'translation update that ends the '
                                            'refinement', minimum=0.0)
-    convergence_rotation: float = param(1e-6, 'rad', 'rotation update that ends the refinement',
+    convergence_rotation: float = param(1e-5, 'rad', 'rotation update that ends the refinement',
                                         minimum=0.0)
     inlier_distance: float = param(0.1, 'm', 'a source point is an inlier when its nearest '
                                    'target point is closer than this', minimum=0.0)
@@ -263,11 +265,13 @@ def _refine(source: np.ndarray, target: PreparedScan, pose: np.ndarray,
     it = 0
     last_step = (math.inf, math.inf)
     n_it = p.refine_iterations
+    n_anneal = max(1, min(p.refine_anneal_iterations, n_it - 1))
+    ratio = p.refine_min_correspondence / p.refine_max_correspondence
+    rot_jac = np.column_stack((-source[:, 1], source[:, 0]))  # d(R p)/d yaw = R [-p_y, p_x]
     for it in range(1, n_it + 1):
-        # Gate shrinks geometrically from the wide to the narrow value over half the budget.
-        frac = min(1.0, (it - 1) / max(1.0, 0.5 * n_it))
-        gate = p.refine_max_correspondence * (
-            p.refine_min_correspondence / p.refine_max_correspondence) ** frac
+        # The gate shrinks geometrically from the wide to the narrow value, then stays.
+        frac = min(1.0, (it - 1) / n_anneal)
+        gate = p.refine_max_correspondence * ratio ** frac
         r_mat = rot2(pose[2])
         moved = source @ r_mat.T + pose[:2]
         dist, idx = target.tree.query(moved, distance_upper_bound=gate)
@@ -277,13 +281,9 @@ def _refine(source: np.ndarray, target: PreparedScan, pose: np.ndarray,
             break
         q = target.points[idx[use]]
         nrm = target.normals[idx[use]]
-        m = moved[use]
-        src = source[use]
-        res = np.einsum('ij,ij->i', nrm, m - q)       # point-to-line distance (m)
-        # d(R p)/d yaw = R [-p_y, p_x]
-        dp = np.column_stack((-src[:, 1], src[:, 0])) @ r_mat.T
-        jac = np.column_stack((nrm, np.einsum('ij,ij->i', nrm, dp)))
-        w = 1.0 / (1.0 + (res / p.robust_scale) ** 2)  # Cauchy weights
+        res = np.einsum('ij,ij->i', nrm, moved[use] - q)   # point-to-line distance (m)
+        jac = np.column_stack((nrm, np.einsum('ij,ij->i', nrm, rot_jac[use] @ r_mat.T)))
+        w = 1.0 / (1.0 + (res / p.robust_scale) ** 2)      # Cauchy weights
         h = jac.T @ (jac * w[:, None])
         g = jac.T @ (w * res)
         try:
@@ -292,13 +292,12 @@ def _refine(source: np.ndarray, target: PreparedScan, pose: np.ndarray,
             break
         pose = np.array([pose[0] + delta[0], pose[1] + delta[1], wrap_angle(pose[2] + delta[2])])
         last_step = (math.hypot(delta[0], delta[1]), abs(delta[2]))
-        small = (last_step[0] < p.convergence_translation
-                 and last_step[1] < p.convergence_rotation)
-        if small and frac >= 1.0:
+        if (frac >= 1.0 and last_step[0] < p.convergence_translation
+                and last_step[1] < p.convergence_rotation):
             converged = True
             break
     if not converged and it == n_it:
-        # Accept a slow final creep as converged when the last step was tiny (sub-mm, mrad).
+        # A slow final creep (sub-mm, sub-mrad steps) still counts as converged.
         converged = last_step[0] < 1e-3 and last_step[1] < 1e-3
     return pose, converged, it
 
