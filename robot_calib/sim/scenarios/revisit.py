@@ -22,8 +22,6 @@ about one and a half laps (about 140 m).
 
 from __future__ import annotations
 
-import math
-
 from robot_calib.sim.motion import Plan
 from robot_calib.sim.scenario import BuildContext, Scenario, Setup
 from robot_calib.sim.world import World
