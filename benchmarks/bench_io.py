@@ -124,14 +124,16 @@ def _replay(path: Path, out: Path, remaps=None) -> int:
     return summary['nodes']['trivial']['inputs']['imu']['accepted']
 
 
-def _time(fn, runs: int) -> tuple[float, int]:
-    times = []
+def _time(fn, runs: int) -> tuple[float, float, int]:
+    """Return (median wall s, median CPU s of this process, result) of ``runs`` calls."""
+    walls, cpus = [], []
     n = 0
     for _ in range(runs):
-        t0 = time.perf_counter()
+        t0, c0 = time.perf_counter(), time.process_time()
         n = fn()
-        times.append(time.perf_counter() - t0)
-    return statistics.median(times), n
+        walls.append(time.perf_counter() - t0)
+        cpus.append(time.process_time() - c0)
+    return statistics.median(walls), statistics.median(cpus), n
 
 
 def main(argv=None) -> int:
@@ -156,21 +158,21 @@ def main(argv=None) -> int:
                 ('replay end to end', lambda p=path: _replay(p, tmp / f'out{next(counter)}')),
             ]
             for label, fn in cases:
-                seconds, n = _time(fn, args.runs)
+                seconds, cpu, n = _time(fn, args.runs)
                 if n != N_MSGS:
                     print(f'{label}: read {n} messages, expected {N_MSGS}', file=sys.stderr)
                     return 1
-                rows.append((storage, label, n, seconds, n / seconds))
+                rows.append((storage, label, n, seconds, n / seconds, cpu))
                 print(f'{storage:8s} {label:28s} {n:7d} msgs {seconds:7.3f} s '
-                      f'{n / seconds:10.0f} msg/s', flush=True)
+                      f'{n / seconds:10.0f} msg/s (CPU {cpu:.3f} s)', flush=True)
         ros1 = SHARED / 'robot_localization' / 'test1.bag'
         if ros1.is_file():
             for label, fn in (('generic read+convert', lambda: _generic(ros1)),
                               ('fast read+convert', lambda: _fast(ros1))):
-                seconds, n = _time(fn, args.runs)
-                rows.append(('ROS 1 test1.bag', label, n, seconds, n / seconds))
+                seconds, cpu, n = _time(fn, args.runs)
+                rows.append(('ROS 1 test1.bag', label, n, seconds, n / seconds, cpu))
                 print(f'ROS 1    {label:28s} {n:7d} msgs {seconds:7.3f} s '
-                      f'{n / seconds:10.0f} msg/s', flush=True)
+                      f'{n / seconds:10.0f} msg/s (CPU {cpu:.3f} s)', flush=True)
         else:
             print(f'{SHARED} is absent: skipping the ROS 1 test1.bag rows')
     load.append(os.getloadavg()[0])
@@ -194,19 +196,27 @@ def _markdown(rows, runs: int, load: list[float]) -> str:
              f'Input: a bag of {N_MSGS} sensor_msgs/Imu messages (200 Hz, 500 s, frame '
              '`imu_link`), written in a temporary folder for each storage. Each number is '
              f'the median of {runs} runs in one process; messages/s = messages / median '
-             'wall seconds.', '',
-             '| storage | what is timed | messages | median s | messages/s | vs goal |',
-             '|---|---|---:|---:|---:|---|']
-    for storage, label, n, seconds, rate in rows:
+             'wall seconds (the goal metric); the CPU columns divide by the median CPU time '
+             'of this process (`time.process_time`), which waiting for a busy CPU does not '
+             'inflate.', '',
+             '| storage | what is timed | messages | median wall s | messages/s (wall) | '
+             'median CPU s | messages/s (CPU) | vs goal (wall) |',
+             '|---|---|---:|---:|---:|---:|---:|---|']
+    for storage, label, n, seconds, rate, cpu in rows:
         goal = ''
         if label == 'replay end to end' and storage != 'ROS 1 test1.bag':
             goal = f'goal >= {GOAL:,.0f}: ' + ('**met**' if rate >= GOAL else '**missed**')
-        lines.append(f'| {storage} | {label} | {n} | {seconds:.3f} | {rate:,.0f} | {goal} |')
-    e2e = {st: rate for st, label, _, _, rate in rows if label == 'replay end to end'}
+        lines.append(f'| {storage} | {label} | {n} | {seconds:.3f} | {rate:,.0f} | {cpu:.3f} | '
+                     f'{n / cpu if cpu > 0 else float("nan"):,.0f} | {goal} |')
+    e2e = {st: (rate, n / cpu) for st, label, n, _, rate, cpu in rows
+           if label == 'replay end to end'}
     if e2e:
-        verdict = 'met' if all(r >= GOAL for r in e2e.values()) else 'missed'
-        lines += ['', f'**Result: goal {verdict}** (replay end to end, median: ' + ', '.join(
-            f'{st} {r:,.0f} messages/s' for st, r in e2e.items()) + f'; goal {GOAL:,.0f}).']
+        verdict = 'met' if all(r >= GOAL for r, _ in e2e.values()) else 'missed'
+        lines += ['', f'**Result: goal {verdict}** (replay end to end, median wall clock: '
+                  + ', '.join(f'{st} {r:,.0f} messages/s' for st, (r, _) in e2e.items())
+                  + f'; goal {GOAL:,.0f}). Per CPU second of this process (what the code '
+                  'does on an uncontended core): ' + ', '.join(
+                      f'{st} {c:,.0f} messages/s' for st, (_, c) in e2e.items()) + '.']
     lines += ['', 'What each row times:', '',
               '- *rosbags raw*: `rosbags.rosbag2.Reader.messages()` only (the floor: '
               'reading the file, no decoding).',
