@@ -59,12 +59,13 @@ from __future__ import annotations
 from collections import deque
 from dataclasses import dataclass, field
 import math
+import statistics
 from typing import Iterable, Optional
 
 import numpy as np
 
 from robot_calib.core import types as T
-from robot_calib.core.geometry import quat_from_rpy, quat_to_matrix, rot2, se2_between
+from robot_calib.core.geometry import quat_from_rpy, quat_to_matrix, rot2
 from robot_calib.core.geometry import wrap_half_pi
 from robot_calib.core.lines import extract_lines, Line, line_from_endpoints, LineParams
 from robot_calib.core.lines import ObstacleGrid
@@ -220,6 +221,8 @@ class Reference:
     confirmed: bool = False
     matches: int = 0
     conflicts: int = 0
+    origin: Optional[Line] = None
+    """The line as first seen (with :attr:`pose`, the estimated pose then)."""
 
 
 @dataclass
@@ -245,6 +248,7 @@ class Correction:
     pose: np.ndarray
     kind: str = 'filter'
     position_delta: float = 0.0
+    pose_before: Optional[np.ndarray] = None
 
 
 def condition2(ref: Line, new: Line, match: MatchParams) -> Optional[float]:
@@ -327,6 +331,7 @@ class GyroLineCalibrator:
         self.corrections: list[Correction] = []
         self.references: list[Reference] = []
         self.tentative: list[Reference] = []
+        self.reference_log: dict[int, Reference] = {}
         self._next_id = 0
         self.x = np.zeros(5)  # x, y, heading, gyro bias, gyro scale error
         ip = p.improved
@@ -478,12 +483,13 @@ class GyroLineCalibrator:
         if self._acc_dt <= 0.0:
             return
         ip = self.params.improved
-        F = np.eye(5)
-        F[2, 3] = -self._acc_dt
-        F[2, 4] = -self._acc_wdt
-        self.P = F @ self.P @ F.T
-        self.P[2, 2] += ip.gyro_noise ** 2 * self._acc_dt
-        self.P[3, 3] += ip.bias_walk ** 2 * self._acc_dt
+        P = self.P
+        a, w = self._acc_dt, self._acc_wdt
+        # P = F P F^T with F = I - a e2 e3^T - w e2 e4^T (rows, then columns)
+        P[2, :] -= a * P[3, :] + w * P[4, :]
+        P[:, 2] -= a * P[:, 3] + w * P[:, 4]
+        P[2, 2] += ip.gyro_noise ** 2 * self._acc_dt
+        P[3, 3] += ip.bias_walk ** 2 * self._acc_dt
         self._acc_dt = 0.0
         self._acc_wdt = 0.0
 
@@ -500,7 +506,10 @@ class GyroLineCalibrator:
         dt = s.t - self._odom_t
         if dt <= 0.0:
             return self.pose
-        d = se2_between(self._odom_prev, cur)
+        px, py, pth = self._odom_prev
+        c0, s0 = math.cos(pth), math.sin(pth)
+        ex, ey = cur[0] - px, cur[1] - py
+        d = (c0 * ex + s0 * ey, -s0 * ex + c0 * ey, _wrap(cur[2] - pth))  # prev^-1 (+) cur
         dist = math.hypot(d[0], d[1])
         self._odom_prev, self._odom_t = cur, s.t
         if dt > self.params.max_dt:
@@ -524,13 +533,15 @@ class GyroLineCalibrator:
         dy = sn * d[0] + c * d[1]
         self.x[0] += dx
         self.x[1] += dy
-        F = np.eye(5)
-        F[0, 2] = -dy
-        F[1, 2] = dx
-        self.P = F @ self.P @ F.T
+        P = self.P
+        # P = F P F^T with F = I - dy e0 e2^T + dx e1 e2^T (rows, then columns)
+        P[0, :] -= dy * P[2, :]
+        P[1, :] += dx * P[2, :]
+        P[:, 0] -= dy * P[:, 2]
+        P[:, 1] += dx * P[:, 2]
         q = self.params.improved.odom_noise ** 2 * dist
-        self.P[0, 0] += q
-        self.P[1, 1] += q
+        P[0, 0] += q
+        P[1, 1] += q
         self._carried_check(s.t)
         return self.pose
 
@@ -669,7 +680,7 @@ class GyroLineCalibrator:
 
     # -- seed mode -----------------------------------------------------------------------
     def _new_reference(self, line: Line, t: float, cov: np.ndarray) -> Reference:
-        ref = Reference(self._next_id, line, t, cov, self.pose, t_last=t)
+        ref = Reference(self._next_id, line, t, cov, self.pose, t_last=t, origin=line)
         self._next_id += 1
         return ref
 
@@ -688,6 +699,7 @@ class GyroLineCalibrator:
                 ref.confirmed = True
                 self._seed_refs[len(self.references)] = [*line.p1, *line.p2, line.angle,
                                                          line.length]
+                self._log_reference(ref)
                 self.references.append(ref)
             return []
         out = []
@@ -714,10 +726,11 @@ class GyroLineCalibrator:
                 self.count('seed_below_threshold')
                 continue
             delta = seed_heading_correction(best.line.angle, line.angle, p.seed.w1)
+            before = self.pose
             self._apply_heading(delta)
             best.matches += 1
             out.append(Correction(t, delta, best_err, (best.id,), (line,), (best.line,),
-                                  self.pose, kind))
+                                  self.pose, kind, 0.0, before))
             self.count('corrections')
             self.corrections.append(out[-1])
             break  # the pose changed: later lines of this scan were placed with the old one
@@ -774,34 +787,66 @@ class GyroLineCalibrator:
             ref.line = line_from_endpoints(c + lo * u, c + hi * u, ref.line.t, ref.line.variance,
                                            ref.line.n_cells)
 
+    def _prefilter(self, refs: list, lines: list[Line], margin: float,
+                   arrays: Optional[tuple] = None) -> tuple:
+        """Vectorised (lines x references) pre-filter: angle, overlap, distance (loose)."""
+        tol = self.params.match.angle_tolerance
+        ang, u, nrm, o, r2, rho = arrays if arrays is not None else _ref_arrays(refs)
+        la = np.array([ln.angle for ln in lines])
+        lp1 = np.array([ln.p1 for ln in lines])
+        lp2 = np.array([ln.p2 for ln in lines])
+        err = _wrap_half(ang[None, :] - la[:, None])
+        a1 = lp1 @ u.T - o[None, :]
+        a2 = lp2 @ u.T - o[None, :]
+        lo, hi = np.minimum(a1, a2), np.maximum(a1, a2)
+        dist = rho[None, :] - (0.5 * (lp1 + lp2)) @ nrm.T
+        ok = (np.abs(err) <= tol) & (hi >= -margin) & (lo <= r2[None, :] + margin) \
+            & (np.abs(dist) < margin + 1.0)
+        return err, dist, ok, u, nrm
+
     def _gate(self, refs: list, line: Line, margin: float, chi2: float,
-              arrays: Optional[tuple] = None) -> list[tuple]:
+              pre: Optional[tuple] = None) -> list[tuple]:
         if not refs:
             return []
-        tol = self.params.match.angle_tolerance
-        # vectorised pre-filter: angle, overlap along the line, distance (loose)
-        ang, u, nrm, o, r2, rho = arrays if arrays is not None else _ref_arrays(refs)
-        err = _wrap_half(ang - line.angle)
-        a1 = u @ line.p1 - o
-        a2 = u @ line.p2 - o
-        lo, hi = np.minimum(a1, a2), np.maximum(a1, a2)
-        dist = rho - nrm @ line.midpoint
-        loose = margin + 1.0
-        ok = (np.abs(err) <= tol) & (hi >= -margin) & (lo <= r2 + margin) & (np.abs(dist) < loose)
+        if pre is None:
+            err, dist, ok, u, nrm = self._prefilter(refs, [line], margin)
+            pre = (err[0], dist[0], ok[0], u, nrm)
+        err, dist, ok, u, nrm = pre
         out = []
         R_line = self._line_noise(line)
-        for i in np.flatnonzero(ok):
+        idx = np.flatnonzero(ok)
+        if idx.size == 0:
+            return out
+        P = self.P
+        p00, p01, p02, p11, p12, p22 = P[0, 0], P[0, 1], P[0, 2], P[1, 1], P[1, 2], P[2, 2]
+        m = line.midpoint
+        lx, ly = m[0] - self.x[0], m[1] - self.x[1]
+        rl0, rl1 = R_line[0, 0], R_line[1, 1]
+        for i in idx.tolist():
             ref = refs[i]
-            y, H, s = self._line_model(ref.line, line)
-            A = np.array([[1.0, 0.0], [s, 1.0]])
-            R = A @ ref.cov @ A.T + R_line
-            S = H @ self.P @ H.T + R
-            det = S[0, 0] * S[1, 1] - S[0, 1] * S[1, 0]
+            nx, ny = float(nrm[i, 0]), float(nrm[i, 1])
+            ux, uy = float(u[i, 0]), float(u[i, 1])
+            y0 = float(err[i])
+            y1 = float(dist[i])  # rho_ref - n . midpoint
+            h12 = nx * -ly + ny * lx
+            rm = ref.line.midpoint
+            sl = ux * (m[0] - rm[0]) + uy * (m[1] - rm[1])
+            C = ref.cov
+            # S = H P H^T + A C A^T + R_line, H = [[0, 0, 1], [nx, ny, h12]], A = [[1, 0], [s, 1]]
+            s00 = p22 + C[0, 0] + rl0
+            s01 = nx * p02 + ny * p12 + h12 * p22 + sl * C[0, 0] + C[0, 1]
+            s11 = (nx * nx * p00 + 2 * nx * ny * p01 + ny * ny * p11 + 2 * nx * h12 * p02
+                   + 2 * ny * h12 * p12 + h12 * h12 * p22
+                   + sl * sl * C[0, 0] + 2 * sl * C[0, 1] + C[1, 1] + rl1)
+            det = s00 * s11 - s01 * s01
             if not det > 0.0:
                 continue
-            nis = (S[1, 1] * y[0] ** 2 - 2.0 * S[0, 1] * y[0] * y[1] + S[0, 0] * y[1] ** 2) / det
+            nis = (s11 * y0 * y0 - 2.0 * s01 * y0 * y1 + s00 * y1 * y1) / det
             if nis <= chi2:
-                out.append((float(nis), ref, y, H, R))
+                r01 = sl * C[0, 0] + C[0, 1]
+                R = np.array([[C[0, 0] + rl0, r01],
+                              [r01, sl * sl * C[0, 0] + 2 * sl * C[0, 1] + C[1, 1] + rl1]])
+                out.append((nis, ref, np.array([y0, y1]), None, R))
         return out
 
     def _improved_step(self, lines: list[Line], t: float) -> list[Correction]:
@@ -809,9 +854,11 @@ class GyroLineCalibrator:
         pos_sigma = math.sqrt(max(self.P[0, 0], self.P[1, 1], 0.0))
         margin = ip.overlap_margin + 3.0 * pos_sigma
         matches = []
-        arrays = _ref_arrays(self.references) if self.references else None
-        for line in lines:
-            gated = self._gate(self.references, line, margin, 4.0 * ip.gate_chi2, arrays)
+        pre = self._prefilter(self.references, lines, margin) if self.references else None
+        for k, line in enumerate(lines):
+            gated = self._gate(self.references, line, margin, 4.0 * ip.gate_chi2,
+                               None if pre is None else
+                               (pre[0][k], pre[1][k], pre[2][k], pre[3], pre[4]))
             close = [g for g in gated if g[0] <= ip.gate_chi2]
             if gated:
                 if not close:
@@ -898,7 +945,14 @@ class GyroLineCalibrator:
             return
         self.tentative.append(self._new_reference(line, t, self._reference_cov(line)))
 
+    def _log_reference(self, ref: Reference) -> None:
+        """Keep every reference ever used (bounded) so corrections can be audited."""
+        self.reference_log[ref.id] = ref
+        if len(self.reference_log) > 10000:
+            del self.reference_log[next(iter(self.reference_log))]
+
     def _add_reference(self, ref: Reference) -> None:
+        self._log_reference(ref)
         self.references.append(ref)
         cap = self.params.improved.max_references
         if len(self.references) > cap:
@@ -916,12 +970,13 @@ class GyroLineCalibrator:
     def _filter_update(self, matches: list, t: float) -> list[Correction]:
         ip = self.params.improved
         # lines of one scan must agree on the heading error
-        errs = np.array([m[2][0] for m in matches])
-        sig = np.array([math.sqrt(m[4][0, 0] + self.P[2, 2] * 0.0) for m in matches])
-        med = float(np.median(errs))
+        errs = [float(m[2][0]) for m in matches]
+        sig = [math.sqrt(m[4][0, 0]) for m in matches]
+        med = statistics.median(errs)
+        med_sig = statistics.median(sig)
         keep = []
         for m, e, sg in zip(matches, errs, sig):
-            if abs(e - med) > ip.consistency_sigma * math.hypot(sg, float(np.median(sig))) \
+            if abs(e - med) > ip.consistency_sigma * math.hypot(sg, med_sig) \
                     and len(matches) > 2:
                 m[1].conflicts += 1
                 self.count('lines_inconsistent')
@@ -982,7 +1037,8 @@ class GyroLineCalibrator:
         corr = Correction(t, delta, float(np.mean([m[2][0] for m in keep])),
                           tuple(m[1].id for m in keep), tuple(m[0] for m in keep),
                           tuple(m[1].line for m in keep), self.pose, 'filter',
-                          float(np.hypot(*(self.x[:2] - before[:2]))))
+                          float(np.hypot(*(self.x[:2] - before[:2]))),
+                          np.array([before[0], before[1], _wrap(before[2])]))
         self.corrections.append(corr)
         self.count('corrections')
         return [corr]

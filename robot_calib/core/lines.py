@@ -39,7 +39,6 @@ from typing import Optional
 
 import numpy as np
 
-from robot_calib.core.geometry import wrap_half_pi
 from robot_calib.core.params import param
 
 
@@ -129,12 +128,15 @@ def line_from_endpoints(p1, p2, t: float = 0.0, variance: float = 0.0,
     """Return a :class:`Line` through two points (m), endpoints ordered canonically."""
     p1 = np.asarray(p1, dtype=float)
     p2 = np.asarray(p2, dtype=float)
-    d = p2 - p1
-    angle = wrap_half_pi(math.atan2(d[1], d[0]))
-    u = np.array([math.cos(angle), math.sin(angle)])
-    if u @ p1 > u @ p2:
+    dx, dy = float(p2[0] - p1[0]), float(p2[1] - p1[1])
+    angle = math.atan2(dy, dx)
+    if angle > math.pi / 2:
+        angle -= math.pi
+    elif angle <= -math.pi / 2:
+        angle += math.pi
+    if math.cos(angle) * dx + math.sin(angle) * dy < 0.0:
         p1, p2 = p2, p1
-    return Line(p1, p2, angle, float(np.linalg.norm(d)), float(variance), int(n_cells), t)
+    return Line(p1, p2, angle, math.hypot(dx, dy), float(variance), int(n_cells), t)
 
 
 class ObstacleGrid:
@@ -256,7 +258,7 @@ def fit_line(pts: np.ndarray, method: str = 'total') -> tuple[np.ndarray, np.nda
     ``ordinary``: regression of y on x (minimises vertical distances; undefined
     for a vertical line, where it returns the x axis direction of a degenerate fit).
     """
-    c = pts.mean(axis=0)
+    c = pts.sum(axis=0) / pts.shape[0]
     d = pts - c
     if method == 'ordinary':
         sxx = float(d[:, 0] @ d[:, 0])
@@ -285,7 +287,7 @@ def condition1(pts: np.ndarray, params: LineParams, t: float = 0.0) -> Optional[
         length = float(along.max() - along.min())
         if length < params.min_length:  # seed S11
             return None
-        var = float(np.mean(dist ** 2))  # seed S12
+        var = float(dist @ dist) / dist.size  # seed S12
         if var <= params.max_variance:
             p1 = c + along.min() * u
             p2 = c + along.max() * u
