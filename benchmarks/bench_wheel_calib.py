@@ -246,7 +246,7 @@ SIM_NOMINAL = {
 }
 
 
-def _sim_one(name: str, seed: int) -> dict:
+def _sim_one(name: str, seed: int, with_time: bool = False) -> dict:
     from robot_calib.sim import run_scenario
     t0 = time.perf_counter()
     sim = run_scenario(name, seed=seed)
@@ -264,7 +264,39 @@ def _sim_one(name: str, seed: int) -> dict:
         out['seed'] = cal.seed.result()
         out['stages'] = len(cal.seed.records)
         out['stages_needed'] = cal.seed.stages_needed
+        if cal.seed.stages_needed:
+            out['seed_time'] = cal.seed.records[cal.seed.stages_needed - 1].t1
+        if with_time:  # drive time the improved estimator needs (prefix solves every 20 s)
+            truth = sim.truth
+            for t_end in np.arange(20.0, sim.truth['duration'] + 1.0, 20.0):
+                segs = [s for s in cal.segments if s.t1 <= t_end]
+                r = W.calibrate(p.drive_type, segs, p)
+                if r.converged and abs(r.values['steering_offset']
+                                       - truth['steering_offset']) * DEG <= 0.02:
+                    out['improved_time'] = float(t_end)
+                    break
     return out
+
+
+def time_section(n_seeds: int) -> str:
+    """Return the drive time each method needs on the AGV drive (a few seeds)."""
+    runs = [_sim_one('agv_segments', s, with_time=True) for s in range(n_seeds)]
+    lines = ['### Drive time needed (`agv_segments`)', '',
+             f'Seeds 0..{n_seeds - 1}. Improved: the estimator re-run on the segments of the '
+             'first T s (T every 20 s) until its verdict is converged and the offset is within '
+             '0.02 deg of the truth. Seed-faithful: the end of the stage at which the '
+             'consecutive-stage counter reached its threshold.', '',
+             '| method | drive time to converge (s) | stages |', '|---|---|---|',
+             f'| improved | {_med(runs, "improved_time")} | uses every segment (straight and '
+             'turning) |',
+             f'| seed-faithful | {_med(runs, "seed_time")} | '
+             f'{_med(runs, "stages_needed")} straight stages |', '']
+    return '\n'.join(lines)
+
+
+def _med(runs: list, key: str) -> str:
+    vals = [r[key] for r in runs if r.get(key) is not None]
+    return f'median {np.median(vals):.0f} of {len(vals)} runs' if vals else 'never'
 
 
 def sim_section(n_seeds: int) -> str:
@@ -381,7 +413,7 @@ def write_sections(sections: dict) -> None:
 def main() -> int:
     """Run the requested parts, print and write their tables."""
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument('--part', choices=('all', 'real', 'sim'), default='all')
+    ap.add_argument('--part', choices=('all', 'real', 'sim', 'time'), default='all')
     ap.add_argument('--seeds', type=int, default=10, help='simulated seeds per scenario')
     args = ap.parse_args()
     sections = {}
@@ -400,6 +432,11 @@ def main() -> int:
         sections['sim'] = sim_section(args.seeds)
         print(sections['sim'])
         print(f'[sim: {time.perf_counter() - t0:.1f} s]')
+    if args.part in ('all', 'time'):
+        t0 = time.perf_counter()
+        sections['simtime'] = time_section(3)
+        print(sections['simtime'])
+        print(f'[time: {time.perf_counter() - t0:.1f} s]')
     if sections:
         write_sections(sections)
         print(f'wrote {OUT.relative_to(REPO)}')

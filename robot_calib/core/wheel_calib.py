@@ -715,6 +715,7 @@ class StageRecord:
     accepted: bool
     counter: int
     radius: float
+    t1: float = math.nan
 
 
 class SeedSteeredCalibrator:
@@ -792,7 +793,8 @@ class SeedSteeredCalibrator:
         else:
             self.candidates.clear()
             self.counter = 0
-        rec = StageRecord(len(self.records), comp, off, resid, accepted, self.counter, radius)
+        rec = StageRecord(len(self.records), comp, off, resid, accepted, self.counter, radius,
+                          float(seg.t1))
         self.records.append(rec)
         if self.offset is None and self.counter >= p.seed.consecutive_stages:
             self.offset = comp
