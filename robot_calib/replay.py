@@ -294,13 +294,24 @@ def _jsonable(value: Any) -> Any:
     return str(value)
 
 
-def _prepare_out_dir(out_dir: Path) -> Path:
-    """Check the output folder and return a fresh temporary folder next to it."""
+def _check_out_dir(out_dir: Path) -> None:
+    """Raise ReplayError when ``out_dir`` cannot be (re)placed by a replay output."""
     if out_dir.exists() and not out_dir.is_dir():
         raise ReplayError(f'output {out_dir} exists and is not a folder; expected a folder path')
     if out_dir.is_dir() and any(out_dir.iterdir()) and not (out_dir / SUMMARY).is_file():
         raise ReplayError(f'output folder {out_dir} exists, is not empty and is not a '
                           'previous replay output; give a new or empty folder')
+    ancestor = out_dir.absolute().parent
+    while not ancestor.exists():
+        ancestor = ancestor.parent
+    if not ancestor.is_dir() or not os.access(ancestor, os.W_OK | os.X_OK):
+        raise ReplayError(f'output folder {out_dir.parent} is not writable ({ancestor} is not '
+                          'a writable folder); expected a writable folder')
+
+
+def _prepare_out_dir(out_dir: Path) -> Path:
+    """Check the output folder and return a fresh temporary folder next to it."""
+    _check_out_dir(out_dir)
     parent = out_dir.parent
     try:
         parent.mkdir(parents=True, exist_ok=True)
@@ -352,6 +363,7 @@ def replay(bags: Union[str, os.PathLike, Sequence[Union[str, os.PathLike]]],
     if not bag_list:
         raise ReplayError('no bag given; expected one or more bag paths')
     out_dir = Path(out_dir)
+    _check_out_dir(out_dir)
     rules = parse_remaps(remaps)
     by_node = parse_overrides(overrides)
     file_params = load_params_file(params_file)
