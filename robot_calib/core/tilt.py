@@ -24,8 +24,11 @@ Two estimators share one interface (:class:`TiltEstimator`):
     blind to bumps, vibration and braking shorter than the filter time
     constant. The gyro bias is estimated by a small Kalman filter, from the
     mean rate while the IMU is at rest and, in motion, from the inclination
-    corrections the accelerometer asks for. Written from the published
-    description, not from VQF's code.
+    corrections the accelerometer asks for. Beyond VQF, the same Kalman
+    filter also estimates the three gyro scale factors (MEMS gyros carry
+    0.5-2 % sensitivity errors; while turning fast they, not the bias,
+    dominate the drift): the gyro error is modelled as ``b + diag(s) w``.
+    Written from the published description, not from VQF's code.
 
 Fall detection (:class:`FallDetector`) uses the angle between the body z axis
 (``base_link`` after the mounting rotation) and world up, with a threshold,
@@ -90,6 +93,12 @@ class ImprovedFilterParams:
                                    minimum=1e-6)
     bias_update_period: float = param(0.02, 's', 'Period of the gyro bias Kalman update (the '
                                       'corrections in between are averaged)', minimum=0.0)
+    scale_estimation: bool = param(True, '', 'Also estimate the gyro scale factors in motion '
+                                   '(from the inclination corrections while turning)')
+    scale_sigma_init: float = param(0.01, '', 'Initial gyro scale-factor uncertainty (1 sigma, '
+                                    'relative)', minimum=0.0)
+    scale_clip: float = param(0.05, '', 'Largest relative gyro scale error accepted',
+                              minimum=0.0)
     motion_bias: bool = param(True, '', 'Estimate the gyro bias in motion')
     rest_bias: bool = param(True, '', 'Estimate the gyro bias at rest')
     rest_min_time: float = param(1.5, 's', 'Time the IMU must be still to count as at rest',
@@ -104,14 +113,6 @@ class ImprovedFilterParams:
                                    'the mean accelerometer reading disagree by more than this, '
                                    'the filter restarts from the mean (fast recovery after gyro '
                                    'saturation or a gap)', minimum=0.0)
-    adaptive: bool = param(False, '', 'Adapt the accelerometer time constant to the measured '
-                           'linear-acceleration and rotation levels')
-    tau_min: float = param(1.0, 's', 'Shortest adaptive time constant', minimum=0.01)
-    tau_max: float = param(6.0, 's', 'Longest adaptive time constant', minimum=0.01)
-    gyro_scale_sigma: float = param(0.01, '', 'Relative gyro scale/misalignment uncertainty '
-                                    '(1 sigma): drift grows with the rotation rate', minimum=1e-6)
-    level_tau: float = param(1.0, 's', 'Time constant of the disturbance and rotation level '
-                             'estimates', minimum=0.01)
 
 
 @dataclass(frozen=True)
@@ -228,8 +229,8 @@ def _butter2(tau: float, ts: float) -> tuple:
 class _LowPass:
     """A bank of 2nd-order Butterworth low-pass filters (direct form I).
 
-    Direct form I keeps past inputs and outputs as its state, so the time
-    constant may change from one sample to the next without a jump. Until
+    Direct form I keeps past inputs and outputs as its state, so a new
+    sampling period changes the coefficients without a jump. Until
     ``tau`` seconds of samples have been seen, the output is the running mean
     of the inputs (a fast, unbiased start).
     """
@@ -250,11 +251,6 @@ class _LowPass:
         self.coef = _butter2(self.tau, ts)
         if not self.ready:
             self.init_n = max(1, int(round(self.tau / ts)))
-
-    def set_tau(self, tau: float, ts: float) -> None:
-        """Change the time constant (s) for sampling period ``ts`` (s)."""
-        self.tau = tau
-        self.coef = _butter2(tau, ts)
 
     def fill(self, value: list) -> None:
         """Set the filter to the steady state of a constant input ``value``."""
@@ -409,11 +405,10 @@ class AttitudeEstimator:
         self._bias_every = max(1, int(round(p.bias_update_period / ts)))
         self._acc_n = 0
         self._acc_x = self._acc_y = self._acc_dt = 0.0
+        self._acc_g = [0.0, 0.0, 0.0]
+        self.rd_lp = _LowPass(9, p.tau_acc, ts * self._bias_every)
         self.r_lp = _LowPass(9, p.tau_acc, ts * self._bias_every)
         self.rb_lp = _LowPass(2, p.tau_acc, ts * self._bias_every)
-        self.lin_pow = 0.0
-        self.rot_pow = 0.0
-        self.tau_eff = p.tau_acc
         self.rest_time = 0.0
         self.rest = False
         self.rest_gyr = (0.0, 0.0, 0.0)
@@ -421,6 +416,9 @@ class AttitudeEstimator:
         self.snaps = 0
         if not hasattr(self, 'bias'):
             self.bias = [0.0, 0.0, 0.0]
+            self.scale = [0.0, 0.0, 0.0]
+            self.P6 = np.diag([(p.bias_sigma_init * self._deg) ** 2] * 3
+                              + [p.scale_sigma_init ** 2] * 3)
             s0 = (p.bias_sigma_init * self._deg) ** 2
             self.P = [[s0, 0.0, 0.0], [0.0, s0, 0.0], [0.0, 0.0, s0]]
 
@@ -429,7 +427,7 @@ class AttitudeEstimator:
         for f in (self.acc_lp, self.rest_gyr_lp, self.rest_acc_lp):
             f.set_ts(ts)
         self._bias_every = max(1, int(round(self.p.bias_update_period / ts)))
-        for f in (self.r_lp, self.rb_lp):
+        for f in (self.r_lp, self.rb_lp, self.rd_lp):
             f.set_ts(ts * self._bias_every)
 
     @property
@@ -452,7 +450,10 @@ class AttitudeEstimator:
         else:
             # Strapdown integration of the bias-corrected rate (exact for a constant rate).
             b = self.bias
-            wx, wy, wz = gx - b[0], gy - b[1], gz - b[2]
+            sc = self.scale
+            wx = gx - b[0] - sc[0] * gx
+            wy = gy - b[1] - sc[1] * gy
+            wz = gz - b[2] - sc[2] * gz
             wn = math.sqrt(wx * wx + wy * wy + wz * wz)
             if wn > 1e-12:
                 half = 0.5 * wn * dt
@@ -465,8 +466,6 @@ class AttitudeEstimator:
         lp = self.acc_lp(list(a_i))
         if self.rest and self.acc_lp.ready and p.rest_snap_angle > 0.0:
             lp = self._rest_snap(lp)
-        if p.adaptive and self.acc_lp.ready:
-            self._adapt(a_i, lp, gx, gy, gz, dt)
         # Into the earth frame; correct the inclination so that it points up.
         ex, ey, ez = _qrot(self.q_inc, lp[0], lp[1], lp[2])
         n = math.sqrt(ex * ex + ey * ey + ez * ez)
@@ -479,34 +478,21 @@ class AttitudeEstimator:
             self._acc_y += ey
             self._acc_dt += dt
             self._acc_n += 1
+            ag = self._acc_g
+            ag[0] += gx
+            ag[1] += gy
+            ag[2] += gz
             if self._acc_n >= self._bias_every:
-                self._bias_update(self._acc_x, self._acc_y, self._acc_dt)
+                if p.scale_estimation:
+                    n = self._acc_n
+                    self._bias_scale_update(self._acc_x, self._acc_y, self._acc_dt,
+                                            (ag[0] / n, ag[1] / n, ag[2] / n))
+                else:
+                    self._bias_update(self._acc_x, self._acc_y, self._acc_dt)
                 self._acc_n = 0
                 self._acc_x = self._acc_y = self._acc_dt = 0.0
+                self._acc_g = [0.0, 0.0, 0.0]
         return self.quat
-
-    def _adapt(self, a_i: tuple, lp: list, gx: float, gy: float, gz: float,
-               dt: float) -> None:
-        """Set the accelerometer time constant from the disturbance and rotation levels.
-
-        A first-order complementary filter is optimal (steady-state Kalman) with
-        tau = sqrt(r / q): r from the linear acceleration seen in the inertial
-        frame (rad^2 s, as a direction error of gravity), q from the gyro drift,
-        which grows with the rotation rate through scale and misalignment errors.
-        """
-        p = self.p
-        k = dt / (p.level_tau + dt)
-        d2 = (a_i[0] - lp[0]) ** 2 + (a_i[1] - lp[1]) ** 2 + (a_i[2] - lp[2]) ** 2
-        self.lin_pow += k * (d2 - self.lin_pow)
-        self.rot_pow += k * (gx * gx + gy * gy + gz * gz - self.rot_pow)
-        r = self.lin_pow / (GRAVITY * GRAVITY) * p.level_tau
-        b = 0.1 * self._deg
-        q = (p.gyro_scale_sigma ** 2 * self.rot_pow + b * b) * p.level_tau
-        tau = math.sqrt(r / q) if q > 0.0 else p.tau_max
-        tau = min(p.tau_max, max(p.tau_min, tau))
-        if abs(tau - self.tau_eff) > 0.02 * self.tau_eff:
-            self.tau_eff = tau
-            self.acc_lp.set_tau(tau, dt)
 
     def _rest_snap(self, lp: list) -> list:
         """At rest, restart the acceleration filter from the mean reading if they disagree."""
@@ -537,6 +523,71 @@ class AttitudeEstimator:
         else:
             self.rest_time = 0.0
             self.rest = False
+
+    def _bias_scale_update(self, ex: float, ey: float, dt: float, g: tuple) -> None:
+        """Kalman update of gyro bias (rad/s) and scale factors from rest or the correction.
+
+        The gyro error is modelled as ``b + diag(s) w``; its effect on the
+        inclination is ``R (b + diag(s) w)``, compared after the same low-pass
+        filter as the acceleration with the corrections the accelerometer made.
+        ``g``: mean raw rate (rad/s) over the last ``dt`` seconds.
+        """
+        p = self.p
+        deg = self._deg
+        b = self.bias
+        sc = self.scale
+        w, x, y, z = self.quat
+        R = [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y),
+             2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x),
+             2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)]
+        RD = [R[0] * g[0], R[1] * g[1], R[2] * g[2], R[3] * g[0], R[4] * g[1], R[5] * g[2],
+              R[6] * g[0], R[7] * g[1], R[8] * g[2]]
+        eb = [b[0] + sc[0] * g[0], b[1] + sc[1] * g[1], b[2] + sc[2] * g[2]]
+        rb = [R[0] * eb[0] + R[1] * eb[1] + R[2] * eb[2], R[3] * eb[0] + R[4] * eb[1]
+              + R[5] * eb[2]]
+        Rf = self.r_lp(R)
+        RDf = self.rd_lp(RD)
+        rbf = self.rb_lp(rb)
+        P = self.P6
+        v = (0.1 * deg) ** 2 * dt / p.bias_forgetting_time
+        vs = p.scale_sigma_init ** 2 * dt / (10.0 * p.bias_forgetting_time)
+        if P[0, 0] < (p.bias_sigma_init * deg) ** 2:
+            P[0, 0] += v
+            P[1, 1] += v
+            P[2, 2] += v
+        if P[3, 3] < p.scale_sigma_init ** 2:
+            P[3, 3] += vs
+            P[4, 4] += vs
+            P[5, 5] += vs
+        xs = np.array(b + sc)
+        if self.rest and p.rest_bias:
+            H = np.hstack((np.eye(3), np.zeros((3, 3))))
+            e = np.array([self.rest_gyr[i] - b[i] for i in range(3)])
+            s2 = (p.bias_sigma_rest * deg) ** 2
+            W = np.diag([s2 * s2 / v + s2] * 3)
+        elif p.motion_bias and not self.rest:
+            H = np.hstack((np.array(Rf).reshape(3, 3), np.array(RDf).reshape(3, 3)))
+            hx = H @ xs
+            e = np.array([-ey / dt + rbf[0] - hx[0], ex / dt + rbf[1] - hx[1], -hx[2]])
+            s2 = (p.bias_sigma_motion * deg) ** 2
+            wm = s2 * s2 / v + s2
+            W = np.diag([wm, wm, wm / p.bias_vertical_factor])
+        else:
+            return
+        clip = p.bias_clip * deg
+        e = np.clip(e, -clip, clip)
+        PHt = P @ H.T
+        S = H @ PHt + W
+        try:
+            K = np.linalg.solve(S, PHt.T).T
+        except np.linalg.LinAlgError:
+            return
+        xs = xs + K @ e
+        xs[:3] = np.clip(xs[:3], -clip, clip)
+        xs[3:] = np.clip(xs[3:], -p.scale_clip, p.scale_clip)
+        self.P6 = P - K @ PHt.T
+        self.bias = [float(v) for v in xs[:3]]
+        self.scale = [float(v) for v in xs[3:]]
 
     def _bias_update(self, ex: float, ey: float, dt: float) -> None:
         """Kalman update of the gyro bias (3 states, rad/s) from rest or from the correction.

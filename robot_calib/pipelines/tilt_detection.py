@@ -229,6 +229,7 @@ class TiltPipeline(Pipeline):
             'final_tilt_deg': math.degrees(last.tilt) if last else None,
             'max_tilt_deg': math.degrees(self.est.max_tilt),
             'gyro_bias': list(last.bias) if last else None,
+            'gyro_scale': list(self.est.att.scale) if self.est.att is not None else None,
             'filter_restarts': self.est.restarts,
             'mounting': self.mount_source,
             'mounting_quat': list(self.mounting),
