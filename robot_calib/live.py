@@ -51,8 +51,8 @@ def play(bags: Union[str, os.PathLike, Sequence[Union[str, os.PathLike]]], rate:
     :param clock: publish ``/clock`` with the bag time.
     :param delay: seconds to wait after creating the publishers (discovery), s.
     :param clock_period: publish ``/clock`` at most this often in bag time, s.
-    :param wait_for_subscribers: wait up to this long (s) for every publisher to
-        have a subscriber before playing.
+    :param wait_for_subscribers: wait up to this long (s) for every publisher
+        (``/clock`` included) to have a subscriber before playing.
     :param node_name: name of the player node.
     :return: ``{'messages', 'topics': {topic: count}, 'skipped': {topic: reason},
         'wall_seconds', 'bag_seconds'}``.
@@ -110,8 +110,9 @@ def play(bags: Union[str, os.PathLike, Sequence[Union[str, os.PathLike]]], rate:
                 clock_pub = node.create_publisher(Clock, '/clock', 10)
                 clock_msg, time_msg = Clock, Time
             deadline = time.monotonic() + max(wait_for_subscribers, 0.0)
+            waited = list(pubs.values()) + ([clock_pub] if clock_pub is not None else [])
             while time.monotonic() < deadline and any(
-                    p.get_subscription_count() == 0 for p in pubs.values()):
+                    p.get_subscription_count() == 0 for p in waited):
                 time.sleep(0.01)
             if delay > 0:
                 time.sleep(delay)

@@ -2,6 +2,7 @@
 # SPDX-License-Identifier: Apache-2.0
 """``replay --live``: publish a short bag through rclpy in-process and subscribe to it."""
 
+import os
 import threading
 
 import numpy as np
@@ -36,8 +37,9 @@ def test_live_publishes_bag_with_clock(tmp_path):
     path = tmp_path / 'bag'
     _write(path)
     own = not rclpy.ok()
-    if own:
-        rclpy.init()
+    if own:  # a domain of its own: other tests on this machine publish /imu too
+        rclpy.init(domain_id=100 + os.getpid() % 100)
+    imu_topic = f'/live_test_{os.getpid()}/imu'
     node = rclpy.create_node('live_test_listener')
     got = {'imu': [], 'clock': [], 'tf': [], 'cmd': []}
     reliable = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=100,
@@ -45,7 +47,7 @@ def test_live_publishes_bag_with_clock(tmp_path):
     latched = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1,
                          reliability=ReliabilityPolicy.RELIABLE,
                          durability=DurabilityPolicy.TRANSIENT_LOCAL)
-    node.create_subscription(Imu, '/imu', got['imu'].append, reliable)
+    node.create_subscription(Imu, imu_topic, got['imu'].append, reliable)
     node.create_subscription(Clock, '/clock', got['clock'].append, reliable)
     if tf_cls is not None:
         node.create_subscription(tf_cls, '/tf_static', got['tf'].append, latched)
@@ -57,7 +59,7 @@ def test_live_publishes_bag_with_clock(tmp_path):
 
     def run():
         try:
-            result.update(live.play([path], rate=2.0, remaps=['/imu/data:=/imu'],
+            result.update(live.play([path], rate=2.0, remaps=[f'/imu/data:={imu_topic}'],
                                     wait_for_subscribers=10.0, delay=0.3))
         except Exception as exc:  # noqa: B902 - reported by the main thread
             errors.append(exc)
@@ -79,9 +81,9 @@ def test_live_publishes_bag_with_clock(tmp_path):
     assert result['messages'] == sum(result['topics'].values())
     if tf_cls is None:
         assert 'not installed' in result['skipped']['/tf_static']
-        assert result['topics'] == {'/imu': 50, '/cmd_vel': 10}
+        assert result['topics'] == {imu_topic: 50, '/cmd_vel': 10}
     else:
-        assert result['topics'] == {'/tf_static': 1, '/imu': 50, '/cmd_vel': 10}
+        assert result['topics'] == {'/tf_static': 1, imu_topic: 50, '/cmd_vel': 10}
     assert result['bag_seconds'] == pytest.approx(0.49)
     # Paced at twice the recorded rate (lower bound only: no upper timing assertion).
     assert result['wall_seconds'] >= 0.49 / 2 * 0.9
