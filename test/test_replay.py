@@ -390,3 +390,21 @@ def test_registered_pipelines_on_simulated_bag(tmp_path):
     assert 'plots/trajectories.png' in s['plots']
     if 'wheel_odometry_calibration' in s['nodes']:
         assert (tmp_path / 'o' / 'wheel_calibration.yaml').is_file()
+
+
+def test_two_bags_merged_with_progress_bar(tmp_path, capsys):
+    a, b = tmp_path / 'imu_bag', tmp_path / 'odom_bag'
+    with bags.BagWriter(a) as w:
+        for i in range(300):
+            ns = 10**9 + i * 10**7
+            w.write('/imu', _imu(ns), ns)
+    with bags.BagWriter(b, storage='sqlite3') as w:
+        for i in range(60):
+            ns = 10**9 + i * 5 * 10**7
+            w.write('/odom', T.OdomSample(ns * 1e-9, 0.01 * i, 0.0, 0.0, stamp_ns=ns), ns)
+    s = replay([a, b], tmp_path / 'o', nodes=ECHO, progress=True)
+    assert s['bags'] == [str(a), str(b)]
+    assert s['nodes']['echo']['inputs']['imu']['accepted'] == 300
+    assert s['nodes']['echo']['inputs']['odom']['accepted'] == 60
+    assert s['output']['topics']['/echo/odom'] == 60
+    assert 'replay' in capsys.readouterr().err  # the tqdm bar went to stderr
