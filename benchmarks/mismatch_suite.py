@@ -238,7 +238,13 @@ def make_pair(seed: int, n_effects: int | None = None, duration: float | None = 
     ro = _odom(m, tr_odom - tau_odom)
     v_i = _sample(m, tr_imu, m.v)
     w_i = _sample(m, tr_imu, m.w)
+    ri0, ro0 = _imu(m, tr_imu, centripetal), _odom(m, tr_odom)
     for e in effects:
+        if e['effect'] == 'time_offset':
+            a, b = (ri, ri0) if e['channel'] == '/imu' else (ro, ro0)
+            e['energy'] = {k: float(np.sum((a[k] - b[k]) ** 2)) for k in a}
+    for e in effects:
+        before = {k: v.copy() for k, v in list(ri.items()) + list(ro.items())}
         p, win, name = e['parameters'], e['window'], e['effect']
         if name in ('gyro_bias', 'gyro_scale', 'gyro_bias_drift', 'accel_bias'):
             f = e['channel'].split('.', 1)[1]
@@ -264,6 +270,10 @@ def make_pair(seed: int, n_effects: int | None = None, duration: float | None = 
             else:
                 a = _sample(m, tr_odom, m.cmd_a)
                 ro[fv] = np.where(inw, ro[fv] * (1 + p['coefficient'] * a), ro[fv])
+        if name != 'time_offset':
+            after = dict(list(ri.items()) + list(ro.items()))
+            e['energy'] = {k: float(np.sum((after[k] - before[k]) ** 2)) for k in before
+                           if np.any(after[k] != before[k])}
     noise_info = {}
     if noise:
         colored = rng.random() < 0.3

@@ -250,6 +250,18 @@ def _analyse_topic(pt: PairedTopic, sim: Recording, real: Recording, t0: float,
     if sel and prm.mode != 'seed':
         sel = S.refine_windows(prob, sel, min_len)
     sel = S.refine_nonlinear(prob, sel)
+    sel = S.backward_eliminate(prob, sel, prm.margin)
+    held = _heldout(prob, sel, prm.heldout_chunks) if sel else {}
+    # cross-validation guard: an effect that makes the held-out part worse is dropped
+    bad = {i for i, h in held.items() if h['heldout_rmse_before'] is not None and
+           h['heldout_rmse_after'] is not None and
+           h['heldout_rmse_after'] > h['heldout_rmse_before']}
+    if bad:
+        for i in sorted(bad):
+            notes.append(f'{sel[i].channel}: a candidate {sel[i].effect} did not improve the '
+                         'held-out part and is not reported')
+        sel = [t for i, t in enumerate(sel) if i not in bad]
+        held = _heldout(prob, sel, prm.heldout_chunks) if sel else {}
     final = S.fit(prob, sel, contributions=True)
     for f in prob.fields:
         ch = f'{pt.name}.{f}'
@@ -261,7 +273,6 @@ def _analyse_topic(pt: PairedTopic, sim: Recording, real: Recording, t0: float,
             'beyond_noise': active_windows(pt.t, r, m, prob.sigma[f], prob.phi[f])}
     alts = S.alternatives(prob, sel, cands, min_len, prm.alt_margin) \
         if sel and prm.mode != 'seed' else {}
-    held = _heldout(prob, sel, prm.heldout_chunks) if sel else {}
     base = S.score(prob, final)
     findings = []
     for i, t in enumerate(sel):

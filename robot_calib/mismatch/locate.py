@@ -51,7 +51,10 @@ def noise_level(r: np.ndarray, mask: np.ndarray, dt: float,
     w = max(3, int(round(smooth / max(dt, 1e-9))))
     w = min(w, max(3, x.size // 4))
     e = x - moving_average(x, w)
-    sigma = float(np.std(e) * np.sqrt(w / max(w - 1.0, 1.0)))
+    # robust scale (bursts of unmodelled structure do not inflate it), floored at 0.3 std
+    sd = float(np.std(e))
+    mad = 1.4826 * float(np.median(np.abs(e - np.median(e))))
+    sigma = max(mad, 0.3 * sd) * float(np.sqrt(w / max(w - 1.0, 1.0)))
     if sigma <= 0:
         return 0.0, 1.0
     n = e.size
@@ -139,7 +142,9 @@ def _dchi(CG: np.ndarray, Ch: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.nd
     A = CG[b] - CG[a]
     h = Ch[b] - Ch[a]
     p = h.shape[-1]
-    A = A + np.eye(p) * (1e-12 * (np.trace(A, axis1=-2, axis2=-1)[:, None, None] + 1e-300))
+    # ridge relative to the whole recording: a window without excitation explains nothing
+    eps = 1e-9 * float(np.trace(CG[-1] - CG[0])) / p + 1e-300
+    A = A + np.eye(p) * eps
     try:
         sol = np.linalg.solve(A, h[..., None])[..., 0]
     except np.linalg.LinAlgError:

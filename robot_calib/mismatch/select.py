@@ -231,7 +231,7 @@ def _screen(prob: Problem, cand: E.Term, res: dict, min_len: int,
         sw = scan_window(xs, es, ws, min_len)
         if sw is not None:
             i0, i1, d = sw
-            if (i1 - i0) < 0.97 * prob.n:
+            if (i1 - i0) < 0.9 * prob.n:
                 g = d - (p + 2) * logn
                 if g > best[0]:
                     best = (g, (i0, i1))
@@ -263,13 +263,28 @@ def forward_select(prob: Problem, cands: list, margin: float, min_len: int,
             for w in ([None, win] if win is not None else [None]):
                 model = _model_with(sel, c.with_window(w))
                 f = fit(prob, model)
-                s = score(prob, f)
+                # a window must beat the global effect by a further margin
+                s = score(prob, f) + (margin if w is not None else 0.0)
                 if best is None or s < best[0]:
                     best = (s, model, f)
         if best is None or s_cur - best[0] <= margin:
             break
-        s_cur, sel, cur = best
+        sel, cur = best[1], best[2]
+        s_cur = score(prob, cur)
     return sel, cur
+
+
+def backward_eliminate(prob: Problem, sel: list, margin: float) -> list:
+    """Drop, one at a time, terms whose removal costs less than ``margin`` in score."""
+    out = list(sel)
+    while out:
+        base = score(prob, fit(prob, out))
+        gains = [score(prob, fit(prob, out[:i] + out[i + 1:])) - base for i in range(len(out))]
+        i = int(np.argmin(gains))
+        if gains[i] >= margin:
+            break
+        out.pop(i)
+    return out
 
 
 def refine_windows(prob: Problem, sel: list, min_len: int) -> list:
@@ -284,7 +299,7 @@ def refine_windows(prob: Problem, sel: list, min_len: int) -> list:
         glob = t.with_window(None)
         sw = scan_window([term_cols(glob, f, prob) for f in fs],
                          [res[f] * prob.mask[f] for f in fs], [prob.w[f] for f in fs], min_len)
-        if sw is not None:
+        if sw is not None and sw[1] - sw[0] < 0.9 * prob.n:
             cand = out[:i] + [t.with_window((sw[0], sw[1]))] + out[i + 1:]
             if score(prob, fit(prob, cand)) <= score(prob, fit(prob, out)):
                 out = cand
