@@ -91,7 +91,7 @@ class ImprovedFilterParams:
                                         minimum=1e-12)
     bias_sigma_rest: float = param(0.03, 'deg/s', 'Noise of the bias measurement at rest',
                                    minimum=1e-6)
-    bias_update_period: float = param(0.02, 's', 'Period of the gyro bias Kalman update (the '
+    bias_update_period: float = param(0.05, 's', 'Period of the gyro bias Kalman update (the '
                                       'corrections in between are averaged)', minimum=0.0)
     scale_estimation: bool = param(True, '', 'Also estimate the gyro scale factors in motion '
                                    '(from the inclination corrections while turning)')
