@@ -208,17 +208,20 @@ def speed(lines: list, seq: list) -> None:
     """Pipeline throughput, full replay throughput and node callback p99."""
     from robot_calib.pipelines.odometry_fusion import FusionPipeline
     keys = {'imu': 'imu', 'odom': 'odom'}
-    rates = []
+    rates, cpu_rates = [], []
     for _ in range(3):
         pipe = FusionPipeline(F.FusionParams(imu_rpy=HUSKY_IMU_RPY))
-        t0 = time.perf_counter()
+        t0, c0 = time.perf_counter(), time.process_time()
         for kind, s in seq:
             pipe.process(keys[kind], s)
         rates.append(len(seq) / (time.perf_counter() - t0))
+        cpu_rates.append(len(seq) / (time.process_time() - c0))
     lines += ['## Speed', '', '| measure | value | goal | |', '|---|---|---|---|']
-    rate = float(np.median(rates))
-    lines.append(f'| pipeline.process(), decoded samples of test1 (median of 3) | '
+    rate, cpu_rate = float(np.median(rates)), float(np.median(cpu_rates))
+    lines.append(f'| pipeline.process(), decoded samples of test1, wall clock (median of 3) | '
                  f'{rate:,.0f} msgs/s | >= 20,000 msgs/s | {"met" if rate >= 2e4 else "MISSED"} |')
+    lines.append(f'| same, per CPU second of the process (median of 3) | {cpu_rate:,.0f} msgs/s '
+                 f'| >= 20,000 msgs/s | {"met" if cpu_rate >= 2e4 else "MISSED"} |')
     bag = REPO / 'bags' / 'husky_test1'
     if bag.exists():
         try:

@@ -680,17 +680,17 @@ class ImprovedFusion(_Base):
         Ph = self.P @ h
         s = float(h @ Ph) + r
         k = Ph / s
-        if consider is not None:
-            k[consider] = 0.0
-        self.x += k * resid
-        # Joseph form keeps P symmetric positive definite
         if consider is None:
-            P = self.P - np.outer(k, Ph)  # P = (I - K H) P, symmetrised below
+            self.x += k * resid
+            # P = (I - k h') P = P - Ph Ph' / s: symmetric by construction
+            self.P = self.P - np.outer(k, Ph)
         else:
-            # any gain: Joseph form (I - K H) P (I - K H)' + K R K'
-            A = _EYE8 - np.outer(k, h)
-            P = A @ self.P @ A.T + r * np.outer(k, k)
-        self.P = 0.5 * (P + P.T)
+            k[consider] = 0.0
+            self.x += k * resid
+            # Joseph form for any gain, expanded: (I - k h') P (I - k h')' + r k k'
+            #   = P - k Ph' - Ph k' + s k k'
+            kPh = np.outer(k, Ph)
+            self.P = self.P - kPh - kPh.T + s * np.outer(k, k)
         return s, resid * resid / s
 
     def _odom(self, t: float, v: float, w: float) -> Optional[str]:

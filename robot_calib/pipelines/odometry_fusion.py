@@ -72,7 +72,9 @@ class FusionPipeline(Pipeline):
                 if self._tfs and f.front.rot_source != 'tf':
                     F.apply_static_transform(f, self._tfs.pop(), self._tfs, self.params,
                                              self._imu_frame)
-            self._check_cov(sample.gyro_cov)
+            if self._cov_next <= sample.t:  # IMU covariances: checked once a second
+                self._check_cov(sample.gyro_cov)
+                self._cov_next = sample.t + 1.0
             reason = f.imu(sample)
             if reason is not None and reason != 'initialising':
                 self.reject(key, reason)
@@ -113,6 +115,7 @@ class FusionPipeline(Pipeline):
 
     _wheel_key = None
     _js_first = None
+    _cov_next = -math.inf
 
     def _check_cov(self, cov: Any) -> None:
         """Count message covariances that are zero, negative or absurd (they are not used)."""
@@ -129,8 +132,10 @@ class FusionPipeline(Pipeline):
         if o is None:
             return []
         p = self.params
-        tw = np.where(np.isfinite(o.twist_cov), o.twist_cov, -1.0)
-        pc = np.where(np.isfinite(o.pose_cov), o.pose_cov, -1.0)
+        tw, pc = o.twist_cov, o.pose_cov
+        if isinstance(self.filter, F.SeedFusion):  # unknown entries -> -1 (ROS convention)
+            tw = np.where(np.isfinite(tw), tw, -1.0)
+            pc = np.where(np.isfinite(pc), pc, -1.0)
         w = o.w if math.isfinite(o.w) else 0.0
         out = T.OdomSample(sample.t, o.x, o.y, o.yaw, o.v, 0.0, w, p.odom_frame, p.base_frame,
                            pc, tw, stamp_ns=sample.stamp_ns)
