@@ -420,3 +420,16 @@ def test_persistent_rejection_reinitialises_instead_of_diverging():
     assert f.counts.get('reinitialisations', 0) + f.counts.get('rejected_slip_speed', 0) > 0
     assert np.all(np.linalg.eigvalsh(f.P) > 0)
     assert F.FusionParams().adapt_min <= f.lam.min() and f.lam.max() <= F.FusionParams().adapt_max
+
+
+def test_steered_wheel_joint_states():
+    p = F.FusionParams(drive_type='steered_wheel', wheel_radius=0.2, wheel_base=1.0)
+    names = ('steering_joint', 'traction_joint')
+    js = T.JointStateSample(0.0, names, np.array([math.pi / 6, 0.0]), np.array([np.nan, 5.0]))
+    v, w = F.wheel_twist(p, js, None)
+    assert v == pytest.approx(1.0 * math.cos(math.pi / 6))  # u = 5 rad/s * 0.2 m
+    assert w == pytest.approx(1.0 * math.sin(math.pi / 6) / 1.0)
+    js2 = T.JointStateSample(0.5, names, np.array([0.0, 2.0]), np.full(2, np.nan))
+    js1 = T.JointStateSample(0.0, names, np.array([0.0, 0.0]), np.full(2, np.nan))
+    v, w = F.wheel_twist(p, js2, js1)  # from traction positions: 2 rad in 0.5 s
+    assert v == pytest.approx(0.8) and w == pytest.approx(0.0)

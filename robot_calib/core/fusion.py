@@ -121,8 +121,9 @@ class FusionParams:
     wheel_source: str = param('auto', '', 'Wheel input: auto (odom; joint_states only when no '
                               'odom arrives within 1 s of it), odom or joint_states',
                               choices=('auto', 'odom', 'joint_states'))
-    drive_type: str = param('differential', '', 'Drive of joint_states input',
-                            choices=('differential',))
+    drive_type: str = param('differential', '', 'Drive of joint_states input: differential or '
+                            'steered_wheel (one steered drive wheel ahead of the rear axle)',
+                            choices=('differential', 'steered_wheel'))
     wheel_radius: float = param(0.1, 'm', 'Nominal wheel radius (joint_states input)',
                                 minimum=1e-4)
     track_width: float = param(0.5, 'm', 'Distance between the wheels (joint_states input)',
@@ -131,6 +132,10 @@ class FusionParams:
                                      minimum=0.0)
     right_wheel_radius: float = param(0.0, 'm', 'Right wheel radius; 0 uses wheel_radius',
                                       minimum=0.0)
+    wheel_base: float = param(0.6, 'm', 'Steered wheel: distance rear axle -> steered wheel',
+                              minimum=1e-3)
+    steering_joint: str = param('steering_joint', '', 'Steered wheel: steering joint name')
+    traction_joint: str = param('traction_joint', '', 'Steered wheel: traction joint name')
     left_wheel_joint: str = param('left_wheel_joint', '', 'Left wheel joint name')
     right_wheel_joint: str = param('right_wheel_joint', '', 'Right wheel joint name')
     initial_pose_from_odom: bool = param(True, '', 'Start at the first odometry pose (else 0)')
@@ -239,7 +244,7 @@ def nis_band(dof: int, window: int, prob: float = 0.95) -> tuple[float, float]:
 def wheel_twist(params: FusionParams, sample: T.JointStateSample,
                 last: Optional[T.JointStateSample]) -> Optional[tuple[float, float]]:
     """
-    Return (v m/s, w rad/s) of a differential drive from joint states, or None.
+    Return (v m/s, w rad/s) of the drive from joint states, or None.
 
     Wheel velocities (rad/s) are used when present, else position differences
     with the previous sample. Speed as seed 004 writes it with rev/s
@@ -249,6 +254,8 @@ def wheel_twist(params: FusionParams, sample: T.JointStateSample,
     :param sample: current joint states
     :param last: previous joint states (for position differences)
     """
+    if params.drive_type == 'steered_wheel':
+        return _steered_twist(params, sample, last)
     rl = params.left_wheel_radius or params.wheel_radius
     rr = params.right_wheel_radius or params.wheel_radius
     pl, wl = sample.get(params.left_wheel_joint)
@@ -266,6 +273,29 @@ def wheel_twist(params: FusionParams, sample: T.JointStateSample,
     v = (2 * math.pi * n_l * rl + 2 * math.pi * n_r * rr) / 2.0  # seed 004, wheel speed
     w = (2 * math.pi * n_r * rr - 2 * math.pi * n_l * rl) / params.track_width
     return v, w
+
+
+def _steered_twist(params: FusionParams, sample: T.JointStateSample,
+                   last: Optional[T.JointStateSample]) -> Optional[tuple[float, float]]:
+    """
+    Return (v m/s, w rad/s) of a steered drive wheel (base_link on the rear axle).
+
+    Wheel rim speed ``u = omega r``; ``v = u cos(delta)``, ``w = u sin(delta) / wheel_base``.
+    """
+    delta, _ = sample.get(params.steering_joint)
+    pos, vel = sample.get(params.traction_joint)
+    if not math.isfinite(vel):
+        if last is None:
+            return None
+        q, _ = last.get(params.traction_joint)
+        dt = sample.t - last.t
+        if dt <= 0 or not (math.isfinite(pos) and math.isfinite(q)):
+            return None
+        vel = (pos - q) / dt
+    if not math.isfinite(delta):
+        return None
+    u = vel * params.wheel_radius
+    return u * math.cos(delta), u * math.sin(delta) / params.wheel_base
 
 
 class _ImuFrontEnd:
