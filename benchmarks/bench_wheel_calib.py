@@ -64,6 +64,7 @@ def censi_section() -> str:
              'daxle (mm), dyaw (deg) | std ours d_l / axle (mm) | improved goals |',
              '|---|---|---|---|---|---|---|---|']
     met = {'faithful': 0, 'improved': 0}
+    z_max = 0.0
     worst = {'faithful': np.zeros(4), 'improved': np.zeros(4)}
     for name in censi.FILES:
         segs = censi.load_tuples(folder / f'{name}.tuple')
@@ -85,6 +86,9 @@ def censi_section() -> str:
             row[tag] = (d, ok)
         fd, _ = row['faithful']
         idd, iok = row['improved']
+        z_max = max(z_max, abs(idd[0]) / (2 * res.stds['left_wheel_radius'] * MM),
+                    abs(idd[1]) / (2 * res.stds['right_wheel_radius'] * MM),
+                    abs(idd[2]) / (res.stds['track_width'] * MM))
         lines.append(
             f'| {name} | {len(segs)} | {2 * ref["left_wheel_radius"] * MM:.3f} / '
             f'{2 * ref["right_wheel_radius"] * MM:.3f} / {ref["track_width"] * MM:.2f} | '
@@ -102,7 +106,13 @@ def censi_section() -> str:
         lines.append(f'| {"Censi-faithful" if tag == "faithful" else "improved (ML)"} | '
                      f'{met[tag]} / 12 ({_ok(met[tag] == 12)}) | {w[0]:.4f}, {w[1]:.4f} | '
                      f'{w[2]:.4f} | {w[3]:.4f} |')
-    lines.append('')
+    lines += ['', 'The improved (ML) fit weighs the rotation and translation residuals by their '
+              'estimated noise and rejects outliers by a chi-square gate instead of trimming 1 % '
+              'per pass, so it is a different estimator: its largest difference to the authors '
+              f'is {z_max:.2f} of its own standard deviation (diameters, axle); the 0.1 mm '
+              'diameter goal is smaller than that standard deviation on every one-third file '
+              '(std column). `mode: seed` for differential drive is the Censi-faithful closed '
+              'form, which meets the goals on all files.', '']
     return '\n'.join(lines)
 
 
