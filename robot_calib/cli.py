@@ -66,6 +66,10 @@ def build_parser() -> argparse.ArgumentParser:
                    help='publish the bag through rclpy at the recorded rate with /clock')
     p.add_argument('--rate', type=float, default=1.0,
                    help='--live playback rate factor (default 1.0)')
+    p.add_argument('--start-offset', type=float, default=0.0, metavar='S',
+                   help='skip the first S seconds of the recording')
+    p.add_argument('--duration', type=float, default=None, metavar='S',
+                   help='replay (or play) at most S seconds')
     p.add_argument('--no-progress', action='store_true', help='never show a progress bar')
 
     p = sub.add_parser('mismatch', help='compare a simulated and a real recording',
@@ -101,7 +105,8 @@ def _replay(args: argparse.Namespace) -> int:
         from robot_calib import live
         if args.rate <= 0 or args.rate != args.rate:
             raise ValueError(f'bad --rate {args.rate}: expected a positive factor')
-        stats = live.play(args.bags, rate=args.rate, remaps=args.remap)
+        stats = live.play(args.bags, rate=args.rate, remaps=args.remap,
+                          start_offset=args.start_offset, duration=args.duration)
         print(f'published {stats["messages"]} messages on {len(stats["topics"])} topics '
               f'in {stats["wall_seconds"]:.1f} s')
         for topic, why in stats['skipped'].items():
@@ -112,7 +117,8 @@ def _replay(args: argparse.Namespace) -> int:
     from robot_calib.replay import replay
     summary = replay(args.bags, args.out, nodes=args.nodes, remaps=args.remap,
                      params_file=args.params, overrides=args.overrides,
-                     progress=False if args.no_progress else None)
+                     progress=False if args.no_progress else None,
+                     start_offset=args.start_offset, duration=args.duration)
     nodes = ', '.join(summary['nodes']) or 'none'
     print(f'replayed {summary["timing"]["messages"]} messages through {nodes} in '
           f'{summary["timing"]["wall_seconds"]:.2f} s; wrote {args.out}/output.mcap, '

@@ -40,7 +40,8 @@ def play(bags: Union[str, os.PathLike, Sequence[Union[str, os.PathLike]]], rate:
          remaps: Union[None, Mapping[str, str], Iterable[str]] = None,
          topics: Optional[Iterable[str]] = None, clock: bool = True, delay: float = 0.5,
          clock_period: float = 0.01, wait_for_subscribers: float = 0.0,
-         node_name: str = 'robot_calib_player') -> dict[str, Any]:
+         node_name: str = 'robot_calib_player', start_offset: float = 0.0,
+         duration: Optional[float] = None) -> dict[str, Any]:
     """
     Publish the messages of ``bags`` on their topics at ``rate`` times the recorded speed.
 
@@ -54,11 +55,16 @@ def play(bags: Union[str, os.PathLike, Sequence[Union[str, os.PathLike]]], rate:
     :param wait_for_subscribers: wait up to this long (s) for every publisher
         (``/clock`` included) to have a subscriber before playing.
     :param node_name: name of the player node.
+    :param start_offset: skip the first ``start_offset`` seconds of the recording (s).
+    :param duration: play at most this many seconds after the start offset (s).
     :return: ``{'messages', 'topics': {topic: count}, 'skipped': {topic: reason},
         'wall_seconds', 'bag_seconds'}``.
     """
     if not rate > 0:
         raise ValueError(f'bad rate {rate}: expected a positive factor')
+    if not start_offset >= 0 or (duration is not None and not duration > 0):
+        raise ValueError(f'bad time window: start offset {start_offset} s, duration '
+                         f'{duration} s; expected a start >= 0 and a duration > 0')
     bag_list = [bags] if isinstance(bags, (str, os.PathLike)) else list(bags)
     import rclpy
     from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
@@ -118,11 +124,17 @@ def play(bags: Union[str, os.PathLike, Sequence[Union[str, os.PathLike]]], rate:
                 time.sleep(delay)
             wall0 = time.monotonic()
             next_clock = None
+            t_lo = bagset.start_ns + int(round(start_offset * _NS))
+            t_hi = None if duration is None else t_lo + int(round(duration * _NS))
             for stream, time_ns, raw in bagset.messages([s for s, _, _ in chosen]):
-                if first is None:
-                    first = time_ns
-                last = time_ns
-                target = wall0 + (time_ns - first) / _NS / rate
+                if time_ns < t_lo and not (stream.latched or stream.topic == '/tf_static'):
+                    continue
+                if t_hi is not None and time_ns > t_hi:
+                    break
+                if first is None:  # latched messages from before the start go out at once
+                    first = max(time_ns, t_lo)
+                last = max(time_ns, first)
+                target = wall0 + (last - first) / _NS / rate
                 wait = target - time.monotonic()
                 if wait > 0:
                     time.sleep(wait)

@@ -341,7 +341,8 @@ def replay(bags: Union[str, os.PathLike, Sequence[Union[str, os.PathLike]]],
            params_file: Union[None, str, os.PathLike] = None,
            overrides: Union[None, Mapping[str, Any], Iterable[str]] = None,
            progress: Optional[bool] = None,
-           storage: str = 'mcap') -> dict:
+           storage: str = 'mcap', start_offset: float = 0.0,
+           duration: Optional[float] = None) -> dict:
     """
     Replay ``bags`` through pipelines and write ``out_dir``; return the summary dict.
 
@@ -356,6 +357,9 @@ def replay(bags: Union[str, os.PathLike, Sequence[Union[str, os.PathLike]]],
     :param overrides: ``NODE.PARAM=VALUE`` items, applied last.
     :param progress: show a progress bar on stderr (default: when stderr is a terminal).
     :param storage: storage of ``output.mcap`` ('mcap'; 'sqlite3' for tests).
+    :param start_offset: skip the first ``start_offset`` seconds of the recording (s);
+        static transforms are delivered all the same.
+    :param duration: replay at most this many seconds after the start offset (s).
     :return: the summary written to ``summary.json``.
     """
     wall0 = time.perf_counter()
@@ -363,6 +367,10 @@ def replay(bags: Union[str, os.PathLike, Sequence[Union[str, os.PathLike]]],
     if not bag_list:
         raise ReplayError('no bag given; expected one or more bag paths')
     out_dir = Path(out_dir)
+    if not (math.isfinite(start_offset) and start_offset >= 0) or (
+            duration is not None and not (math.isfinite(duration) and duration > 0)):
+        raise ReplayError(f'bad time window: start offset {start_offset} s, duration '
+                          f'{duration} s; expected a start >= 0 and a duration > 0')
     _check_out_dir(out_dir)
     rules = parse_remaps(remaps)
     by_node = parse_overrides(overrides)
@@ -461,7 +469,8 @@ def replay(bags: Union[str, os.PathLike, Sequence[Union[str, os.PathLike]]],
         tmp = _prepare_out_dir(out_dir)
         try:
             summary = _run(bagset, bag_list, runs, skipped, topic_of_stream, bag_topics,
-                           tmp, progress, storage, wall0, {**node_map, **bag_map})
+                           tmp, progress, storage, wall0, {**node_map, **bag_map},
+                           (start_offset, duration))
             _move_into_place(tmp, out_dir)
         except BaseException:
             shutil.rmtree(tmp, ignore_errors=True)
@@ -471,7 +480,8 @@ def replay(bags: Union[str, os.PathLike, Sequence[Union[str, os.PathLike]]],
 
 def _run(bagset: BagSet, bag_list: list, runs: list[_Node], skipped: dict[str, str],
          topic_of_stream: dict[int, str], bag_topics: dict[str, tuple[str, int]], tmp: Path,
-         progress: Optional[bool], storage: str, wall0: float, remaps: dict[str, str]) -> dict:
+         progress: Optional[bool], storage: str, wall0: float, remaps: dict[str, str],
+         window: tuple[float, Optional[float]] = (0.0, None)) -> dict:
     """Run the selected nodes over the bags into ``tmp``; return the summary."""
     # topic -> [(process, key, run)]
     routes: dict[str, list] = defaultdict(list)
@@ -550,7 +560,15 @@ def _run(bagset: BagSet, bag_list: list, runs: list[_Node], skipped: dict[str, s
         gc.set_threshold(max(gc_threshold[0], 20000), *gc_threshold[1:])
         try:
             it = bagset.messages(streams) if streams else ()
+            t_lo = bagset.start_ns + int(round(window[0] * 1e9))
+            t_hi = None if window[1] is None else t_lo + int(round(window[1] * 1e9))
+            clip = window[0] > 0 or t_hi is not None
             for stream, time_ns, raw in it:
+                if clip:
+                    if time_ns < t_lo:
+                        continue
+                    if t_hi is not None and time_ns > t_hi:
+                        break
                 sid = id(stream)
                 try:
                     samples = stream.decode(raw, time_ns)
@@ -645,6 +663,7 @@ def _run(bagset: BagSet, bag_list: list, runs: list[_Node], skipped: dict[str, s
         'start_time': start * 1e-9,
         'end_time': end * 1e-9,
         'duration': max(end - start, 0) * 1e-9,
+        'window': [window[0], window[1]],
         'topics': {t: {'type': ty, 'count': n, 'read': read.get(t, 0)}
                    for t, (ty, n) in sorted(bag_topics.items())},
         'topics_read': dict(sorted(read.items())),

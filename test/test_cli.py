@@ -98,6 +98,9 @@ def test_bad_inputs(bag, tmp_path, capsys):
         (['replay'], 'required'),
         (['frobnicate'], 'invalid choice'),
         (['replay', str(bag), '--live', '--rate', '0'], 'rate'),
+        (['replay', str(bag), '--out', str(out), '--nodes', ECHO, '--duration', '0'],
+         'time window'),
+        (['replay', str(bag), '--live', '--start-offset', '-2'], 'time window'),
     ]
     for argv, expect in cases:
         _one_line_error(capsys, main(argv), expect)

@@ -408,3 +408,18 @@ def test_two_bags_merged_with_progress_bar(tmp_path, capsys):
     assert s['nodes']['echo']['inputs']['odom']['accepted'] == 60
     assert s['output']['topics']['/echo/odom'] == 60
     assert 'replay' in capsys.readouterr().err  # the tqdm bar went to stderr
+
+
+def test_time_window(bag, tmp_path):
+    # IMU at 100 Hz from t0 for 0.99 s, then a 2 s gap; odometry at 20 Hz for 3 s.
+    s = replay(bag, tmp_path / 'o', nodes=ECHO, start_offset=0.5, duration=1.0,
+               progress=False)
+    node = s['nodes']['echo']
+    assert node['static_at_first'] == 1  # static transforms are delivered all the same
+    assert node['inputs']['odom']['read'] == 21  # t0 + 0.5 s ... t0 + 1.5 s, both ends
+    assert node['inputs']['imu']['read'] == 50  # t0 + 0.5 s ... t0 + 0.99 s
+    assert s['window'] == [0.5, 1.0]
+    with pytest.raises(ReplayError, match='time window'):
+        replay(bag, tmp_path / 'p', nodes=ECHO, start_offset=-1.0, progress=False)
+    with pytest.raises(ReplayError, match='time window'):
+        replay(bag, tmp_path / 'p', nodes=ECHO, duration=0.0, progress=False)

@@ -103,5 +103,7 @@ def test_live_bad_input(tmp_path):
         live.play([path], remaps=['/nothing:=/x'])
     with pytest.raises(ValueError, match='rate'):
         live.play([path], rate=0.0)
+    with pytest.raises(ValueError, match='time window'):
+        live.play([path], duration=-1.0)
     with pytest.raises(bags.BagError, match='not in the bag'):
         live.play([path], topics=['/scan'])
