@@ -292,6 +292,30 @@ class _LowPass:
         return y
 
 
+class _LowPass3(_LowPass):
+    """The 3-channel case of :class:`_LowPass`, unrolled (it runs several times per sample)."""
+
+    __slots__ = ()
+
+    def __call__(self, x: list) -> list:
+        if not self.ready:
+            return _LowPass.__call__(self, x)
+        b0, b1, b2, a1, a2 = self.coef
+        x1 = self.x1
+        x2 = self.x2
+        y1 = self.y1
+        y2 = self.y2
+        u0, u1, u2 = x[0], x[1], x[2]
+        v0 = b0 * u0 + b1 * x1[0] + b2 * x2[0] - a1 * y1[0] - a2 * y2[0]
+        v1 = b0 * u1 + b1 * x1[1] + b2 * x2[1] - a1 * y1[1] - a2 * y2[1]
+        v2 = b0 * u2 + b1 * x1[2] + b2 * x2[2] - a1 * y1[2] - a2 * y2[2]
+        self.x2 = x1
+        self.x1 = [u0, u1, u2]
+        self.y2 = y1
+        self.y1 = [v0, v1, v2]
+        return [v0, v1, v2]
+
+
 # --------------------------------------------------------------------------------------------
 # Seed-faithful estimator
 # --------------------------------------------------------------------------------------------
@@ -399,9 +423,9 @@ class AttitudeEstimator:
         self.q_gyr = (1.0, 0.0, 0.0, 0.0)
         self.q_inc = (1.0, 0.0, 0.0, 0.0)
         self.initialised = False
-        self.acc_lp = _LowPass(3, p.tau_acc, ts)
-        self.rest_gyr_lp = _LowPass(3, p.rest_tau, ts)
-        self.rest_acc_lp = _LowPass(3, p.rest_tau, ts)
+        self.acc_lp = _LowPass3(3, p.tau_acc, ts)
+        self.rest_gyr_lp = _LowPass3(3, p.rest_tau, ts)
+        self.rest_acc_lp = _LowPass3(3, p.rest_tau, ts)
         self._bias_every = max(1, int(round(p.bias_update_period / ts)))
         self._acc_n = 0
         self._acc_x = self._acc_y = self._acc_dt = 0.0
@@ -463,7 +487,7 @@ class AttitudeEstimator:
 
         # Acceleration in the almost-inertial frame, low-pass filtered there.
         a_i = _qrot(self.q_gyr, ax, ay, az)
-        lp = self.acc_lp(list(a_i))
+        lp = self.acc_lp(a_i)
         if self.rest and self.acc_lp.ready and p.rest_snap_angle > 0.0:
             lp = self._rest_snap(lp)
         # Into the earth frame; correct the inclination so that it points up.
