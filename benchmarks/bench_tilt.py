@@ -31,6 +31,7 @@ from __future__ import annotations
 
 import argparse
 import math
+import os
 from pathlib import Path
 import re
 import sys
@@ -336,7 +337,8 @@ def sim_section(hours: float = 1.0, seeds: int = 10) -> None:
 def speed_section(duration: float = 300.0) -> None:
     """Replay throughput of a 200 Hz IMU bag and the node callback time."""
     from robot_calib.io import convert
-    from robot_calib.io.bags import BagWriter
+    from robot_calib.io.bags import BagWriter, read_messages
+    from robot_calib.pipelines.tilt_detection import TiltPipeline
     from robot_calib.replay import replay
     from robot_calib.sim import run_scenario
     r = run_scenario('bumpy_drive', seed=1, duration=duration, overrides={'lidar.rate': 0.2})
@@ -347,15 +349,22 @@ def speed_section(duration: float = 300.0) -> None:
             for s in imu:
                 w.write('/imu', s)
         t0 = time.perf_counter()
-        summary = replay([bag], Path(tmp) / 'out', nodes=['tilt_detection'], progress=False)
+        replay([bag], Path(tmp) / 'out', nodes=['tilt_detection'], progress=False)
         wall = time.perf_counter() - t0
+        # floors: reading + decoding alone, and the pipeline alone on decoded samples
+        t0 = time.perf_counter()
+        decoded = [s for m in read_messages([bag], ['/imu']) for s in m.samples]
+        read_rate = len(decoded) / (time.perf_counter() - t0)
+    pipe = TiltPipeline()
+    t0 = time.perf_counter()
+    for s in decoded:
+        pipe.process('imu', s)
+    pipe_rate = len(decoded) / (time.perf_counter() - t0)
     rate = len(imu) / wall
-    node_sum = summary.get('nodes', {}).get('tilt_detection', summary)
-    del node_sum
+    load = os.getloadavg()[0]
     # node callback, in-process through rclpy (no subscribers: publish cost included)
     import rclpy
     from robot_calib.nodes.base import PipelineNode
-    from robot_calib.pipelines.tilt_detection import TiltPipeline
     raws = [convert.serialize(s)[1] for s in imu[:20000]]
     rclpy.init()
     try:
@@ -366,7 +375,7 @@ def speed_section(duration: float = 300.0) -> None:
         node.destroy_node()
     finally:
         rclpy.try_shutdown()
-    p50, p99 = float(np.percentile(cb, 50)), float(np.percentile(cb, 99))
+    p50, p90, p99 = (float(np.percentile(cb, q)) for q in (50, 90, 99))
     lines = ['## Speed', '',
              f'`robot_calib.replay.replay` (the code behind `robot-calib replay`) of a '
              f'{duration:.0f} s, 200 Hz IMU-only mcap bag ({len(imu)} messages, simulated '
@@ -374,11 +383,16 @@ def speed_section(duration: float = 300.0) -> None:
              'pipeline, write output.mcap with tilt/imu for every input, summary, report), '
              'wall clock, 2 shared CPU cores. Node callback: `PipelineNode._on_message` '
              '(deserialize + pipeline + serialize + publish) called in-process for '
-             f'{len(raws)} messages.', '',
+             f'{len(raws)} messages. Load average during the run: {load:.1f} on 2 cores '
+             '(jobs of the other engineers), so these are pessimistic.', '',
+             f'Floors measured in the same run: reading + decoding the bag alone '
+             f'{read_rate:.0f} msg/s; the tilt pipeline alone on decoded samples '
+             f'{pipe_rate:.0f} msg/s (core estimator + outputs).', '',
              '| goal | measured | status |', '|---|---|---|',
              f'| replay >= 20k messages/s (100x real time at 200 Hz) | {rate:.0f} msg/s '
              f'({rate / 200:.0f}x real time) | {_ok(rate >= 20000)} |',
-             f'| node callback p99 < 1 ms | p50 {p50:.3f} ms, p99 {p99:.3f} ms | '
+             f'| node callback p99 < 1 ms | p50 {p50:.3f} ms, p90 {p90:.3f} ms, p99 '
+             f'{p99:.3f} ms | '
              f'{_ok(p99 < 1.0)} |']
     _section('speed', '\n'.join(lines))
 
