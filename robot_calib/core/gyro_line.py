@@ -328,7 +328,7 @@ class GyroLineCalibrator:
         p = self.params
         self.grid = ObstacleGrid(p.lines)
         self.counts: dict[str, int] = {}
-        self.corrections: list[Correction] = []
+        self.corrections: deque = deque(maxlen=20000)  # the latest, bounded for a long life
         self.references: list[Reference] = []
         self.tentative: list[Reference] = []
         self.reference_log: dict[int, Reference] = {}
@@ -338,7 +338,7 @@ class GyroLineCalibrator:
         self.P = np.diag([0.0, 0.0, ip.heading_sigma0 ** 2, ip.bias_sigma0 ** 2,
                           ip.scale_sigma0 ** 2])
         self.initialized = False
-        self.t = None
+        self._switched = False
         self._t0 = None
         self._imu_t = None
         self._last_imu_rate = 0.0
@@ -567,7 +567,7 @@ class GyroLineCalibrator:
     def _check_phase_time(self, t: float) -> None:
         sw = self.params.seed.phase_switch_time
         if sw > 0.0 and not self.edge_following and self._t0 is not None \
-                and t - self._t0 >= sw and not getattr(self, '_switched', False):
+                and t - self._t0 >= sw and not self._switched:
             self._switched = True
             self.set_phase(True, t)
 
@@ -1056,5 +1056,5 @@ class GyroLineCalibrator:
             if isinstance(s, T.OdomSample):
                 p = self.pose
                 poses.append((s.t, p[0], p[1], p[2]))
-        return {'poses': np.array(poses).reshape(-1, 4), 'corrections': self.corrections,
+        return {'poses': np.array(poses).reshape(-1, 4), 'corrections': list(self.corrections),
                 'counts': dict(self.counts)}

@@ -18,6 +18,7 @@ topic (std_msgs/Bool: true = edge following).
 
 from __future__ import annotations
 
+import itertools
 import math
 from typing import Any
 
@@ -66,11 +67,11 @@ class GyroLinePipeline(Pipeline):
             core.set_phase(bool(sample.value), sample.t)
             return []
         if key == 'scan':
-            before = len(core.corrections)
+            before = core.counts.get('corrections', 0)
             _, reason = core.update_scan(sample)
             if reason is not None:
                 self.reject('scan', reason)
-            if len(core.corrections) > before:
+            if core.counts.get('corrections', 0) > before:
                 c = core.corrections[-1]
                 self.log('debug', f'heading corrected by {math.degrees(c.delta):+.3f} deg '
                          f'({c.kind}, references {list(c.reference_ids)})')
@@ -108,7 +109,7 @@ class GyroLinePipeline(Pipeline):
         values = [
             ('mode', self.params.mode),
             ('phase', 'edge_following' if core.edge_following else 'work'),
-            ('corrections', str(len(core.corrections))),
+            ('corrections', str(core.counts.get('corrections', 0))),
             ('last_correction_deg', f'{math.degrees(last.delta):.4f}' if last else 'none'),
             ('last_correction_time', f'{last.t:.3f}' if last else 'none'),
             ('references', str(len(core.references))),
@@ -135,14 +136,16 @@ class GyroLinePipeline(Pipeline):
         deltas = np.array([c.delta for c in core.corrections])
         return {
             'mode': self.params.mode,
-            'corrections': len(core.corrections),
+            'corrections': core.counts.get('corrections', 0),
             'correction_total_deg': float(np.degrees(deltas.sum())) if deltas.size else 0.0,
+            'corrections_kept': len(core.corrections),
             'correction_abs_max_deg': float(np.degrees(np.abs(deltas).max()))
             if deltas.size else 0.0,
             'corrections_list': [
                 {'t': c.t, 'delta_deg': math.degrees(c.delta), 'kind': c.kind,
                  'angle_error_deg': math.degrees(c.angle_error),
-                 'references': list(c.reference_ids)} for c in core.corrections[:500]],
+                 'references': list(c.reference_ids)}
+                for c in itertools.islice(core.corrections, 500)],
             'references': len(core.references),
             'gyro_bias': core.gyro_bias,
             'heading_sigma': core.heading_sigma,
