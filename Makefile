@@ -31,6 +31,7 @@ test: venv
 
 bench: venv
 	for script in benchmarks/bench_*.py; do $(PY) $$script || exit 1; done
+	$(PY) benchmarks/assemble_report.py
 
 config: venv
 	$(PY) -m robot_calib.config_gen > config/robot_calib.yaml
