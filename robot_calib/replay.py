@@ -559,20 +559,18 @@ def _run(bagset: BagSet, bag_list: list, runs: list[_Node], skipped: dict[str, s
         gc.freeze()
         gc.set_threshold(max(gc_threshold[0], 20000), *gc_threshold[1:])
         try:
-            it = bagset.messages(streams) if streams else ()
+            it = bagset.decoded(streams) if streams else ()
             t_lo = bagset.start_ns + int(round(window[0] * 1e9))
             t_hi = None if window[1] is None else t_lo + int(round(window[1] * 1e9))
             clip = window[0] > 0 or t_hi is not None
-            for stream, time_ns, raw in it:
+            for stream, time_ns, _, samples in it:
                 if clip:
                     if time_ns < t_lo:
                         continue
                     if t_hi is not None and time_ns > t_hi:
                         break
                 sid = id(stream)
-                try:
-                    samples = stream.decode(raw, time_ns)
-                except Exception:  # noqa: B902 - counted, never fatal
+                if samples is None:  # undecodable: counted, never fatal
                     undecodable[stream_topic[sid]] += 1
                     continue
                 n_msgs += 1

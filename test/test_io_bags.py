@@ -406,3 +406,40 @@ def test_bare_mcap_file(tmp_path):
     lone_db.write_bytes(b'')
     with pytest.raises(bags.BagError, match='metadata.yaml'):
         bags.list_topics([lone_db])
+
+
+def test_batch_decoder_equals_per_message(tmp_path):
+    store = convert.typestore()
+    msgs = _imu_msgs()
+    raws = [bytes(store.serialize_cdr(m, 'sensor_msgs/msg/Imu')) for m in msgs]
+    # Same layout (same frame id): decoded together, equal to one by one.
+    same = [r for m, r in zip(msgs, raws) if m.header.frame_id == 'imu_link']
+    assert len(same) == 2
+    for got, raw in zip(bags.imu_batch_from_cdr(same * 5), same * 5):
+        assert_same(got, [bags.imu_from_cdr(raw)])
+    with pytest.raises(ValueError):
+        bags.imu_batch_from_cdr(raws)  # frame ids differ: the caller decodes one by one
+    be = bytes(store.serialize_cdr(msgs[15], 'sensor_msgs/msg/Imu', little_endian=False))
+    with pytest.raises(ValueError):
+        bags.imu_batch_from_cdr([raws[15], be])
+    # Through a bag: mixed layouts, a big-endian and a cut message, small blocks.
+    path = tmp_path / 'mixed'
+    with bags.BagWriter(path) as w:
+        for i in range(300):
+            raw = raws[i % len(raws)] if i % 7 else same[i % 2]
+            if i == 100:
+                raw = be
+            if i == 200:
+                raw = raw[:40]
+            w.write_raw('/imu', 'sensor_msgs/msg/Imu', raw, 10**9 + i)
+    with bags.BagSet([path]) as bs:
+        plain = [(s.topic, t, raw) for s, t, raw in bs.messages()]
+        for (stream, t, raw, samples), (_, t2, raw2) in zip(bs.decoded(block=16), plain):
+            assert t == t2 and raw == raw2
+            if t == 10**9 + 200:
+                assert samples is None
+            else:
+                assert_same(samples, stream.decode_generic(raw, t))
+    errors = {}
+    assert len(list(bags.read_messages([path], errors=errors))) == 299
+    assert errors == {'/imu': 1}

@@ -20,6 +20,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 import heapq
+from itertools import islice
 import math
 from operator import itemgetter
 import os
@@ -260,7 +261,53 @@ def serialize(sample: Any) -> tuple[str, bytes]:
     return convert.serialize(sample)
 
 
+def imu_batch_from_cdr(raws: list) -> list:
+    """
+    Decode many little-endian CDR sensor_msgs/Imu of one topic at once: a list of [ImuSample].
+
+    Vectorized over the batch (stamps, the 37 doubles, the covariance flags); each
+    sample gets views into one array of the batch. Gives exactly what
+    :func:`imu_from_cdr` gives per message. Raises ValueError when the messages
+    differ in layout (length, frame id, byte order): decode them one by one then.
+    """
+    n = len(raws)
+    size = len(raws[0])
+    if any(len(r) != size for r in raws):
+        raise ValueError('messages of different lengths')
+    a = np.frombuffer(b''.join(raws), np.uint8).reshape(n, size)
+    fl = int(_U32.unpack_from(raws[0], 12)[0])
+    off = 4 + ((12 + fl + 7) & ~7)
+    if off + 296 > size or not (a[:, 1] == 1).all() or not (
+            a[:, 12:15 + fl] == a[0, 12:15 + fl]).all():
+        raise ValueError('messages of different layouts')
+    frame = bytes(raws[0][16:15 + fl]).decode()
+    stamp = a[:, 4:12].copy().view('<u4')
+    ns = (stamp[:, 0].view('<i4').astype(np.int64) * 1_000_000_000
+          + stamp[:, 1].astype(np.int64)).tolist()
+    v = a[:, off:off + 296].copy().view('<f8')  # (n, 37), rows as in _imu_sample
+    gyro, accel = v[:, 13:16], v[:, 25:28]
+    gcov, acov, ocov = (v[:, 16:25].reshape(n, 3, 3), v[:, 28:37].reshape(n, 3, 3),
+                        v[:, 4:13].reshape(n, 3, 3))
+    has_q = ((v[:, 4] >= 0) & (v[:, :4] != 0).any(axis=1)).tolist()
+    g_ok = (v[:, 16] >= 0).tolist()
+    a_ok = (v[:, 28] >= 0).tolist()
+    imu = T.ImuSample
+    out = []
+    for i in range(n):
+        t_ns = ns[i]
+        if has_q[i]:
+            q = v[i]
+            orientation, oc = np.array((q[3], q[0], q[1], q[2])), ocov[i]
+        else:
+            orientation = oc = None
+        out.append([imu(t_ns * 1e-9, gyro[i], accel[i], frame, orientation, oc,
+                        gcov[i] if g_ok[i] else np.full((3, 3), np.nan),
+                        acov[i] if a_ok[i] else np.full((3, 3), np.nan), t_ns)])
+    return out
+
+
 _FAST_CDR = {'sensor_msgs/msg/Imu': imu_from_cdr, 'nav_msgs/msg/Odometry': odom_from_cdr}
+_BATCH_CDR = {'sensor_msgs/msg/Imu': imu_batch_from_cdr}
 _FAST_ROS1 = {'sensor_msgs/msg/Imu': imu_from_ros1, 'nav_msgs/msg/Odometry': odom_from_ros1}
 
 
@@ -287,12 +334,14 @@ class Stream:
     One topic of one bag: its normalized name, ROS 2 type, count and decoders.
 
     ``decode(raw, time_ns)`` returns core samples (fast path when available);
-    ``decode_generic`` always goes through rosbags; ``to_msg(raw)`` returns the
-    rosbags message and ``to_cdr(raw)`` ROS 2 CDR bytes (for live publishing).
+    ``decode_generic`` always goes through rosbags; ``decode_batch(raws)`` (None
+    when the type has none) decodes many messages at once; ``to_msg(raw)``
+    returns the rosbags message and ``to_cdr(raw)`` ROS 2 CDR bytes (for live
+    publishing).
     """
 
     __slots__ = ('topic', 'msgtype', 'count', 'bag', 'decode', 'decode_generic', 'to_msg',
-                 'to_cdr', 'latched', 'conn')
+                 'to_cdr', 'latched', 'conn', 'decode_batch')
 
     def __init__(self, topic: str, msgtype: str, count: int, bag: Path, conn: Any,
                  to_msg: Callable[[bytes], Any], to_cdr: Callable[[bytes], bytes],
@@ -311,6 +360,7 @@ class Stream:
             return convert.from_msg(msgtype, to_msg(raw), time_ns)
 
         self.decode_generic = generic
+        self.decode_batch = None if ros1 else _BATCH_CDR.get(msgtype)
         if fast is None:
             self.decode = generic
         elif ros1:
@@ -477,6 +527,41 @@ class BagSet:
             return iters[0]
         return heapq.merge(*iters, key=itemgetter(1))
 
+    def decoded(self, streams: Optional[Iterable[Stream]] = None, block: int = 2048
+                ) -> Iterator[tuple[Stream, int, bytes, Optional[list]]]:
+        """
+        Yield ``(stream, time_ns, raw, samples)`` like :meth:`messages`, decoded.
+
+        ``samples`` is the list :meth:`Stream.decode` returns, or None when the
+        message cannot be decoded. Messages are read ``block`` at a time so that
+        streams with a batch decoder decode them together (same samples, faster).
+        """
+        it = self.messages(streams)
+        while True:
+            batch = list(islice(it, block))
+            if not batch:
+                return
+            groups: dict[int, list[int]] = {}
+            for i, item in enumerate(batch):
+                if item[0].decode_batch is not None:
+                    groups.setdefault(id(item[0]), []).append(i)
+            results: list = [None] * len(batch)
+            for idx in groups.values():
+                stream = batch[idx[0]][0]
+                try:
+                    decoded = stream.decode_batch([batch[i][2] for i in idx])
+                except Exception:  # noqa: B902 - decode these one by one below
+                    continue
+                for i, samples in zip(idx, decoded):
+                    results[i] = samples
+            for (stream, time_ns, raw), samples in zip(batch, results):
+                if samples is None:
+                    try:
+                        samples = stream.decode(raw, time_ns)
+                    except Exception:  # noqa: B902 - the caller counts it
+                        samples = None
+                yield stream, time_ns, raw, samples
+
     @staticmethod
     def _iter(reader: Any, mine: dict[int, Stream]) -> Iterator[tuple[Stream, int, bytes]]:
         conns = [s.conn for s in mine.values()]
@@ -585,10 +670,8 @@ def read_messages(paths: Iterable[os.PathLike | str],
                    and (wanted is None or s.topic in wanted)]
         if not streams:
             return
-        for stream, time_ns, raw in bags.messages(streams):
-            try:
-                samples = stream.decode(raw, time_ns)
-            except Exception:  # noqa: B902 - a corrupt message must not end the run
+        for stream, time_ns, _, samples in bags.decoded(streams):
+            if samples is None:  # a corrupt message must not end the run
                 if errors is not None:
                     errors[stream.topic] = errors.get(stream.topic, 0) + 1
                 continue
