@@ -643,7 +643,8 @@ def _mcap_messages(reader: Any, conns: list, streams: dict[int, 'Stream']
                     pos += 9 + length
                 if pos != end:
                     raise BagError('mcap chunk records overrun the chunk')
-                if any(a[1] > b[1] for a, b in zip(out, out[1:])):
+                times = [m[1] for m in out]
+                if times != sorted(times):
                     out.sort(key=itemgetter(1))
                 yield from out
     return generate()
