@@ -423,6 +423,11 @@ NOTES = """## How the default (improved) filter works, and what was learned
   sample earlier (3.5 ms) lowers the fast-rotation errors a lot (vqf: 08 1.76
   -> 1.48, 21 1.72 -> 1.15), i.e. the IMU stream lags the optical reference by
   about one sample. We did not compensate it (a robot would not know it).
+- The seed-faithful filter scores about 27 deg here, the data README quotes
+  23.1 for its own run of the same equations; per-axis Euler filters are
+  undefined near 90 deg pitch and mix axes at large angles, so small
+  convention differences (roll/pitch from the accelerometer, which gyro axis
+  feeds which angle) move the number a lot. Either way it is 35-40x worse.
 - Fall detection uses the estimated tilt (angle between body z and up), so it
   is valid on the side and upside down (the seed's per-axis roll/pitch are
   not: at 90 deg pitch its roll observation is undefined).

@@ -318,3 +318,19 @@ def test_cli_replay_of_simulated_tip_over_bag(tmp_path):
     assert json.dumps(node).count('alert') > 0
     topics = {m.topic for m in read_messages([out / 'output.mcap'], ['/tilt/imu'])}
     assert topics == {'/tilt/imu'}
+
+
+def test_clock_jumping_back_recovers_after_a_few_samples():
+    logs = []
+    pipe = TiltPipeline(log=lambda level, msg: logs.append((level, msg)))
+    _feed(pipe, _upright(50))
+    _feed(pipe, [_imu(100.0)])                          # one stamp from the future
+    outs = _feed(pipe, [_imu(0.3 + k * DT, acc=(0.0, 0.0, -G)) for k in range(40)])
+    assert pipe.counts['imu']['rejected_out_of_order'] == 9
+    assert any('jumped back' in msg for _, msg in logs)
+    assert _alerts(outs) and _alerts(outs)[-1][1] is True   # data flows again
+    # a driver repeating one stamp is rejected forever (no recovery from duplicates)
+    pipe = TiltPipeline()
+    _feed(pipe, _upright(5))
+    _feed(pipe, [_imu(0.02) for _ in range(30)])
+    assert pipe.counts['imu']['rejected_duplicate_stamp'] == 30
