@@ -49,6 +49,7 @@ from robot_calib.core import tilt as TL  # noqa: E402
 
 DEG = 180.0 / math.pi
 FALL = math.pi / 4
+ORDER = ('broad', 'bags', 'sim', 'speed', 'notes')
 
 
 def _ok(flag: bool) -> str:
@@ -67,6 +68,12 @@ def _section(name: str, text: str) -> None:
                      flags=re.S)
     else:
         new = old.rstrip() + '\n\n' + block
+    # keep the sections in a fixed order whatever part ran last
+    blocks = {m.group(1): m.group(0) for m in
+              re.finditer(r'<!-- (\w+) -->.*?<!-- /\1 -->\n?', new, flags=re.S)}
+    head = new[:new.index('<!-- ')]
+    order = [k for k in ORDER if k in blocks] + [k for k in blocks if k not in ORDER]
+    new = head + '\n'.join(blocks[k].rstrip() + '\n' for k in order)
     OUT.parent.mkdir(parents=True, exist_ok=True)
     OUT.write_text(new)
     print(text)
