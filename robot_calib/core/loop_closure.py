@@ -83,7 +83,7 @@ class KeyframeParams:
     distance: float = param(0.5, 'm', 'distance travelled that makes a new keyframe',
                             minimum=0.01)
     angle: float = param(0.35, 'rad', 'rotation that makes a new keyframe', minimum=0.01)
-    voxel: float = param(0.05, 'm', 'voxel size for thinning keyframe points', minimum=0.0)
+    voxel: float = param(0.1, 'm', 'voxel size for thinning keyframe points', minimum=0.0)
     max_range: float = param(20.0, 'm', 'beams farther than this are not stored or matched',
                              minimum=0.1)
     cell_size: float = param(2.0, 'm', 'cell size of the spatial keyframe index', minimum=0.1)
@@ -96,7 +96,7 @@ class KeyframeParams:
 class DetectionParams:
     """Loop detection: which keyframes become candidates."""
 
-    candidates: int = param(5, '', 'Y: keyframes registered per closure attempt', minimum=1)
+    candidates: int = param(3, '', 'Y: keyframes registered per closure attempt', minimum=1)
     base_radius: float = param(1.5, 'm', 'search radius around the current estimate',
                                minimum=0.0)
     radius_gain: float = param(3.0, '', 'radius grows by this many position sigmas',
@@ -104,7 +104,7 @@ class DetectionParams:
     max_radius: float = param(8.0, 'm', 'largest search radius', minimum=0.0)
     min_loop_travel: float = param(8.0, 'm', 'a keyframe is a loop candidate only when made '
                                    'at least this much driving ago', minimum=0.0)
-    max_prefilter: int = param(15, '', 'nearest keyframes checked for similarity', minimum=1)
+    max_prefilter: int = param(8, '', 'nearest keyframes checked for similarity', minimum=1)
     similarity_gate: float = param(0.3, 'm', 'distance counting a point as overlapping in the '
                                    'similarity check', minimum=0.0)
     min_similarity: float = param(0.35, '', 'fewest overlapping point fraction for a '
@@ -170,6 +170,29 @@ class MotionParams:
                                          'rotation since the keyframe)', minimum=0.0)
     kidnap_checks: int = param(3, '', 'consecutive failed checks that declare a kidnap',
                                minimum=1)
+    kidnap_doubt_time: float = param(3.0, 's', 'a weak match to the last keyframe that lasts '
+                                     'this long also declares a kidnap', minimum=0.0)
+
+
+@dataclass
+class LoopScanMatchParams(ScanMatchParams):
+    """
+    The registration settings loop closure uses: the shared ones, lighter by default.
+
+    A loop-closure candidate starts from a prediction already refined by the
+    similarity check's yaw search, so the kiss-icp coarse stage is skipped by
+    default (``coarse: none``; set it to ``kiss_icp`` for large drifts) and the
+    refinement's gate anneals over fewer iterations.
+    """
+
+    coarse: str = param('none', '', 'coarse alignment before the refinement: kiss_icp or '
+                        'none', choices=('kiss_icp', 'none'))
+    refine_anneal_iterations: int = param(4, '', 'iterations over which the gate shrinks '
+                                          'from the wide to the narrow value', minimum=1)
+    convergence_rotation: float = param(5e-5, 'rad', 'rotation update that ends the '
+                                        'refinement', minimum=0.0)
+    convergence_translation: float = param(2e-4, 'm', 'translation update that ends the '
+                                           'refinement', minimum=0.0)
 
 
 @dataclass
@@ -188,7 +211,7 @@ class LoopClosureParams:
     detection: DetectionParams = field(default_factory=DetectionParams)
     scoring: ScoringParams = field(default_factory=ScoringParams)
     motion: MotionParams = field(default_factory=MotionParams)
-    scan_match: ScanMatchParams = field(default_factory=ScanMatchParams)
+    scan_match: LoopScanMatchParams = field(default_factory=LoopScanMatchParams)
 
 
 @dataclass
@@ -234,6 +257,7 @@ class ClosureReport:
     pose_before: np.ndarray = field(default_factory=lambda: np.zeros(3))
     pose_after: np.ndarray = field(default_factory=lambda: np.zeros(3))
     latency_ms: float = 0.0
+    cpu_ms: float = 0.0
     radius: float = 0.0
     min_eigenvalue: float = float('nan')
     inlier_ratio: float = float('nan')
@@ -249,7 +273,8 @@ class ClosureReport:
                                'yaw': float(self.correction[2])},
                 'pose_before': [float(v) for v in self.pose_before],
                 'pose_after': [float(v) for v in self.pose_after],
-                'latency_ms': round(self.latency_ms, 3), 'radius': round(self.radius, 3),
+                'latency_ms': round(self.latency_ms, 3), 'cpu_ms': round(self.cpu_ms, 3),
+                'radius': round(self.radius, 3),
                 'min_eigenvalue': self.min_eigenvalue, 'inlier_ratio': self.inlier_ratio}
 
 
@@ -348,7 +373,8 @@ class LoopClosureCorrector:
         self.match_params = p.scan_match
         if self.seed_mode:
             # The seed runs ICP (kiss-icp's point-to-point) without our refinement.
-            self.match_params = ScanMatchParams(**{**p.scan_match.__dict__, 'refine': False})
+            self.match_params = ScanMatchParams(**{**p.scan_match.__dict__, 'refine': False,
+                                                   'coarse': 'kiss_icp'})
         self.raw = np.zeros(3)
         self.correction = np.zeros(3)
         self.gyro_bias = 0.0
@@ -374,6 +400,7 @@ class LoopClosureCorrector:
         self._last_fix_kf = -1
         self._last_check_t = -math.inf
         self._failed_checks = 0
+        self._doubt_since: Optional[float] = None
         self._t = 0.0
         self._t0: Optional[float] = None
 
@@ -468,46 +495,60 @@ class LoopClosureCorrector:
         if self._last_kf_id is not None and (
                 due or t - self._last_check_t >= p.motion.kidnap_check_interval):
             self._last_check_t = t
-            if self._local_check(t, pts):
-                return None
+            if self._local_check(t, pts) != 'ok':
+                return None          # kidnapped, or in doubt: no keyframe, no closure
         if not due:
             return None
         report = self._attempt_closure(t, pts)
         self._add_keyframe(t, pts)
         return report
 
-    def _local_check(self, t: float, pts: np.ndarray) -> bool:
+    def _local_check(self, t: float, pts: np.ndarray) -> str:
         """
         Register the scan against the last keyframe at the dead-reckoning prediction.
 
-        Learns the gyro bias from the heading difference (improved mode) and
-        returns True (after restarting the map) when the scan has disagreed with
-        odometry ``kidnap_checks`` times in a row: the robot was kidnapped or
-        carried.
+        Learns the gyro bias from the heading difference (improved mode).
+        Returns 'ok'; 'doubt' when the match is weak (under twice the kidnap
+        inlier ratio) or failed: then no
+        keyframe is made from this scan and the next scan is checked again; or
+        'kidnap' (after restarting the map) when the scan has disagreed with
+        odometry ``kidnap_checks`` times in a row, or stayed in doubt for
+        ``kidnap_doubt_time``: the robot was kidnapped or carried.
         """
         m = self.params.motion
         kf = self.keyframes.get(self._last_kf_id)
         if kf is None:
-            return False
+            return 'ok'
         guess = se2_between(self.raw, kf.raw)             # keyframe frame in current frame
         res = register(kf.points.astype(float), pts, guess, self.match_params)
         off = res.pose - guess
+        lim_xy = m.kidnap_max_offset + 0.3 * math.hypot(guess[0], guess[1])
+        lim_yaw = m.kidnap_max_yaw_offset + 0.3 * abs(guess[2])
+        d_xy, d_yaw = math.hypot(off[0], off[1]), abs(wrap_angle(off[2]))
         bad = (res.reason != '' or res.inlier_ratio < m.kidnap_min_inlier_ratio
-               or math.hypot(off[0], off[1]) > m.kidnap_max_offset
-               + 0.3 * math.hypot(guess[0], guess[1])
-               or abs(wrap_angle(off[2])) > m.kidnap_max_yaw_offset + 0.3 * abs(guess[2]))
-        if bad and res.degenerate and res.inlier_ratio >= m.kidnap_min_inlier_ratio \
-                and abs(wrap_angle(off[2])) <= m.kidnap_max_yaw_offset:
-            bad = False   # a corridor: the along-corridor offset is not observable
+               or d_xy > lim_xy or d_yaw > lim_yaw)
+        doubt = res.inlier_ratio < 2.0 * m.kidnap_min_inlier_ratio
+        if res.degenerate and res.reason == '' and \
+                res.inlier_ratio >= 2.0 * m.kidnap_min_inlier_ratio and d_yaw <= 0.5 * lim_yaw:
+            bad = doubt = False   # a corridor: the along-corridor offset is not observable
+        if not bad and doubt:
+            self.counts['local_check_doubtful'] += 1
+            if self._doubt_since is None:
+                self._doubt_since = t
+            bad = t - self._doubt_since >= m.kidnap_doubt_time
+            if not bad:
+                return 'doubt'
+            self._failed_checks = m.kidnap_checks - 1
         if not bad:
+            self._doubt_since = None
             self._failed_checks = 0
             if res.ok and not res.degenerate:
                 self._update_bias(t, kf, res)
-            return False
+            return 'ok'
         self._failed_checks += 1
         self.counts['kidnap_check_failed'] += 1
         if self._failed_checks < m.kidnap_checks:
-            return False
+            return 'doubt'
         # Kidnapped or carried: the map no longer locates the robot. Start a new one.
         self.counts['kidnaps'] += 1
         self.reports.append(ClosureReport(t=t, accepted=False, reason='kidnap_suspected',
@@ -521,8 +562,9 @@ class LoopClosureCorrector:
         self._last_kf_pose = None
         self._last_kf_id = None
         self._failed_checks = 0
+        self._doubt_since = None
         self._last_fix_t = None
-        return True
+        return 'kidnap'
 
     def _update_bias(self, t: float, kf: Keyframe, res: MatchResult) -> None:
         """Scalar Kalman update of the residual gyro bias from one registration (improved)."""
@@ -594,7 +636,7 @@ class LoopClosureCorrector:
         return [kid for _, kid in found[:dp.max_prefilter]], radius
 
     def _similarity(self, kf: Keyframe, guess: np.ndarray, tree: cKDTree) -> tuple[float, float]:
-        """Return the best overlap fraction and its yaw offset over a yaw grid (rad)."""
+        """Return the best overlap fraction and its yaw offset (rad) over a yaw grid."""
         dp = self.params.detection
         pts = kf.points.astype(float)
         if len(pts) > 120:
@@ -602,15 +644,17 @@ class LoopClosureCorrector:
         n = dp.similarity_yaw_steps
         span = min(math.radians(30.0), 3.0 * self.sigma_yaw)
         offsets = np.linspace(-span, span, n) if n > 1 else np.zeros(1)
-        best, best_off = 0.0, 0.0
-        for off in offsets:
-            rel = np.array([guess[0], guess[1], guess[2] + off])
-            rel[:2] = rot2(off) @ guess[:2]
-            dist, _ = tree.query(se2_apply(rel, pts), distance_upper_bound=dp.similarity_gate)
-            frac = float(np.isfinite(dist).mean())
-            if frac > best:
-                best, best_off = frac, float(off)
-        return best, best_off
+        # All yaw hypotheses in one query: rotate the predicted keyframe points about
+        # the current origin by each offset.
+        base = se2_apply(guess, pts)
+        c, s = np.cos(offsets), np.sin(offsets)
+        xs = c[:, None] * base[None, :, 0] - s[:, None] * base[None, :, 1]
+        ys = s[:, None] * base[None, :, 0] + c[:, None] * base[None, :, 1]
+        dist, _ = tree.query(np.column_stack((xs.ravel(), ys.ravel())),
+                             distance_upper_bound=dp.similarity_gate)
+        frac = np.isfinite(dist).reshape(len(offsets), -1).mean(axis=1)
+        k = int(np.argmax(frac))
+        return float(frac[k]), float(offsets[k])
 
     def _attempt_closure(self, t: float, pts: np.ndarray) -> Optional[ClosureReport]:
         p = self.params
@@ -620,6 +664,7 @@ class LoopClosureCorrector:
         if not ids:
             return None
         start = time.perf_counter()
+        cpu_start = time.thread_time()
         current = PreparedScan(pts, self.match_params)
         sims = []
         for kid in ids:
@@ -637,7 +682,7 @@ class LoopClosureCorrector:
             report.reason = 'no_similar_keyframe'
             report.similarities = [s[0] for s in sims[:p.detection.candidates]]
             report.keyframes_tried = [s[1] for s in sims[:p.detection.candidates]]
-            return self._finish(report, start)
+            return self._finish(report, start, cpu_start)
         cands = []
         for sim, kid, off in chosen:
             kf = self.keyframes[kid]
@@ -664,14 +709,14 @@ class LoopClosureCorrector:
         reason = self._refusal(best, cands, pose)
         if reason:
             report.reason = reason
-            return self._finish(report, start)
+            return self._finish(report, start, cpu_start)
         self._apply(t, best, pose)
         report.accepted = True
         report.reason = 'accepted'
         report.pose_after = self.pose
         report.correction = np.array([*(report.pose_after[:2] - pose[:2]),
                                       wrap_angle(report.pose_after[2] - pose[2])])
-        return self._finish(report, start)
+        return self._finish(report, start, cpu_start)
 
     def _seed_heading(self, kf: Keyframe, kf_pts: np.ndarray, res: MatchResult,
                       current: PreparedScan, cur_pose: np.ndarray) -> float:
@@ -693,10 +738,10 @@ class LoopClosureCorrector:
             return 'low_score'
         if self.seed_mode:
             return ''
-        if not best.match.converged:
-            return 'not_converged'
         if best.match.degenerate:
             return 'degenerate'
+        if not best.match.converged:
+            return 'not_converged'
         for c in cands:
             if c is best or c.match.reason:
                 continue
@@ -754,8 +799,9 @@ class LoopClosureCorrector:
                 self.grid[cell].append(kf.kid)
                 kf.cell = cell
 
-    def _finish(self, report: ClosureReport, start: float) -> ClosureReport:
+    def _finish(self, report: ClosureReport, start: float, cpu_start: float) -> ClosureReport:
         report.latency_ms = 1000.0 * (time.perf_counter() - start)
+        report.cpu_ms = 1000.0 * (time.thread_time() - cpu_start)
         if not report.accepted:
             self.counts['closures_refused'] += 1
             self.counts['refused_' + report.reason] += 1
@@ -769,7 +815,9 @@ class LoopClosureCorrector:
 
     def summary(self) -> dict:
         """Return counts, closures and latency statistics (JSON-ready)."""
-        lat = [r.latency_ms for r in self.reports if r.reason != 'kidnap_suspected']
+        done = [r for r in self.reports if r.reason != 'kidnap_suspected']
+        lat = [r.latency_ms for r in done]
+        cpu = [r.cpu_ms for r in done]
         acc = [r for r in self.reports if r.accepted]
         return {
             'counts': dict(self.counts),
@@ -779,6 +827,8 @@ class LoopClosureCorrector:
             'closures_refused': len(self.reports) - len(acc),
             'latency_ms_median': float(np.median(lat)) if lat else None,
             'latency_ms_p95': float(np.percentile(lat, 95)) if lat else None,
+            'cpu_ms_median': float(np.median(cpu)) if cpu else None,
+            'cpu_ms_p95': float(np.percentile(cpu, 95)) if cpu else None,
             'gyro_bias': self.gyro_bias,
             'heading_source': 'imu' if self.using_imu else 'odom',
             'segments': self.segment + 1,

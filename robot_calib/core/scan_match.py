@@ -81,7 +81,7 @@ class ScanMatchParams:
     refine_iterations: int = param(20, '', 'point-to-line Gauss-Newton iterations', minimum=2)
     refine_anneal_iterations: int = param(8, '', 'iterations over which the gate shrinks from '
                                           'the wide to the narrow value', minimum=1)
-    refine_max_correspondence: float = param(0.5, 'm', 'initial correspondence gate of the '
+    refine_max_correspondence: float = param(0.8, 'm', 'initial correspondence gate of the '
                                              'refinement', minimum=0.001)
     refine_min_correspondence: float = param(0.1, 'm', 'final correspondence gate of the '
                                              'refinement', minimum=0.001)

@@ -1,0 +1,293 @@
+# Copyright 2026 robot_calib contributors
+# SPDX-License-Identifier: Apache-2.0
+"""
+Benchmark of the loop-closure heading correction (seed 001).
+
+1. Simulated ``revisit`` scenario (three rooms and a corridor, gyro bias and
+   bias drift, wheel slip), seeds 0..N-1: heading RMSE against the simulator's
+   ground truth (every published pose at the odometry rate, truth
+   interpolated, no alignment: both start at heading 0) of the raw gyro
+   (integrated, no correction), the seed-faithful mode, the default
+   (improved) mode and the global pose-graph optimisation baseline (same
+   keyframes and closures, scipy least squares after each closure). A closure
+   is *false* when the pose it sets is more than 0.5 m or 3 deg from the
+   truth. Closure latency: wall time of each attempt (and its CPU thread
+   time, since the machine is shared) over all seeds. Speed-up: the global
+   optimisation's last solve (end of the run, the largest graph) against the
+   median closure latency of the default mode in the same run.
+2. Real ``mit-csail.clf`` (raw odometry, no IMU: heading from the odometry
+   yaw): closures accepted and refused (by reason), corrections, latency.
+
+Stops starting new seeds after ``--budget`` seconds and says how many ran.
+Writes ``docs/bench/6-loop-closure.md``. Exit 0 (with a message) when
+``../shared/data`` is absent (the simulated part needs no data, the real part
+does; both are skipped then only for the real part).
+
+Run from the repository root: ``.venv/bin/python benchmarks/bench_loop_closure.py``.
+"""
+
+import argparse
+from collections import Counter
+import math
+from pathlib import Path
+import sys
+import time
+
+import numpy as np
+
+REPO = Path(__file__).resolve().parents[1]
+DATA = REPO.parent / 'shared' / 'data'
+OUT = REPO / 'docs' / 'bench' / '6-loop-closure.md'
+
+
+def _messages(result):
+    out = []
+    for topic, s in result.messages:
+        key = topic.lstrip('/')
+        if key == 'tf_static':
+            for tf in (s if isinstance(s, list) else [s]):
+                out.append((key, tf))
+        elif key in ('imu', 'odom', 'scan'):
+            out.append((key, s))
+    return out
+
+
+def _truth(result, se2_between):
+    gt = [s for topic, s in result.messages if topic.lstrip('/') == 'ground_truth/odom']
+    start = np.array([gt[0].x, gt[0].y, gt[0].yaw])
+    rel = np.array([se2_between(start, [s.x, s.y, s.yaw]) for s in gt])
+    return np.array([s.t for s in gt]), rel
+
+
+def _raw_heading(msgs):
+    t, yaw, last = [], [], None
+    th = 0.0
+    for key, s in msgs:
+        if key != 'imu':
+            continue
+        if last is not None:
+            th += 0.5 * (last[1] + s.gyro[2]) * (s.t - last[0])
+        last = (s.t, float(s.gyro[2]))
+        t.append(s.t)
+        yaw.append(th)
+    return np.array(t), np.array(yaw)
+
+
+def _run_pipeline(msgs, pipeline_cls, params, core=None):
+    pipe = pipeline_cls(params)
+    if core is not None:
+        pipe.core = core
+    ts, poses = [], []
+    start = time.perf_counter()
+    for key, s in msgs:
+        for out_key, out in pipe.process(key, s):
+            if out_key == 'odom':
+                ts.append(out.t)
+                poses.append((out.x, out.y, out.yaw))
+    return pipe, np.array(ts), np.array(poses), time.perf_counter() - start
+
+
+def _false_closures(reports, tg, truth, wrap_angle):
+    n = 0
+    for r in reports:
+        if not r.accepted:
+            continue
+        i = min(np.searchsorted(tg, r.t), len(tg) - 1)
+        d = r.pose_after - truth[i]
+        if math.hypot(d[0], d[1]) > 0.5 or abs(wrap_angle(d[2])) > math.radians(3.0):
+            n += 1
+    return n
+
+
+def simulated(args, out_lines):
+    """Run the simulated part; append markdown to ``out_lines``; return the goal rows."""
+    from robot_calib.core.geometry import se2_between, wrap_angle
+    from robot_calib.core.loop_closure import LoopClosureParams
+    from robot_calib.core.pose_graph import GraphCorrector, optimise  # noqa: F401
+    from robot_calib.pipelines.loop_closure_correction import heading_rmse, LoopClosurePipeline
+    from robot_calib.sim import run_scenario
+
+    rows, lat, cpu, ratios = [], [], [], []
+    false_total = {'seed': 0, 'improved': 0, 'global': 0}
+    start = time.perf_counter()
+    for seed in range(args.seeds):
+        if time.perf_counter() - start > args.budget:
+            break
+        res = run_scenario('revisit', seed=seed, duration=args.duration)
+        msgs = _messages(res)
+        tg, truth = _truth(res, se2_between)
+        t_raw, y_raw = _raw_heading(msgs)
+        row = {'n': seed, 'raw': heading_rmse(t_raw, y_raw, tg, truth[:, 2]),
+               'bias': res.truth.get('gyro_bias_z', float('nan'))}
+        for name in ('seed', 'improved', 'global'):
+            params = LoopClosureParams(mode='seed' if name == 'seed' else 'improved')
+            core = GraphCorrector(params) if name == 'global' else None
+            pipe, ts, poses, wall = _run_pipeline(msgs, LoopClosurePipeline, params, core)
+            row[name] = heading_rmse(ts, poses[:, 2], tg, truth[:, 2])
+            reports = pipe.core.reports
+            false_total[name] += _false_closures(reports, tg, truth, wrap_angle)
+            row[name + '_acc'] = sum(r.accepted for r in reports)
+            row[name + '_wall'] = wall
+            if name == 'improved':
+                done = [r for r in reports if r.reason != 'kidnap_suspected']
+                lat += [r.latency_ms for r in done]
+                cpu += [r.cpu_ms for r in done]
+                row['lat_med'] = float(np.median([r.latency_ms for r in done])) if done \
+                    else float('nan')
+                row['cpu_med'] = float(np.median([r.cpu_ms for r in done])) if done \
+                    else float('nan')
+                row['refused'] = Counter(r.reason for r in reports if not r.accepted)
+                row['est_bias'] = pipe.core.gyro_bias
+                row['mem'] = pipe.core.memory_bytes()
+                row['kf'] = len(pipe.core.keyframes)
+            if name == 'global':
+                row['graph_last_ms'] = 1000 * pipe.core.graph_seconds[-1] \
+                    if pipe.core.graph_seconds else float('nan')
+                row['graph_last_cpu_ms'] = 1000 * pipe.core.graph_cpu_seconds[-1] \
+                    if pipe.core.graph_cpu_seconds else float('nan')
+                row['graph_nodes'] = len(pipe.core.keyframes) + len(pipe.core.closure_nodes)
+        row['ratio'] = row['graph_last_ms'] / row['lat_med']
+        row['ratio_cpu'] = row['graph_last_cpu_ms'] / row['cpu_med']
+        ratios.append(min(row['ratio'], row['ratio_cpu']))
+        rows.append(row)
+        print(f'seed {seed}: heading RMSE deg raw {math.degrees(row["raw"]):.2f} seed '
+              f'{math.degrees(row["seed"]):.3f} improved {math.degrees(row["improved"]):.3f} '
+              f'global {math.degrees(row["global"]):.3f}; closures {row["improved_acc"]}; '
+              f'bias {row["bias"]:.5f} est {row["est_bias"]:.5f}; latency median '
+              f'{row["lat_med"]:.1f} ms; last global solve {row["graph_last_ms"]:.0f} ms '
+              f'({row["graph_nodes"]} nodes), x{row["ratio"]:.1f} wall, '
+              f'x{row["ratio_cpu"]:.1f} cpu; '
+              f'refused {dict(row["refused"])}',
+              flush=True)
+    if not rows:
+        return []
+    deg = {k: np.degrees([r[k] for r in rows]) for k in ('raw', 'seed', 'improved', 'global')}
+    p95_wall = float(np.percentile(lat, 95))
+    p95_cpu = float(np.percentile(cpu, 95))
+    out_lines += [
+        f'## Simulated `revisit`: {len(rows)} seeds of {args.duration:.0f} s '
+        f'({args.seeds} requested; budget {args.budget:.0f} s)',
+        '',
+        'Heading RMSE (deg) per seed, against ground truth at every published pose:',
+        '',
+        '| seed | true gyro bias (rad/s) | learned bias | raw gyro | seed-faithful | '
+        'default (improved) | global optimisation | closures (default) | refusals |',
+        '|---|---|---|---|---|---|---|---|---|',
+    ]
+    for r in rows:
+        out_lines.append(
+            f'| {r["n"]} | {r["bias"]:.5f} | {r["est_bias"]:.5f} | '
+            f'{math.degrees(r["raw"]):.2f} | {math.degrees(r["seed"]):.3f} | '
+            f'{math.degrees(r["improved"]):.3f} | {math.degrees(r["global"]):.3f} | '
+            f'{r["improved_acc"]} | '
+            f'{", ".join(f"{k} {v}" for k, v in sorted(r["refused"].items())) or "-"} |')
+    out_lines += [
+        '',
+        '| method | mean heading RMSE (deg) | median | max | false closures accepted |',
+        '|---|---|---|---|---|',
+    ]
+    for k, label in (('raw', 'raw gyro'), ('seed', 'seed-faithful'),
+                     ('improved', 'default (improved)'), ('global', 'global optimisation')):
+        fc = false_total.get(k, '-') if k != 'raw' else '-'
+        out_lines.append(f'| {label} | {deg[k].mean():.3f} | {np.median(deg[k]):.3f} | '
+                         f'{deg[k].max():.3f} | {fc} |')
+    mem = max(r['mem'] for r in rows)
+    out_lines += [
+        '',
+        f'Closure latency (default mode, {len(lat)} attempts over all seeds): median '
+        f'{np.median(lat):.1f} ms wall / {np.median(cpu):.1f} ms CPU, p95 {p95_wall:.1f} ms '
+        f'wall / {p95_cpu:.1f} ms CPU. Global optimisation, last solve of each run: median '
+        f'{np.median([r["graph_last_ms"] for r in rows]):.0f} ms wall / '
+        f'{np.median([r["graph_last_cpu_ms"] for r in rows]):.0f} ms CPU over about '
+        f'{int(np.median([r["graph_nodes"] for r in rows]))} nodes (keyframes and closure '
+        f'frames); ratio to the default mode’s median closure latency in the same run (the '
+        f'smaller of the wall and CPU ratios): median x{np.median(ratios):.1f} '
+        f'(min x{min(ratios):.1f}). Keyframe memory at the end: at most {mem / 1e3:.0f} kB.',
+        '',
+    ]
+    mean_imp = float(deg['improved'].mean())
+    return [('heading RMSE <= 0.3 deg (default mode, mean over seeds)', f'{mean_imp:.3f} deg',
+             mean_imp <= 0.3),
+            ('zero accepted false closures (default mode, all seeds)',
+             str(false_total['improved']), false_total['improved'] == 0),
+            ('closure latency p95 <= 30 ms', f'{p95_wall:.1f} ms wall, {p95_cpu:.1f} ms CPU',
+             p95_wall <= 30.0),
+            ('>= 10x faster than the global optimisation at the end of the run',
+             f'x{np.median(ratios):.1f} (median), x{min(ratios):.1f} (worst seed)',
+             min(ratios) >= 10.0)]
+
+
+def mit_csail(out_lines):
+    """Run the real part on mit-csail.clf; append markdown."""
+    from robot_calib.core.loop_closure import LoopClosureParams
+    from robot_calib.io.datasets import carmen
+    from robot_calib.pipelines.loop_closure_correction import LoopClosurePipeline
+
+    path = DATA / 'carmen' / 'mit-csail.clf'
+    log = carmen.read_log(path)
+    msgs = list(log.messages())
+    out_lines += ['## Real: `mit-csail.clf` (raw odometry, no IMU)', '',
+                  '| mode | closures accepted | refused (by reason) | kidnaps declared | '
+                  'sum of heading corrections (deg) | largest position correction (m) | '
+                  'latency median / p95 (ms wall) | CPU p95 (ms) | run time (s) |',
+                  '|---|---|---|---|---|---|---|---|---|']
+    for mode in ('improved', 'seed'):
+        pipe, ts, poses, wall = _run_pipeline(msgs, LoopClosurePipeline,
+                                              LoopClosureParams(mode=mode))
+        reps = pipe.core.reports
+        acc = [r for r in reps if r.accepted]
+        refused = Counter(r.reason for r in reps if not r.accepted and
+                          r.reason != 'kidnap_suspected')
+        lat = [r.latency_ms for r in reps if r.reason != 'kidnap_suspected']
+        cpu = [r.cpu_ms for r in reps if r.reason != 'kidnap_suspected']
+        corr = sum(abs(r.correction[2]) for r in acc)
+        pos = max((math.hypot(*r.correction[:2]) for r in acc), default=0.0)
+        out_lines.append(
+            f'| {mode} | {len(acc)} | {", ".join(f"{k} {v}" for k, v in refused.items())} | '
+            f'{pipe.core.counts.get("kidnaps", 0)} | {math.degrees(corr):.1f} | {pos:.2f} | '
+            f'{np.median(lat):.1f} / {np.percentile(lat, 95):.1f} | '
+            f'{np.percentile(cpu, 95):.1f} | {wall:.1f} |')
+        print(out_lines[-1], flush=True)
+    out_lines += [
+        '',
+        'No ground truth here. The log has no IMU, so the heading comes from the raw wheel '
+        'odometry, whose rotation is about 9 % short of what scan matching measures and which '
+        'jumps by up to 0.3 rad between keyframes; the kidnap check (scan vs last keyframe at '
+        'the dead-reckoning prediction) then fires on real data, restarting the map, and few '
+        'revisits fall inside the search radius: the method is built for a gyro heading, '
+        'which this log lacks.',
+        '',
+    ]
+
+
+def main() -> int:
+    """Run the benchmark, print and write the tables."""
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[1])
+    ap.add_argument('--seeds', type=int, default=20)
+    ap.add_argument('--duration', type=float, default=300.0, help='simulated seconds per seed')
+    ap.add_argument('--budget', type=float, default=480.0,
+                    help='seconds after which no new seed is started')
+    ap.add_argument('--no-real', action='store_true', help='skip mit-csail.clf')
+    args = ap.parse_args()
+    sys.path.insert(0, str(REPO))
+    lines = ['# 6 — Loop-closure heading correction (seed 001)', '']
+    goals = simulated(args, lines)
+    if not args.no_real:
+        if (DATA / 'carmen' / 'mit-csail.clf').is_file():
+            mit_csail(lines)
+        else:
+            print(f'real part skipped: {DATA} is absent')
+    lines += ['## Goals', '', '| goal | measured | status |', '|---|---|---|']
+    for goal, value, ok in goals:
+        lines.append(f'| {goal} | {value} | {"met" if ok else "missed"} |')
+    lines += ['', 'Machine: 2 cores shared with other jobs during the run, so wall-clock '
+              'latencies are inflated; CPU (thread) time is given next to them.', '']
+    OUT.parent.mkdir(parents=True, exist_ok=True)
+    OUT.write_text('\n'.join(lines) + '\n')
+    print('\n'.join(lines))
+    print(f'wrote {OUT.relative_to(REPO)}')
+    return 0
+
+
+if __name__ == '__main__':
+    sys.exit(main())
