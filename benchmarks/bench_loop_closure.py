@@ -264,8 +264,9 @@ def main() -> int:
     """Run the benchmark, print and write the tables."""
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[1])
     ap.add_argument('--seeds', type=int, default=20)
-    ap.add_argument('--duration', type=float, default=300.0, help='simulated seconds per seed')
-    ap.add_argument('--budget', type=float, default=480.0,
+    ap.add_argument('--duration', type=float, default=600.0,
+                    help='simulated seconds per seed (the scenario default: 600)')
+    ap.add_argument('--budget', type=float, default=420.0,
                     help='seconds after which no new seed is started')
     ap.add_argument('--no-real', action='store_true', help='skip mit-csail.clf')
     args = ap.parse_args()
