@@ -238,7 +238,7 @@ def _markdown(rows, runs: int, load: list[float]) -> str:
               '`numpy.frombuffer`), checked equal to the generic path in '
               '`test/test_io_bags.py`.',
               '- *batched read+convert*: `BagSet.decoded()`, what replay uses: messages read '
-              '2048 at a time, the IMU messages of one topic decoded together '
+              '512 at a time, the IMU messages of one topic decoded together '
               '(`bags.imu_batch_from_cdr`: stamps, doubles and covariance flags vectorized, '
               'each sample a view into one array), equal to the per-message decoder '
               '(tested); other types, and batches whose layouts differ, one by one.',

@@ -527,14 +527,16 @@ class BagSet:
             return iters[0]
         return heapq.merge(*iters, key=itemgetter(1))
 
-    def decoded(self, streams: Optional[Iterable[Stream]] = None, block: int = 2048
+    def decoded(self, streams: Optional[Iterable[Stream]] = None, block: int = 512
                 ) -> Iterator[tuple[Stream, int, bytes, Optional[list]]]:
         """
         Yield ``(stream, time_ns, raw, samples)`` like :meth:`messages`, decoded.
 
         ``samples`` is the list :meth:`Stream.decode` returns, or None when the
         message cannot be decoded. Messages are read ``block`` at a time so that
-        streams with a batch decoder decode them together (same samples, faster).
+        streams with a batch decoder decode them together (same samples, faster;
+        the samples of one batch share one array, so keeping one sample keeps at
+        most ``block`` x 296 bytes alive).
         """
         it = self.messages(streams)
         while True:
