@@ -90,6 +90,12 @@ def _aux(sim: Recording, real: Recording, pt: PairedTopic, t0: float, notes: lis
     return {k: np.nan_to_num(v) for k, v in aux.items()}
 
 
+def _floor(res: np.ndarray, m: np.ndarray, a: np.ndarray, b: np.ndarray) -> float:
+    """Return the smallest noise level used (noiseless data): keeps chi2 well conditioned."""
+    scale = max(float(np.sqrt(np.mean(b[m] ** 2))), float(np.sqrt(np.mean(a[m] ** 2))))
+    return max(1e-3 * float(np.sqrt(np.mean(res[m] ** 2))), 1e-9 * scale, 1e-12)
+
+
 def _problem(pt: PairedTopic, smooth: float, not_judged: list) -> Optional[S.Problem]:
     fields, r, mask, sigma, phi = [], {}, {}, {}, {}
     for f in pt.sim:
@@ -105,8 +111,7 @@ def _problem(pt: PairedTopic, smooth: float, not_judged: list) -> Optional[S.Pro
             continue
         res = np.where(m, b - a, 0.0)
         s, ph = noise_level(res, m, pt.dt, smooth)
-        scale = max(float(np.sqrt(np.mean(b[m] ** 2))), float(np.sqrt(np.mean(a[m] ** 2))))
-        s = max(s, 1e-9 * scale, 1e-12)
+        s = max(s, _floor(res, m, a, b))
         fields.append(f)
         r[f], mask[f], sigma[f], phi[f] = res, m, s, ph
     if not fields:
@@ -241,7 +246,7 @@ def _analyse_topic(pt: PairedTopic, sim: Recording, real: Recording, t0: float,
         for f in prob.fields:
             s, ph = noise_level(prob.r[f] - cur.contrib.get(f, 0.0), prob.mask[f], pt.dt,
                                 prm.noise_smooth)
-            s = max(s, prob.sigma[f] * 1e-6, 1e-12)
+            s = max(s, _floor(prob.r[f], prob.mask[f], pt.sim[f], pt.real[f]))
             sig2[f], phi2[f] = s, ph
             changed |= s < 0.9 * prob.sigma[f]
         if changed:

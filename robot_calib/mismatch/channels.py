@@ -150,6 +150,7 @@ class PairedTopic:
     notes: list = field(default_factory=list)
     sim_reg: dict = field(default_factory=dict)
     sim_noisy: dict = field(default_factory=dict)
+    sim_src: Optional[tuple] = None
 
     def __post_init__(self) -> None:
         """Build the regressor copies of the simulated channels (see :func:`regressor_signal`)."""
@@ -391,4 +392,5 @@ def _pair_one(a: Topic, b: Topic, t0: float, shift: float, max_lag: float,
         sim_f[k] = _interp(a.t, a.fields[k], grid, 5 * dta + 1e-9)
         real_f[k] = _interp(tb, b.fields[k], grid, 5 * dtb + 1e-9)
     tau, gain = xcorr_lag(sim_f, real_f, dt, max_lag)
-    return PairedTopic(a.name, a.msgtype, grid - t0, sim_f, real_f, dt, tau, gain, notes)
+    return PairedTopic(a.name, a.msgtype, grid - t0, sim_f, real_f, dt, tau, gain, notes,
+                       sim_src=(a.t - t0, a.fields))

@@ -171,13 +171,17 @@ def shifted(pt: PairedTopic, f: str, tau: float) -> np.ndarray:
             d = loo_derivative(pt.sim[f], pt.dt)
             pt.sim_noisy[key] = d
         return pt.sim_reg[f] - tau * d
-    x = pt.sim[f]
+    if pt.sim_src is not None and f in pt.sim_src[1]:
+        ts, x = pt.sim_src[0], pt.sim_src[1][f]  # the whole simulated channel
+    else:
+        ts, x = pt.t, pt.sim[f]
     ok = np.isfinite(x)
     if ok.sum() < 2:
-        return np.full_like(x, np.nan)
-    tt = pt.t[ok]
+        return np.full(pt.t.size, np.nan)
+    tt = ts[ok]
     y = np.interp(pt.t - tau, tt, x[ok])
-    y[(pt.t - tau < tt[0]) | (pt.t - tau > tt[-1])] = np.nan
+    eps = 1e-9 * max(pt.dt, 1e-9)
+    y[(pt.t - tau < tt[0] - eps) | (pt.t - tau > tt[-1] + eps)] = np.nan
     return y
 
 
@@ -284,7 +288,8 @@ def candidates(pt: PairedTopic, sigma: dict, aux: dict) -> tuple[list, list]:
             else:
                 cannot.append(f'{pt.name}: the simulated run does not turn, so the track '
                               'width cannot be judged')
-    dyn = [f for f in fields if _informative(sim[f], sigma[f])]
+    dyn = [f for f in fields if np.isfinite(sim[f]).sum() > 10 and
+           float(np.nanstd(sim[f])) > max(1e-12, 0.02 * sigma[f])]
     if dyn:
         tau_ref = pt.tau_xcorr if abs(pt.tau_xcorr) >= 0.2 * pt.dt else 0.2 * pt.dt
         cols = {f: _col(shifted(pt, f, tau_ref) - pt.sim_reg[f]) for f in dyn}

@@ -87,7 +87,8 @@ def _segments(z: np.ndarray, thr: float, min_len: int) -> list:
         stat[:min_len - 1] = 0
         stat[seg.size - min_len:] = 0
         j = int(np.argmax(stat))
-        sd = np.std(seg) + 1e-12
+        # noise scale from first differences: level shifts do not inflate it
+        sd = max(1.4826 * float(np.median(np.abs(np.diff(seg)))) / np.sqrt(2.0), 1e-12)
         if stat[j] / sd > thr:
             stack.append((a, a + j + 1))
             stack.append((a + j + 1, b))

@@ -314,9 +314,10 @@ def _tilt_exact(prob: Problem, theta: np.ndarray) -> dict:
     return {fx: rx - sx, fy: ry - sy, fz: rz - sz}
 
 
-def _time_exact(prob: Problem, term: E.Term, tau: float) -> dict:
+def _time_exact(prob: Problem, term: E.Term, tau: float, nan: bool = False) -> dict:
     pt = prob.pt
-    return {f: np.nan_to_num(E.shifted(pt, f, tau) - pt.sim_reg[f]) for f in term.cols}
+    out = {f: E.shifted(pt, f, tau) - pt.sim_reg[f] for f in term.cols}
+    return out if nan else {f: np.nan_to_num(v) for f, v in out.items()}
 
 
 def _linearise(prob: Problem, term: E.Term, theta: np.ndarray) -> E.Term:
@@ -333,9 +334,9 @@ def _linearise(prob: Problem, term: E.Term, theta: np.ndarray) -> E.Term:
         tau = float(theta[0])
         off = _time_exact(prob, term, tau)
         h = max(1e-4 * prob.pt.dt, 1e-7)
-        a = _time_exact(prob, term, tau + h)
-        b = _time_exact(prob, term, tau - h)
-        cols = {f: ((a[f] - b[f]) / (2 * h)).reshape(-1, 1) for f in off}
+        a = _time_exact(prob, term, tau + h, nan=True)
+        b = _time_exact(prob, term, tau - h, nan=True)
+        cols = {f: np.nan_to_num((a[f] - b[f]) / (2 * h)).reshape(-1, 1) for f in off}
     meta = dict(term.meta)
     meta['offset'] = off
     meta['theta'] = np.asarray(theta, float)
