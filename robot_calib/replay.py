@@ -487,7 +487,7 @@ def _run(bagset: BagSet, bag_list: list, runs: list[_Node], skipped: dict[str, s
     routes: dict[str, list] = defaultdict(list)
     for run in runs:
         for key, topic in run.inputs.items():
-            routes[topic].append((run.pipeline.process, key, run))
+            routes[topic].append((run.pipeline.process, key, run, run.times.append))
     traj_topics = {t for t in routes if bag_topics[t][0] == _ODOM_TYPE}
     if GROUND_TRUTH in bag_topics and bag_topics[GROUND_TRUTH][0] == _ODOM_TYPE:
         traj_topics.add(GROUND_TRUTH)
@@ -524,10 +524,10 @@ def _run(bagset: BagSet, bag_list: list, runs: list[_Node], skipped: dict[str, s
         bar = tqdm(total=total, unit='msg', unit_scale=True, file=sys.stderr,
                    desc='replay', dynamic_ncols=True)
     perf = time.perf_counter
-    stream_routes = {id(s): routes.get(topic_of_stream[id(s)], []) for s in streams}
-    stream_traj = {id(s): topic_of_stream[id(s)] if topic_of_stream[id(s)] in traj_topics
-                   else None for s in streams}
-    stream_topic = {id(s): topic_of_stream[id(s)] for s in streams}
+    # id(stream) -> (topic, routes, trajectory topic or None)
+    stream_info = {id(s): (topic_of_stream[id(s)], routes.get(topic_of_stream[id(s)], ()),
+                           topic_of_stream[id(s)] if topic_of_stream[id(s)] in traj_topics
+                           else None) for s in streams}
     out_traj: dict[str, list] = defaultdict(list)
     out_counts: dict[str, int] = defaultdict(int)
     n_msgs = 0
@@ -569,15 +569,14 @@ def _run(bagset: BagSet, bag_list: list, runs: list[_Node], skipped: dict[str, s
                         continue
                     if t_hi is not None and time_ns > t_hi:
                         break
-                sid = id(stream)
+                topic, targets, traj = stream_info[id(stream)]
                 if samples is None:  # undecodable: counted, never fatal
-                    undecodable[stream_topic[sid]] += 1
+                    undecodable[topic] += 1
                     continue
                 n_msgs += 1
-                read[stream_topic[sid]] += 1
-                traj = stream_traj[sid]
+                read[topic] += 1
                 for sample in samples:
-                    for process, key, run in stream_routes[sid]:
+                    for process, key, run, add_time in targets:
                         t0 = perf()
                         try:
                             outs = process(key, sample)
@@ -585,7 +584,7 @@ def _run(bagset: BagSet, bag_list: list, runs: list[_Node], skipped: dict[str, s
                             run.error('process', exc)
                             run.pipeline.reject(key, 'processing_error')
                             outs = None
-                        run.times.append(perf() - t0)
+                        add_time(perf() - t0)
                         if outs:
                             emit(run, outs)
                     if traj is not None:
