@@ -51,8 +51,9 @@ def build_parser() -> argparse.ArgumentParser:
                                    'possible; writes DIR/output.mcap, DIR/summary.json, '
                                    'DIR/report.md.')
     p.add_argument('bags', nargs='+', metavar='BAG',
-                   help='ROS 2 bag folder(s) (mcap or sqlite3) or ROS 1 .bag file(s)')
-    p.add_argument('--out', help='output folder (required unless --live)')
+                   help='ROS 2 bag folder(s) (mcap or sqlite3), .mcap file(s) or ROS 1 .bag '
+                        'file(s)')
+    p.add_argument('--out', metavar='DIR', help='output folder (required unless --live)')
     p.add_argument('--nodes', default=None,
                    help='comma-separated nodes (executable names or package.module:Class); '
                         'default: every node whose inputs are in the bag')
