@@ -376,9 +376,13 @@ def speed_section(duration: float = 300.0) -> None:
     rclpy.init()
     try:
         node = PipelineNode(TiltPipeline)
+        cpu = []
         for raw in raws:
+            c0 = time.thread_time_ns()
             node._on_message('imu', 'sensor_msgs/msg/Imu', raw)
+            cpu.append(time.thread_time_ns() - c0)
         cb = np.array(node.callback_seconds) * 1e3
+        cpu_p99 = float(np.percentile(cpu, 99)) * 1e-6
         node.destroy_node()
     finally:
         rclpy.try_shutdown()
@@ -399,8 +403,9 @@ def speed_section(duration: float = 300.0) -> None:
              f'| replay >= 20k messages/s (100x real time at 200 Hz) | {rate:.0f} msg/s '
              f'({rate / 200:.0f}x real time) | {_ok(rate >= 20000)} |',
              f'| node callback p99 < 1 ms | p50 {p50:.3f} ms, p90 {p90:.3f} ms, p99 '
-             f'{p99:.3f} ms | '
-             f'{_ok(p99 < 1.0)} |']
+             f'{p99:.3f} ms (wall clock) | {_ok(p99 < 1.0)} |',
+             f'| (same, CPU time of the callback thread: without preemption by other '
+             f'processes) | p99 {cpu_p99:.3f} ms | {_ok(cpu_p99 < 1.0)} |']
     _section('speed', '\n'.join(lines))
 
 
