@@ -334,3 +334,17 @@ def test_clock_jumping_back_recovers_after_a_few_samples():
     _feed(pipe, _upright(5))
     _feed(pipe, [_imu(0.02) for _ in range(30)])
     assert pipe.counts['imu']['rejected_duplicate_stamp'] == 30
+
+
+def test_sim_rotated_imu_mounting_from_tf_static():
+    sim = pytest.importorskip('robot_calib.sim')
+    over = {'lidar.rate': 0.5, 'imu.roll': 1.5708, 'imu.yaw': -1.5708}
+    r = sim.run_scenario('tip_over', seed=5, overrides=over)
+    cross = r.truth['tilt_crossing'] + r.truth['start_time']
+    pipe = TiltPipeline()
+    onsets = _sim_feed(pipe, r.messages)
+    assert pipe.method_summary()['mounting'] == '/tf_static'
+    assert len(onsets) == 1 and 0.0 <= onsets[0] - cross <= 0.1
+    # ignoring the mounting, the IMU on its side looks like a fallen robot at once
+    onsets = _sim_feed(TiltPipeline(TiltParams(use_tf_static=False)), r.messages)
+    assert onsets and onsets[0] - r.truth['start_time'] < 0.1
