@@ -209,6 +209,7 @@ class _Node:
         self.errors: dict[str, int] = defaultdict(int)
         self.first_errors: list[str] = []
         self.tf_key = 'tf_static'
+        self.errors_key = 'errors'
 
     def _log(self, level: str, message: str) -> None:
         self.log_counts[level] += 1
@@ -636,24 +637,31 @@ def _run(bagset: BagSet, bag_list: list, runs: list[_Node], skipped: dict[str, s
                     'outputs': dict(run.pipeline.n_outputs)}
         proc = float(sum(run.times))
         n_in = len(run.times)
-        base['timing'] = {
-            'wall_seconds': proc + finish_times.get(run.name, 0.0),
-            'process_seconds': proc,
-            'finish_seconds': finish_times.get(run.name, 0.0),
-            'input_messages': n_in,
-            'input_messages_per_second': n_in / proc if proc > 0 else None,
-            'per_message_ms_p50': None if not n_in else _p(run.times, 50) * 1e3,
-            'per_message_ms_p99': None if not n_in else _p(run.times, 99) * 1e3,
+        if 'timing' in base:  # the method's own timing figures, kept under another key
+            base['method_timing'] = base.pop('timing')
+        extras = {
+            'timing': {
+                'wall_seconds': proc + finish_times.get(run.name, 0.0),
+                'process_seconds': proc,
+                'finish_seconds': finish_times.get(run.name, 0.0),
+                'input_messages': n_in,
+                'input_messages_per_second': n_in / proc if proc > 0 else None,
+                'per_message_ms_p50': None if not n_in else _p(run.times, 50) * 1e3,
+                'per_message_ms_p99': None if not n_in else _p(run.times, 99) * 1e3,
+            },
+            'input_topics': dict(run.inputs),
+            'output_topics': {k: v[0] for k, v in run.outputs.items()},
+            'errors': dict(run.errors),
         }
-        base['input_topics'] = dict(run.inputs)
-        base['output_topics'] = {k: v[0] for k, v in run.outputs.items()}
-        base['errors'] = dict(run.errors)
         if run.first_errors:
-            base['first_errors'] = run.first_errors
+            extras['first_errors'] = run.first_errors
         if run.notes:
-            base['notes'] = run.notes
+            extras['notes'] = run.notes
         if run.logs:
-            base['log'] = run.logs
+            extras['log'] = run.logs
+        for key, value in extras.items():  # never hide a key the method reports
+            base[key if key not in base or key == 'timing' else f'replay_{key}'] = value
+        run.errors_key = 'errors' if base.get('errors') is extras['errors'] else 'replay_errors'
         nodes_summary[run.name] = base
     summary = {
         'bags': [str(b) for b in bag_list],
@@ -687,7 +695,7 @@ def _run(bagset: BagSet, bag_list: list, runs: list[_Node], skipped: dict[str, s
             files = run.pipeline.plot(str(pdir)) or []
             node_plots[run.name] = [f'plots/{run.name}/{Path(f).name}' for f in files]
         except Exception as exc:  # noqa: B902 - a plot must not fail the run
-            summary['nodes'][run.name].setdefault('errors', {})['plot'] = \
+            summary['nodes'][run.name][run.errors_key]['plot'] = \
                 f'{type(exc).__name__}: {" ".join(str(exc).split())}'
         if not any(pdir.iterdir()):
             pdir.rmdir()

@@ -423,3 +423,26 @@ def test_time_window(bag, tmp_path):
         replay(bag, tmp_path / 'p', nodes=ECHO, start_offset=-1.0, progress=False)
     with pytest.raises(ReplayError, match='time window'):
         replay(bag, tmp_path / 'p', nodes=ECHO, duration=0.0, progress=False)
+
+
+class CollidingPipeline(EchoPipeline):
+    """Report keys that replay also writes (its own errors and timing)."""
+
+    name = 'colliding'
+
+    def method_summary(self):
+        """Report an 'errors' count and a 'timing' block of its own."""
+        return {'errors': 5, 'timing': {'fit_ms': 1.0}}
+
+    def plot(self, out_dir):
+        """Fail, to record a plot error."""
+        raise RuntimeError('no plot')
+
+
+def test_method_keys_are_never_hidden(bag, tmp_path):
+    s = replay(bag, tmp_path / 'o', nodes=f'{__name__}:CollidingPipeline', progress=False)
+    node = s['nodes']['colliding']
+    assert node['errors'] == 5 and node['method_timing'] == {'fit_ms': 1.0}
+    assert node['timing']['input_messages'] > 0
+    assert 'no plot' in node['replay_errors']['plot']
+    assert (tmp_path / 'o' / 'report.md').is_file()
