@@ -144,8 +144,9 @@ class FusionParams:
     gyro_bias_walk: float = param(2e-5, 'rad/s/sqrt(s)', 'Gyro bias random walk', minimum=0.0)
     gyro_bias_init: float = param(0.01, 'rad/s', 'Initial gyro bias standard deviation',
                                   minimum=1e-6)
-    accel_noise: float = param(0.1, 'm/s^2/sqrt(Hz)', 'Forward specific-force noise density '
-                               '(incl. vibration and terrain pitch)', minimum=1e-6)
+    accel_noise: float = param(0.5, 'm/s^2/sqrt(Hz)', 'Forward specific-force noise density as '
+                               'the filter sees it: vibration, bumps and terrain pitch of a '
+                               'wheeled base, not the datasheet noise', minimum=1e-6)
     accel_bias_walk: float = param(0.005, 'm/s^2/sqrt(s)', 'Accelerometer bias random walk '
                                    '(also absorbs slowly varying slope)', minimum=0.0)
     accel_bias_init: float = param(0.3, 'm/s^2', 'Initial forward accel bias std (mount tilt)',
@@ -190,6 +191,8 @@ class FusionParams:
     nis_window: int = param(20, '', 'Odometry updates in the NIS moving average', minimum=1)
     max_speed: float = param(3.0, 'm/s', 'Physical speed limit: clamp of the speed state',
                              minimum=0.01)
+    max_robot_accel: float = param(5.0, 'm/s^2', 'Forward acceleration limit of the robot: the '
+                                   'IMU input is clamped to it', minimum=0.1)
     max_gyro: float = param(35.0, 'rad/s', 'Gyro readings above this are rejected', minimum=0.1)
     max_accel: float = param(160.0, 'm/s^2', 'Accelerometer readings above this are rejected',
                              minimum=1.0)
@@ -569,7 +572,7 @@ class ImprovedFusion(_Base):
         self._gate = float(chi2.ppf(p.gate_probability, 1)) if p.gate_probability < 1 \
             else float('inf')
         self._band = {}
-        self._first_reject_t: Optional[float] = None
+        self._rej_since: dict = {'slip_speed': None, 'slip_yaw_rate': None}
         self.last_output: Optional[FusionOutput] = None
         self.imu_stale = True
         self._cov_acc = [0.0, 0.0, 0.0, 0.0, 0.0]
@@ -620,6 +623,10 @@ class ImprovedFusion(_Base):
         else:
             w_in = self.gz - x[IBG]
             a_in = self.ax - x[IBA] if self.use_acc else 0.0
+            # clamp to what the robot can do on its wheels (seed 004's clamping): a shock
+            # or an aliased spike must not throw the speed off
+            lim = p.max_robot_accel
+            a_in = lim if a_in > lim else (-lim if a_in < -lim else a_in)
         yaw, v = x[IYAW], x[IV]
         c, s = math.cos(yaw), math.sin(yaw)
         # constant-rate planar kinematics, first order (IMU as input)
@@ -798,8 +805,11 @@ class ImprovedFusion(_Base):
                 # zero-velocity update: the gyro must read its bias
                 h = np.zeros(8)
                 h[IBG] = -1.0
+                # nominal gyro noise of the average over the interval (not adapted: the
+                # yaw-rate channel's scale also carries wheel noise; an adapted-down value
+                # here made the bias over-confident)
                 self._scalar_update(h, 0.0 - (gz_avg - x[IBG]),
-                                    r_gyro / (x[IKW] ** 2) + 1e-6)
+                                    (p.gyro_noise ** 2) / max(interval, 1e-3) + 1e-6)
         if still:
             h = np.zeros(8)
             h[IV] = 1.0
@@ -807,14 +817,7 @@ class ImprovedFusion(_Base):
         self._last_upd_t = t
         for r in rejected:
             self.count('rejected_' + r)
-        if rejected and dof == 0:
-            if self._first_reject_t is None:
-                self._first_reject_t = t
-            elif t - self._first_reject_t > p.reinit_after:
-                self.reinitialise(t, v, f'odometry rejected for {t - self._first_reject_t:.1f} s')
-                self._first_reject_t = None
-        else:
-            self._first_reject_t = None
+        self._persistent_rejection(t, v, rejected, r_v * self.lam[0])
         if dof:
             self._record_nis(nis_total, dof)
         self._guard(t, v)
@@ -827,6 +830,40 @@ class ImprovedFusion(_Base):
         return None
 
     _last_upd_t: Optional[float] = None
+
+    def _persistent_rejection(self, t: float, v: float, rejected: list, r_v: float) -> None:
+        """Re-initialise a channel whose measurements were all rejected for reinit_after (s)."""
+        p = self.p
+        for channel in ('slip_speed', 'slip_yaw_rate'):
+            if channel not in rejected:
+                self._rej_since[channel] = None
+                continue
+            since = self._rej_since[channel]
+            if since is None:
+                self._rej_since[channel] = t
+                continue
+            if t - since <= p.reinit_after:
+                continue
+            self._rej_since[channel] = None
+            P = self.P
+            if channel == 'slip_speed':
+                # the speed state lost the wheels (a long slip, a changed wheel, a bad
+                # prediction): restart it from the wheel speed, uncorrelated
+                self.x[IV] = v
+                P[IV, :] = 0.0
+                P[:, IV] = 0.0
+                P[IV, IV] = r_v + 0.01
+                what = 'speed'
+            else:
+                # the wheel yaw-rate model no longer fits: restart its scale and offset
+                for i, init in ((IKW, p.yaw_rate_scale_init), (IKV, p.yaw_rate_offset_init)):
+                    P[i, :] = 0.0
+                    P[:, i] = 0.0
+                    P[i, i] = init ** 2
+                what = 'wheel yaw-rate model'
+            self.count('reinitialisations')
+            self.warn(t, f'{what} re-initialised: wheel {channel[5:].replace("_", " ")} '
+                      f'rejected for {t - since:.1f} s')
     _pl_last: Optional[tuple] = None
 
     def _adapt(self, i: int, resid: float, s_pred: float, r_nom: float, s_tot: float,
