@@ -182,3 +182,14 @@ def test_mismatch_bad_input(tmp_path, capsys):
     _one_line_error(capsys, main(['mismatch', '--sim', str(tmp_path / 'none_a'), '--real',
                                   str(tmp_path / 'none_b'), '--out', str(out)]))
     assert not out.exists()
+
+
+def test_truncated_ros1_bag(shared_data, tmp_path, capsys):
+    data = (shared_data / 'robot_localization' / 'test1.bag').read_bytes()
+    cut = tmp_path / 'cut.bag'
+    cut.write_bytes(data[: len(data) // 2])
+    out = tmp_path / 'out'
+    line = _one_line_error(capsys, main(['replay', str(cut), '--out', str(out), '--remap',
+                                         'imu:=/imu/data', '--nodes', ECHO]))
+    assert 'cut.bag' in line
+    _no_leftovers(tmp_path, out)
