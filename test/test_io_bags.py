@@ -417,6 +417,12 @@ def test_batch_decoder_equals_per_message(tmp_path):
     assert len(same) == 2
     for got, raw in zip(bags.imu_batch_from_cdr(same * 5), same * 5):
         assert_same(got, [bags.imu_from_cdr(raw)])
+    # Empty frame id, covariances marked unknown (-1), with and without orientation.
+    unknown = [r for m, r in zip(msgs, raws) if m.header.frame_id == '']
+    assert len(unknown) == 2 and np.isnan(bags.imu_from_cdr(unknown[0]).gyro_cov).all()
+    for got, raw in zip(bags.imu_batch_from_cdr(unknown * 3), unknown * 3):
+        assert_same(got, [bags.imu_from_cdr(raw)])
+        assert_same(got, convert.deserialize('sensor_msgs/msg/Imu', raw))
     with pytest.raises(ValueError):
         bags.imu_batch_from_cdr(raws)  # frame ids differ: the caller decodes one by one
     be = bytes(store.serialize_cdr(msgs[15], 'sensor_msgs/msg/Imu', little_endian=False))
