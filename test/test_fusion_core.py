@@ -433,3 +433,43 @@ def test_steered_wheel_joint_states():
     js1 = T.JointStateSample(0.0, names, np.array([0.0, 0.0]), np.full(2, np.nan))
     v, w = F.wheel_twist(p, js2, js1)  # from traction positions: 2 rad in 0.5 s
     assert v == pytest.approx(0.8) and w == pytest.approx(0.0)
+
+
+def test_speed_lock_out_recovers_with_a_warning():
+    samples, truth = drive(duration=60.0, seed=15, stops=False)
+    bad = []
+    for k, s in samples:
+        if k == 'odom' and s.t > 30.0:  # a wheel swapped for a bigger one: +60 % for good
+            s = T.OdomSample(s.t, s.x, s.y, s.yaw, 1.6 * s.vx, s.vy, s.wz)
+        bad.append((k, s))
+    f = F.ImprovedFusion()
+    for k, s in bad:
+        f.imu(s) if k == 'imu' else f.odom(s) if k == 'odom' else None
+    events = [(t, m) for t, m in f.events if 'speed re-initialised' in m]
+    assert events and 30.0 < events[0][0] < 40.0
+    # afterwards the filter follows the (new) wheel speed again instead of rejecting it
+    assert f.x[F.IV] == pytest.approx(bad[-1][1].vx if bad[-1][0] == 'odom'
+                                      else [s for k, s in bad if k == 'odom'][-1].vx,
+                                      abs=0.15)
+
+
+def test_an_acceleration_spike_is_clamped_to_the_robot_limit():
+    samples, truth = drive(duration=30.0, seed=16)
+    spiked = []
+    for k, s in samples:
+        if k == 'imu' and abs(s.t - 20.0) < 0.005:
+            s = T.ImuSample(s.t, s.gyro, s.accel + np.array([60.0, 0.0, 0.0]))
+        spiked.append((k, s))
+    f = F.ImprovedFusion()
+    f_ref = F.ImprovedFusion()
+    for (k, s), (_, r) in zip(spiked, samples):
+        if k == 'imu':
+            f.imu(s)
+            f_ref.imu(r)
+        elif k == 'odom':
+            f.odom(s)
+            f_ref.odom(r)
+        if s.t > 20.02:
+            break
+    # 60 m/s^2 for 10 ms would add 0.6 m/s; clamped to 5 m/s^2 it adds at most 0.05
+    assert abs(f.x[F.IV] - f_ref.x[F.IV]) < 0.06
