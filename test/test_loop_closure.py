@@ -51,12 +51,14 @@ def _ranges(segs, pose, n=360, max_range=12.0, noise=0.005, rng=None):
     return r
 
 
-def _drive(laps=2, bias=0.004, seed=0, world=None, kidnap_at=None):
+def _drive(laps=2, bias=0.004, seed=0, world=None, kidnap_step=None):
     """
     Simulate a robot driving a rectangle in the room: truth, imu, odom and scan samples.
 
     The gyro has a constant bias (rad/s); odometry distance is exact, odometry yaw
-    is ignored by the corrector once the IMU arrives.
+    is ignored by the corrector once the IMU arrives. With ``kidnap_step`` the robot
+    is picked up before that plan step, carried into another room (wheels still,
+    6 s) and set down there, where it drives on.
     """
     rng = np.random.default_rng(seed)
     world = world if world is not None else (lambda t: _room())
@@ -69,6 +71,10 @@ def _drive(laps=2, bias=0.004, seed=0, world=None, kidnap_at=None):
             a, b = corners[i], corners[(i + 1) % 4]
             plan.append((math.hypot(b[0] - a[0], b[1] - a[1]) / v, v, 0.0))
             plan.append((math.pi / 2 / w, 0.0, w))
+    kidnap_at = None
+    if kidnap_step is not None:
+        kidnap_at = sum(p[0] for p in plan[:kidnap_step]) + 0.01
+        plan.insert(kidnap_step, (6.0, 0.0, 0.0))
     dt = 0.02
     x, y, th = 2.0, 1.5, 0.0
     t = 0.0
@@ -232,14 +238,15 @@ def test_choice_and_refusals():
 
 
 def test_kidnapped_robot_restarts_the_map_and_makes_no_wrong_closure():
-    msgs, truth = _drive(laps=2, bias=0.0, kidnap_at=30.0, seed=3)
+    msgs, truth = _drive(laps=2, bias=0.0, kidnap_step=7, seed=3)
     pipe, odom, diags = _run(msgs)
     s = pipe.method_summary()
     assert s['counts'].get('kidnaps', 0) >= 1
     assert any(d.statuses[0].level == 2 for d in diags)
     # after the kidnap the old map is gone: closures only within the new map, small fixes
     kidnap_t = min(r.t for r in pipe.core.reports if r.reason == 'kidnap_suspected')
-    assert kidnap_t < 35.0
+    carried = 2 * (5.0 / 0.5) + 2 * (4.0 / 0.5) + 3 * (math.pi / 2 / 0.6)
+    assert carried < kidnap_t < carried + 6.0     # detected while still being carried
     later = [r for r in pipe.core.reports if r.accepted and r.t > kidnap_t]
     assert all(np.hypot(*r.correction[:2]) < 0.2 for r in later)
     assert s['segments'] >= 2

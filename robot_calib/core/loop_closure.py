@@ -509,7 +509,8 @@ class LoopClosureCorrector:
 
         Learns the gyro bias from the heading difference (improved mode).
         Returns 'ok'; 'doubt' when the match is weak (under twice the kidnap
-        inlier ratio) or failed: then no
+        inlier ratio) and lands over half the offset limits away from the
+        prediction, or failed: then no
         keyframe is made from this scan and the next scan is checked again; or
         'kidnap' (after restarting the map) when the scan has disagreed with
         odometry ``kidnap_checks`` times in a row, or stayed in doubt for
@@ -525,11 +526,18 @@ class LoopClosureCorrector:
         lim_xy = m.kidnap_max_offset + 0.3 * math.hypot(guess[0], guess[1])
         lim_yaw = m.kidnap_max_yaw_offset + 0.3 * abs(guess[2])
         d_xy, d_yaw = math.hypot(off[0], off[1]), abs(wrap_angle(off[2]))
-        bad = (res.reason != '' or res.inlier_ratio < m.kidnap_min_inlier_ratio
-               or d_xy > lim_xy or d_yaw > lim_yaw)
-        doubt = res.inlier_ratio < 2.0 * m.kidnap_min_inlier_ratio
-        if res.degenerate and res.reason == '' and \
-                res.inlier_ratio >= 2.0 * m.kidnap_min_inlier_ratio and d_yaw <= 0.5 * lim_yaw:
+        kp = self.params.keyframes
+        # Within a keyframe step of the keyframe the view must still match it well.
+        near = math.hypot(guess[0], guess[1]) < kp.distance and abs(guess[2]) < kp.angle
+        far = d_xy > 0.5 * lim_xy or d_yaw > 0.5 * lim_yaw or near
+        weak = res.inlier_ratio < 2.0 * m.kidnap_min_inlier_ratio
+        # A weak match that still lands where odometry predicts, after the robot moved,
+        # is a low-overlap view (people, a narrow field of view), not a kidnap; one far
+        # from it, or a standing robot whose view changed, is suspicious.
+        bad = (res.reason != '' or d_xy > lim_xy or d_yaw > lim_yaw
+               or (res.inlier_ratio < m.kidnap_min_inlier_ratio and far))
+        doubt = weak and far
+        if res.degenerate and res.reason == '' and not weak and d_yaw <= 0.5 * lim_yaw:
             bad = doubt = False   # a corridor: the along-corridor offset is not observable
         if not bad and doubt:
             self.counts['local_check_doubtful'] += 1
@@ -542,7 +550,7 @@ class LoopClosureCorrector:
         if not bad:
             self._doubt_since = None
             self._failed_checks = 0
-            if res.ok and not res.degenerate:
+            if res.ok and not res.degenerate and not weak:
                 self._update_bias(t, kf, res)
             return 'ok'
         self._failed_checks += 1
