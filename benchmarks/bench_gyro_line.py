@@ -398,8 +398,21 @@ def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.split('\n')[0])
     ap.add_argument('--seeds', type=int, default=8)
     ap.add_argument('--duration', type=float, default=600.0)
-    ap.add_argument('--no-real', action='store_true')
+    ap.add_argument('--no-real', action='store_true', help='skip the CARMEN part')
+    ap.add_argument('--append', action='store_true',
+                    help='append the simulated tables to the existing markdown file '
+                         '(e.g. a few 1-hour runs after the default run)')
     args = ap.parse_args()
+    if args.append:
+        lines = [f'\n### Appended: `bench_gyro_line.py --seeds {args.seeds} --duration '
+                 f'{args.duration:.0f} --append`\n']
+        simulated(args.seeds, args.duration, lines)
+        text = '\n'.join(lines)
+        print(text)
+        with OUT.open('a') as f:
+            f.write(text)
+        print(f'appended to {OUT}')
+        return 0
     t0 = time.time()
     lines = ['## Gyro line calibration (issue 5)\n',
              f'Command: `.venv/bin/python benchmarks/bench_gyro_line.py --seeds {args.seeds} '
