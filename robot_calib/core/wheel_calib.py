@@ -658,7 +658,7 @@ def verdict_of(drive_type: str, values: dict, stds: dict, content: dict, n_used:
             weak.append(k)
     if weak:
         advice = sorted({_ADVICE[k] for k in weak})
-        problems.append(f'{", ".join(weak)} poorly determined ({"; ".join(advice)})')
+        problems.append(f'poorly determined: {", ".join(weak)} ({"; ".join(advice)})')
     if not problems:
         return 'converged'
     text = '; '.join(dict.fromkeys(problems))
