@@ -119,13 +119,44 @@ def _problem(pt: PairedTopic, smooth: float, not_judged: list) -> Optional[S.Pro
     return S.Problem(pt, fields, r, mask, sigma, phi, pt.t.size)
 
 
+def _implausible(prob: S.Problem, sel: list, not_judged: list) -> list:
+    """Move effects fitted far beyond their plausible range into ``not_judged``.
+
+    A parameter beyond twice the plausible magnitude (e.g. a gyro scale of
+    -1: the real channel does not follow the simulation at all) is not a
+    physical effect of that name; it is reported as a stretch the tool
+    cannot explain.
+    """
+    if not sel:
+        return sel
+    f = S.fit(prob, sel)
+    keep = []
+    for i, t in enumerate(sel):
+        params, _ = E.to_params(t, f.betas[i], f.covs[i])
+        spec = E.SPECS[t.effect]
+        bad = [k for k, lim in zip(spec.params, spec.plausible) if abs(params[k]) > 2 * lim]
+        if not bad:
+            keep.append(t)
+            continue
+        pt = prob.pt
+        where = 'the whole recording' if t.window is None else \
+            f'{pt.t[t.window[0]]:.1f}-{pt.t[min(t.window[1], prob.n) - 1]:.1f} s'
+        desc = ', '.join(f'{k} = {params[k]:.3g}' for k in bad)
+        not_judged.append({'channel': t.channel, 'reason': f'in {where} the real channel does '
+                           f'not follow the simulation (the best {t.effect} fit, {desc}, is far '
+                           'beyond a physical value; is the simulated signal noise there?)'})
+    if len(keep) < len(sel):
+        keep = S.refine_nonlinear(prob, keep)
+    return keep
+
+
 def _predict(prob: S.Problem, terms: list, betas: list, f: str) -> np.ndarray:
     out = np.zeros(prob.n)
     for t, b in zip(terms, betas):
         if f not in t.cols:
             continue
         X = t.cols[f]
-        c = X @ b
+        c = S.mdot(X, b)
         off = t.meta.get('offset')
         if off is not None and f in off:
             c = c + off[f]
@@ -256,6 +287,7 @@ def _analyse_topic(pt: PairedTopic, sim: Recording, real: Recording, t0: float,
         sel = S.refine_windows(prob, sel, min_len)
     sel = S.refine_nonlinear(prob, sel)
     sel = S.backward_eliminate(prob, sel, prm.margin)
+    sel = _implausible(prob, sel, not_judged)
     held = _heldout(prob, sel, prm.heldout_chunks) if sel else {}
     # cross-validation guard: an effect that makes the held-out part worse is dropped
     bad = {i for i, h in held.items() if h['heldout_rmse_before'] is not None and

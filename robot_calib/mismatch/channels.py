@@ -190,7 +190,8 @@ def regressor_signal(x: np.ndarray, half: int = 2) -> np.ndarray:
     about 0 for a smooth signal, 1.73 for white noise) in at least a tenth of
     the 200-sample blocks (noise may show only at rest), each sample is
     replaced by the mean of its ``half`` neighbours on each side, which
-    excludes the sample's own noise; a smooth (noiseless) signal is returned
+    excludes the sample's own noise (and its correlated neighbours when the
+    simulator noise is coloured); a smooth (noiseless) signal is returned
     unchanged so exact models stay exact.
     """
     ok = np.isfinite(x)
@@ -205,8 +206,20 @@ def regressor_signal(x: np.ndarray, half: int = 2) -> np.ndarray:
         noisy += d1 > 0 and d2 / d1 > 0.5
     if noisy < max(1, 0.1 * nb):
         return x
-    k = np.ones(2 * half + 1)
-    k[half] = 0.0
+    # correlated simulator noise (e.g. a rate differentiated over several samples):
+    # leave out the whole correlation length around each sample
+    e = xs[1:-1] - 0.5 * (xs[:-2] + xs[2:])
+    e = e - e.mean()
+    gap = 0
+    den0 = float(np.dot(e, e)) if e.size else 0.0
+    if den0 > 0:
+        for k in range(1, 21):
+            rho = float(np.einsum('i,i->', e[k:], e[:-k])) / den0
+            if abs(rho) < 0.1:
+                break
+            gap = k
+    k = np.ones(2 * (half + gap) + 1)
+    k[half:half + 2 * gap + 1] = 0.0
     xz = np.where(ok, x, 0.0)
     num = np.convolve(xz, k, mode='same')
     den = np.convolve(ok.astype(float), k, mode='same')

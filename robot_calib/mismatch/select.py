@@ -61,6 +61,25 @@ class Fit:
     contrib: dict
 
 
+def tdot(X: np.ndarray, Y: np.ndarray) -> np.ndarray:
+    """Return X^T Y for tall X (n, p) and Y (n,) or (n, q) with column dot products.
+
+    Tall-skinny products through einsum: a threaded BLAS dot/gemv is tens of
+    times slower for these shapes on a busy machine.
+    """
+    if Y.ndim == 1:
+        return np.einsum('ij,i->j', X, Y)
+    return np.einsum('ij,ik->jk', X, Y)
+
+
+def mdot(X: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Return X b for tall X (n, p) as a sum of scaled columns."""
+    out = X[:, 0] * b[0]
+    for i in range(1, X.shape[1]):
+        out = out + X[:, i] * b[i]
+    return out
+
+
 def term_cols(term: E.Term, f: str, prob: Problem) -> np.ndarray:
     """Return the term's regressors on field ``f``, zero outside its window and invalid samples."""
     X = _mcols(prob, term, f)
@@ -95,7 +114,7 @@ def _xtx(prob: Problem, a: E.Term, b: E.Term, f: str) -> np.ndarray:
         if hi <= lo:
             M = np.zeros((a.p, b.p))
         else:
-            M = _mcols(prob, a, f)[lo:hi].T @ _mcols(prob, b, f)[lo:hi]
+            M = tdot(_mcols(prob, a, f)[lo:hi], _mcols(prob, b, f)[lo:hi])
         prob.cache[key] = M
         prob.cache[('xx', b.uid, b.window, a.uid, a.window, f)] = M.T
     return M
@@ -106,7 +125,7 @@ def _xtv(prob: Problem, a: E.Term, f: str, v: np.ndarray, tag: object) -> np.nda
     if tag is not None and key in prob.cache:
         return prob.cache[key]
     lo, hi = _span(a, prob.n)
-    out = _mcols(prob, a, f)[lo:hi].T @ v[lo:hi]
+    out = tdot(_mcols(prob, a, f)[lo:hi], v[lo:hi])
     if tag is not None:
         prob.cache[key] = out
     return out
@@ -146,14 +165,14 @@ def fit(prob: Problem, terms: list, contributions: bool = False) -> Fit:
         if offs:
             r = prob.r[f] * prob.mask[f] - sum(offs)
             tag = None
-            rr += prob.w[f] * float(r @ r)
+            rr += prob.w[f] * float(np.einsum('i,i->', r, r))
         else:
             r = prob.r[f]
             tag = 'r'
             key = ('rr', f)
             if key not in prob.cache:
                 rm = r * prob.mask[f]
-                prob.cache[key] = float(rm @ rm)
+                prob.cache[key] = float(np.einsum('i,i->', rm, rm))
             rr += prob.w[f] * prob.cache[key]
         resid[f] = r
         js = [j for j, t in enumerate(terms) if f in t.cols]
@@ -190,7 +209,7 @@ def fit(prob: Problem, terms: list, contributions: bool = False) -> Fit:
                 if off is not None:
                     c += off
                 lo, hi = _span(t, prob.n)
-                c[lo:hi] += _mcols(prob, t, f)[lo:hi] @ beta[idx[j]]
+                c[lo:hi] += mdot(_mcols(prob, t, f)[lo:hi], beta[idx[j]])
             contrib[f] = c
     return Fit(list(terms), [beta[i] for i in idx], [cov[np.ix_(i, i)] for i in idx],
                max(float(chi2), 0.0), n_coef(terms), contrib)
@@ -218,7 +237,7 @@ def _screen(prob: Problem, cand: E.Term, res: dict, min_len: int,
     ws = [prob.w[f] for f in fs]
     p = cand.p
     A = sum(w * _xtx(prob, cand, cand, f) for f, w in zip(fs, ws))
-    h = sum(w * X.T @ e for X, e, w in zip(xs, es, ws))
+    h = sum(w * tdot(X, e) for X, e, w in zip(xs, es, ws))
     if not np.all(np.isfinite(A)) or np.trace(A) <= 0:
         return -np.inf, None
     try:
@@ -354,8 +373,12 @@ def refine_nonlinear(prob: Problem, sel: list, iters: int = 8) -> list:
     for i in nl:
         t = out[i]
         b = f0.betas[i]
-        theta = np.array([b[0] * t.meta['tau_ref']]) if t.effect == 'time_offset' else \
-            np.array(b, float)
+        if 'theta' in t.meta:  # already linearised: continue from there
+            theta = np.asarray(t.meta['theta'], float) + b
+        elif t.effect == 'time_offset':
+            theta = np.array([b[0] * t.meta['tau_ref']])
+        else:
+            theta = np.array(b, float)
         out[i] = _linearise(prob, t, theta)
     for _ in range(iters):
         f = fit(prob, out)
