@@ -609,7 +609,8 @@ class AttitudeEstimator:
         xs = xs + K @ e
         xs[:3] = np.clip(xs[:3], -clip, clip)
         xs[3:] = np.clip(xs[3:], -p.scale_clip, p.scale_clip)
-        self.P6 = P - K @ PHt.T
+        P = P - K @ PHt.T
+        self.P6 = 0.5 * (P + P.T)   # keep it symmetric over hours of updates
         self.bias = [float(v) for v in xs[:3]]
         self.scale = [float(v) for v in xs[3:]]
 
