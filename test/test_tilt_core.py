@@ -210,3 +210,20 @@ def test_params_clear_angle_default_and_validation():
         TL.TiltParams(fall_angle=0.5, clear_angle=0.6)
     with pytest.raises(ValueError):
         TL.TiltParams(mounting_rpy=[0.0, 0.0])
+
+
+def test_rest_snap_recovers_after_missed_rotation():
+    # the gyro missed a 90 deg roll (e.g. saturated): the accelerometer alone must fix it
+    def tilt_after(snap_deg):
+        p = TL.TiltParams(improved=TL.ImprovedFilterParams(rest_snap_angle=snap_deg))
+        est = TL.TiltEstimator(p, 0.005)
+        for k in range(1000):                                    # 5 s upright at rest
+            est.update(k * 0.005, (0.0, 0.0, 0.0), (0.0, 0.0, G))
+        s = None
+        for k in range(800):                                     # 4 s on its side
+            s = est.update(5.0 + k * 0.005, (0.0, 0.0, 0.0), (0.0, G, 0.0))
+        return math.degrees(s.tilt), est.att.snaps
+    tilt, snaps = tilt_after(5.0)
+    assert snaps >= 1 and tilt == pytest.approx(90.0, abs=1.0)
+    tilt_off, snaps_off = tilt_after(0.0)
+    assert snaps_off == 0 and tilt_off < 85.0

@@ -40,7 +40,6 @@ Units: time s, rates rad/s, specific force m/s^2, angles rad. Quaternions are
 
 from __future__ import annotations
 
-import dataclasses
 from dataclasses import dataclass, field
 import math
 from typing import Any, Optional
@@ -882,8 +881,3 @@ def run(t: np.ndarray, gyro: np.ndarray, accel: np.ndarray,
         alert[k] = s.alert
         bias[k] = s.bias
     return {'quat': quat, 'tilt': tilt, 'alert': alert, 'bias': bias}
-
-
-def params_with(params: TiltParams, **changes: Any) -> TiltParams:
-    """Return a copy of ``params`` with top-level fields changed."""
-    return dataclasses.replace(params, **changes)
