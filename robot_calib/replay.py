@@ -8,7 +8,8 @@ after ``--remap``) in bag time order, through exactly the conversion code the
 live node uses. Static transforms (``/tf_static``) are delivered to every
 pipeline before any other message. The outputs land in ``DIR``:
 
-- ``output.mcap``: a ROS 2 bag (folder, mcap storage) of every published
+- ``output.mcap``: a ROS 2 bag in one mcap file (``ros2 bag play DIR/output.mcap``,
+  Foxglove, :func:`robot_calib.io.bags.read_messages`) of every published
   output topic, same names and types as live, each message stamped with the
   stamp of the input that produced it;
 - ``summary.json``: per node its pipeline summary (parameters, inputs read /
@@ -316,7 +317,11 @@ def _prepare_out_dir(out_dir: Path) -> Path:
     parent = out_dir.parent
     try:
         parent.mkdir(parents=True, exist_ok=True)
-        return Path(tempfile.mkdtemp(prefix=f'.{out_dir.name}.partial-', dir=parent))
+        tmp = Path(tempfile.mkdtemp(prefix=f'.{out_dir.name}.partial-', dir=parent))
+        umask = os.umask(0o022)
+        os.umask(umask)
+        os.chmod(tmp, 0o777 & ~umask)  # a normal folder once in place (mkdtemp makes 0700)
+        return tmp
     except OSError as exc:
         raise ReplayError(f'output folder {parent} is not writable '
                           f'({exc.strerror or exc}); expected a writable folder') from None
@@ -357,7 +362,8 @@ def replay(bags: Union[str, os.PathLike, Sequence[Union[str, os.PathLike]]],
     :param params_file: a ROS 2 parameter YAML (``config/robot_calib.yaml`` format).
     :param overrides: ``NODE.PARAM=VALUE`` items, applied last.
     :param progress: show a progress bar on stderr (default: when stderr is a terminal).
-    :param storage: storage of ``output.mcap`` ('mcap'; 'sqlite3' for tests).
+    :param storage: storage of ``output.mcap``: 'mcap' (one file) or 'sqlite3' (a bag
+        folder of that name, for tests).
     :param start_offset: skip the first ``start_offset`` seconds of the recording (s);
         static transforms are delivered all the same.
     :param duration: replay at most this many seconds after the start offset (s).
@@ -532,7 +538,8 @@ def _run(bagset: BagSet, bag_list: list, runs: list[_Node], skipped: dict[str, s
     out_traj: dict[str, list] = defaultdict(list)
     out_counts: dict[str, int] = defaultdict(int)
     n_msgs = 0
-    with BagWriter(tmp / OUTPUT_BAG, storage=storage,
+    bag_dir = tmp / Path(OUTPUT_BAG).stem  # a ROS 2 bag folder, flattened below
+    with BagWriter(bag_dir, storage=storage,
                    latched=[t for r in runs for (t, _, latched) in r.outputs.values()
                             if latched]) as writer:
 
@@ -606,6 +613,11 @@ def _run(bagset: BagSet, bag_list: list, runs: list[_Node], skipped: dict[str, s
             except Exception as exc:  # noqa: B902 - counted, never fatal
                 run.error('finish', exc)
             finish_times[run.name] = perf() - t0
+    if storage == 'mcap':  # one self-contained file (rosbag2 metadata is inside the mcap)
+        os.replace(bag_dir / f'{bag_dir.name}.mcap', tmp / OUTPUT_BAG)
+        shutil.rmtree(bag_dir)
+    else:
+        os.replace(bag_dir, tmp / OUTPUT_BAG)
     replay_seconds = perf() - wall0
 
     # -- artifacts ---------------------------------------------------------------------------

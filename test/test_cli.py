@@ -52,7 +52,7 @@ def test_replay_success(bag, tmp_path, capsys):
     summary = json.loads((out / 'summary.json').read_text())
     assert summary['nodes']['echo']['params']['gain'] == 2.0
     assert summary['output']['topics']['/echo/odometry'] == 60
-    assert (out / 'report.md').is_file() and (out / 'output.mcap' / 'metadata.yaml').is_file()
+    assert (out / 'report.md').is_file() and (out / 'output.mcap').is_file()
 
 
 @pytest.mark.parametrize('storage', ['mcap', 'sqlite3'])

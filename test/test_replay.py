@@ -5,6 +5,7 @@
 from dataclasses import dataclass, field
 import json
 import math
+import os
 from pathlib import Path
 
 import numpy as np
@@ -446,3 +447,20 @@ def test_method_keys_are_never_hidden(bag, tmp_path):
     assert node['timing']['input_messages'] > 0
     assert 'no plot' in node['replay_errors']['plot']
     assert (tmp_path / 'o' / 'report.md').is_file()
+
+
+def test_output_bag_is_one_mcap_file_even_when_empty(tmp_path):
+    path = tmp_path / 'in'
+    with bags.BagWriter(path) as w:
+        for i in range(10):
+            ns = 10**9 + i * 10**7
+            w.write('/imu', _imu(ns), ns)
+    s = replay(path, tmp_path / 'o', nodes=ECHO, progress=False)  # IMU only: no odometry out
+    out = tmp_path / 'o' / 'output.mcap'
+    assert out.is_file() and out.read_bytes()[:8] == b'\x89MCAP0\r\n'
+    assert s['output']['topics'] == {'/echo/alert': 1}
+    assert bags.list_topics([out]) == {'/echo/alert': ('std_msgs/msg/Bool', 1)}
+    assert b'serialized_metadata' in out.read_bytes()  # rosbag2's metadata is inside
+    umask = os.umask(0o022)
+    os.umask(umask)
+    assert (tmp_path / 'o').stat().st_mode & 0o777 == 0o777 & ~umask
