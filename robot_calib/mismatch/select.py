@@ -335,7 +335,9 @@ def _tilt_exact(prob: Problem, theta: np.ndarray) -> dict:
 
 def _time_exact(prob: Problem, term: E.Term, tau: float, nan: bool = False) -> dict:
     pt = prob.pt
-    out = {f: E.shifted(pt, f, tau) - pt.sim_reg[f] for f in term.cols}
+    smooth = not term.meta.get('raw_shift', False)
+    out = {f: (E.shifted_smooth(pt, f, tau) - pt.sim[f]) if smooth and pt.sim_noisy.get(f)
+           else (E.shifted(pt, f, tau) - pt.sim_reg[f]) for f in term.cols}
     return out if nan else {f: np.nan_to_num(v) for f, v in out.items()}
 
 
@@ -373,7 +375,9 @@ def refine_nonlinear(prob: Problem, sel: list, iters: int = 8) -> list:
     for i in nl:
         t = out[i]
         b = f0.betas[i]
-        if 'theta' in t.meta:  # already linearised: continue from there
+        if t.meta.get('theta_fixed'):
+            theta = np.asarray(t.meta['theta'], float)
+        elif 'theta' in t.meta:  # already linearised: continue from there
             theta = np.asarray(t.meta['theta'], float) + b
         elif t.effect == 'time_offset':
             theta = np.array([b[0] * t.meta['tau_ref']])
@@ -385,11 +389,26 @@ def refine_nonlinear(prob: Problem, sel: list, iters: int = 8) -> list:
         step = 0.0
         for i in nl:
             t = out[i]
+            if t.meta.get('theta_fixed'):
+                continue
             theta = t.meta['theta'] + f.betas[i]
             step = max(step, float(np.max(np.abs(f.betas[i]))))
             out[i] = _linearise(prob, t, theta)
         if step < 1e-10:
             break
+    # A noisy simulation: tau comes from comparing the real channel with the smoothed,
+    # shifted simulation only (no sim noise at t in the objective, so no pull to half
+    # samples); the model kept for the other effects uses the leave-one-out form, whose
+    # noise is independent of theirs, with tau held at that value.
+    for i in nl:
+        t = out[i]
+        if t.effect == 'time_offset' and any(prob.pt.sim_noisy.get(f) for f in t.cols):
+            meta = dict(t.meta)
+            meta['raw_shift'] = True
+            meta['theta_fixed'] = True
+            t2 = E.Term(t.effect, t.topic, t.cols, t.group, t.channel, t.windowable, t.window,
+                        meta)
+            out[i] = _linearise(prob, t2, t.meta['theta'])
     return out
 
 
