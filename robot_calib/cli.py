@@ -126,6 +126,13 @@ def _replay(args: argparse.Namespace) -> int:
           f'summary.json, report.md')
     for name, why in summary['skipped'].items():
         print(f'skipped {name}: {why}')
+    for name, node in summary['nodes'].items():
+        errors = node.get('errors') if isinstance(node.get('errors'), dict) else \
+            node.get('replay_errors', {})
+        if errors:
+            first = (node.get('first_errors') or node.get('replay_first_errors') or [''])[0]
+            print(f'robot-calib replay: warning: {name} raised errors {errors}'
+                  + (f' (first: {first})' if first else ''), file=sys.stderr)
     return 0
 
 

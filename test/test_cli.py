@@ -193,3 +193,12 @@ def test_truncated_ros1_bag(shared_data, tmp_path, capsys):
                                          'imu:=/imu/data', '--nodes', ECHO]))
     assert 'cut.bag' in line
     _no_leftovers(tmp_path, out)
+
+
+def test_pipeline_errors_are_reported_but_not_fatal(bag, tmp_path, capsys):
+    code = main(['replay', str(bag), '--out', str(tmp_path / 'o'), '--nodes',
+                 'test_replay:BrokenPipeline', '--no-progress'])
+    err = capsys.readouterr().err
+    assert code == 0
+    assert 'warning: broken raised errors' in err and 'boom' in err
+    assert (tmp_path / 'o' / 'summary.json').is_file()
