@@ -108,10 +108,13 @@ class ImprovedFilterParams:
                                        'rest', minimum=0.0)
     rest_accel_threshold: float = param(0.5, 'm/s^2', 'Largest accelerometer deviation from '
                                         'its mean at rest', minimum=0.0)
-    rest_snap_angle: float = param(5.0, 'deg', 'At rest, when the filtered acceleration and '
-                                   'the mean accelerometer reading disagree by more than this, '
-                                   'the filter restarts from the mean (fast recovery after gyro '
-                                   'saturation or a gap)', minimum=0.0)
+    rest_snap_angle: float = param(5.0, 'deg', 'When the IMU is still and the filtered '
+                                   'acceleration and the mean accelerometer reading disagree by '
+                                   'more than this, the filter restarts from the mean (fast '
+                                   'recovery after gyro saturation or a gap; 0: off)',
+                                   minimum=0.0)
+    rest_snap_time: float = param(0.5, 's', 'How long the IMU must be still (and not '
+                                  'turning) before such a restart', minimum=0.0)
 
 
 @dataclass(frozen=True)
@@ -412,6 +415,7 @@ class AttitudeEstimator:
         self.p = p
         self.ts = ts
         self._deg = math.pi / 180.0
+        self._still_rate2 = (p.rest_gyro_threshold * self._deg) ** 2
         self.reset()
 
     # -- state ---------------------------------------------------------------------------
@@ -487,7 +491,8 @@ class AttitudeEstimator:
         # Acceleration in the almost-inertial frame, low-pass filtered there.
         a_i = _qrot(self.q_gyr, ax, ay, az)
         lp = self.acc_lp(a_i)
-        if self.rest and self.acc_lp.ready and p.rest_snap_angle > 0.0:
+        if p.rest_snap_angle > 0.0 and self.rest_time >= p.rest_snap_time \
+                and self.acc_lp.ready and self._turn_rate2(gx, gy, gz) < self._still_rate2:
             lp = self._rest_snap(lp)
         # Into the earth frame; correct the inclination so that it points up.
         ex, ey, ez = _qrot(self.q_inc, lp[0], lp[1], lp[2])
@@ -516,6 +521,11 @@ class AttitudeEstimator:
                 self._acc_x = self._acc_y = self._acc_dt = 0.0
                 self._acc_g = [0.0, 0.0, 0.0]
         return self.quat
+
+    def _turn_rate2(self, gx: float, gy: float, gz: float) -> float:
+        """Return the squared bias-corrected rate ((rad/s)^2)."""
+        b = self.bias
+        return (gx - b[0]) ** 2 + (gy - b[1]) ** 2 + (gz - b[2]) ** 2
 
     def _rest_snap(self, lp: list) -> list:
         """At rest, restart the acceleration filter from the mean reading if they disagree."""
