@@ -12,8 +12,8 @@ from the bag start). Each pipeline adds its own plots through
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
+import re
 from typing import Any
 
 import numpy as np
@@ -88,6 +88,22 @@ def _style(topic: str, kind: str) -> dict:
     return {'ls': '-' if kind == 'output' else '--', 'lw': 1.2, 'label': f'{topic} ({kind})'}
 
 
+def _brief(value: Any) -> str:
+    """Return a one-cell rendering of a result: scalars, short lists/maps, else a count."""
+    scalar = (str, int, float, bool, type(None))
+    if isinstance(value, scalar):
+        return _fmt(value).replace('|', '/')
+    if isinstance(value, list):
+        if len(value) <= 6 and all(isinstance(v, scalar) for v in value):
+            return '[' + ', '.join(_fmt(v) for v in value) + ']'
+        return f'{len(value)} items (see summary.json)'
+    if isinstance(value, dict):
+        if len(value) <= 8 and all(isinstance(v, scalar) for v in value.values()):
+            return ', '.join(f'{k}: {_fmt(v)}' for k, v in value.items()).replace('|', '/')
+        return f'{len(value)} entries (see summary.json)'
+    return _fmt(value)
+
+
 def _fmt(value: Any) -> str:
     if value is None:
         return 'n/a'
@@ -143,7 +159,8 @@ def render(summary: dict, generic: list[str], node_plots: dict[str, list[str]]) 
             lines.append(f'- note: {note}')
         results = {k: v for k, v in node.items() if k not in _STANDARD}
         if results:
-            lines += ['', '```json', json.dumps(results, indent=2)[:6000], '```']
+            lines += ['', '| result | value |', '|---|---|']
+            lines += [f'| {k} | {_brief(v)} |' for k, v in results.items()]
         for plot in node_plots.get(name, []):
             lines += ['', f'![{name}]({plot})']
     if summary.get('skipped'):
@@ -159,4 +176,4 @@ def render(summary: dict, generic: list[str], node_plots: dict[str, list[str]]) 
               f'{summary["output"]["storage"]}): ' + (', '.join(
                   f'`{t}` {n}' for t, n in summary['output']['topics'].items()) or 'no messages')
               + '.', '']
-    return '\n'.join(lines)
+    return re.sub(r'\n{3,}', '\n\n', '\n'.join(lines))
