@@ -543,12 +543,17 @@ class BagSet:
             batch = list(islice(it, block))
             if not batch:
                 return
-            groups: dict[int, list[int]] = {}
-            for i, item in enumerate(batch):
-                if item[0].decode_batch is not None:
-                    groups.setdefault(id(item[0]), []).append(i)
+            first = batch[0][0]
+            if all(b[0] is first for b in batch):  # one topic only: the common case
+                groups = [list(range(len(batch)))] if first.decode_batch is not None else []
+            else:
+                by_stream: dict[int, list[int]] = {}
+                for i, b in enumerate(batch):
+                    if b[0].decode_batch is not None:
+                        by_stream.setdefault(id(b[0]), []).append(i)
+                groups = list(by_stream.values())
             results: list = [None] * len(batch)
-            for idx in groups.values():
+            for idx in groups:
                 stream = batch[idx[0]][0]
                 try:
                     decoded = stream.decode_batch([batch[i][2] for i in idx])
@@ -556,13 +561,13 @@ class BagSet:
                     continue
                 for i, samples in zip(idx, decoded):
                     results[i] = samples
-            for (stream, time_ns, raw), samples in zip(batch, results):
-                if samples is None:
-                    try:
-                        samples = stream.decode(raw, time_ns)
-                    except Exception:  # noqa: B902 - the caller counts it
-                        samples = None
-                yield stream, time_ns, raw, samples
+            for i in [i for i, r in enumerate(results) if r is None]:
+                stream, time_ns, raw = batch[i]
+                try:
+                    results[i] = stream.decode(raw, time_ns)
+                except Exception:  # noqa: B902 - the caller counts it (samples None)
+                    pass
+            yield from [(b[0], b[1], b[2], r) for b, r in zip(batch, results)]
 
     @staticmethod
     def _iter(reader: Any, mine: dict[int, Stream]) -> Iterator[tuple[Stream, int, bytes]]:
