@@ -285,6 +285,7 @@ def _analyse_topic(pt: PairedTopic, sim: Recording, real: Recording, t0: float,
             sel, _ = S.forward_select(prob, cands, prm.margin, min_len, prm.max_terms)
     if sel and prm.mode != 'seed':
         sel = S.refine_windows(prob, sel, min_len)
+        sel = S.unexcited_windows(prob, sel)
     sel = S.refine_nonlinear(prob, sel)
     sel = S.backward_eliminate(prob, sel, prm.margin)
     sel = _implausible(prob, sel, not_judged)
@@ -308,6 +309,14 @@ def _analyse_topic(pt: PairedTopic, sim: Recording, real: Recording, t0: float,
             'rmse': _rmse(r, m), 'noise': prob.sigma[f], 'noise_inflation': prob.phi[f],
             'rmse_after': _rmse(r - final.contrib.get(f, 0.0), m),
             'beyond_noise': active_windows(pt.t, r, m, prob.sigma[f], prob.phi[f])}
+    for f in prob.fields:
+        ci = channel_info[f'{pt.name}.{f}']
+        left = ci['rmse_after'] or 0.0
+        if left > 3.0 * prob.sigma[f] * np.sqrt(prob.phi[f]) and left > 0:
+            not_judged.append({'channel': f'{pt.name}.{f}', 'reason': (
+                f'after the effects found the residual is still {left / prob.sigma[f]:.1f} '
+                'times the noise: the runs may not follow the same motion, or an effect '
+                'outside the library acts; findings on this channel are uncertain')})
     alts = S.alternatives(prob, sel, cands, min_len, prm.alt_margin) \
         if sel and prm.mode != 'seed' else {}
     base = S.score(prob, final)

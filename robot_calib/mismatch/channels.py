@@ -76,43 +76,30 @@ def _odom_twist_from_pose(t: np.ndarray, x: np.ndarray, y: np.ndarray,
     return v, dyaw
 
 
-def read_bag(path: os.PathLike | str) -> Recording:
-    """Read the IMU, odometry and velocity-command topics of a bag into a :class:`Recording`.
-
-    Odometry without a twist (all zero while the pose moves) gets its forward
-    speed (m/s) and yaw rate (rad/s) differentiated from the pose.
-
-    :param path: a ROS 1 bag file or a ROS 2 bag folder
-    :raises ChannelError: when the bag cannot be read
-    """
-    from robot_calib.io import bags
+def _add(buf: dict, topic: str, msgtype: str, s) -> None:
+    """Append one core sample to the per-topic column buffers."""
     from robot_calib.core import types as T
-    buf: dict = {}
-    try:
-        for msg in bags.read_messages([path]):
-            if msg.msgtype not in COMPARED_TYPES and msg.msgtype not in TWIST_TYPES:
-                continue
-            for s in msg.samples:
-                b = buf.setdefault(msg.topic, {'type': msg.msgtype, 't': [], 'cols': {}})
-                cols = b['cols']
-                if isinstance(s, T.ImuSample):
-                    vals = (s.gyro[0], s.gyro[1], s.gyro[2], s.accel[0], s.accel[1], s.accel[2])
-                    names = IMU_FIELDS
-                elif isinstance(s, T.OdomSample):
-                    vals = (s.vx, s.wz, s.x, s.y, s.yaw)
-                    names = ODOM_FIELDS + ('pose.x', 'pose.y', 'pose.yaw')
-                elif isinstance(s, T.TwistSample):
-                    vals = (s.vx, s.wz)
-                    names = TWIST_FIELDS
-                else:
-                    continue
-                b['t'].append(s.t)
-                for k, v in zip(names, vals):
-                    cols.setdefault(k, []).append(v)
-    except bags.BagError as exc:
-        raise ChannelError(str(exc)) from None
-    except (OSError, ValueError, KeyError) as exc:
-        raise ChannelError(f'cannot read {path}: {exc}') from None
+    if isinstance(s, T.ImuSample):
+        vals = (s.gyro[0], s.gyro[1], s.gyro[2], s.accel[0], s.accel[1], s.accel[2])
+        names = IMU_FIELDS
+        msgtype = msgtype or IMU_TYPE
+    elif isinstance(s, T.OdomSample):
+        vals = (s.vx, s.wz, s.x, s.y, s.yaw)
+        names = ODOM_FIELDS + ('pose.x', 'pose.y', 'pose.yaw')
+        msgtype = msgtype or ODOM_TYPE
+    elif isinstance(s, T.TwistSample):
+        vals = (s.vx, s.wz)
+        names = TWIST_FIELDS
+        msgtype = msgtype or TWIST_TYPES[0]
+    else:
+        return
+    b = buf.setdefault(topic, {'type': msgtype, 't': [], 'cols': {}})
+    b['t'].append(s.t)
+    for k, v in zip(names, vals):
+        b['cols'].setdefault(k, []).append(v)
+
+
+def _finish(buf: dict) -> Recording:
     rec: Recording = {}
     for topic, b in buf.items():
         tp = _sorted_topic(topic, b['type'], b['t'], b['cols'])
@@ -128,6 +115,41 @@ def read_bag(path: os.PathLike | str) -> Recording:
             tp.fields.pop(k, None)
         rec[topic] = tp
     return rec
+
+
+def recording_from_samples(items) -> Recording:
+    """Return a :class:`Recording` of ``(topic, core sample)`` pairs (e.g. a simulator run).
+
+    IMU, odometry and twist samples are kept; others are ignored.
+    """
+    buf: dict = {}
+    for topic, s in items:
+        _add(buf, '/' + str(topic).lstrip('/'), '', s)
+    return _finish(buf)
+
+
+def read_bag(path: os.PathLike | str) -> Recording:
+    """Read the IMU, odometry and velocity-command topics of a bag into a :class:`Recording`.
+
+    Odometry without a twist (all zero while the pose moves) gets its forward
+    speed (m/s) and yaw rate (rad/s) differentiated from the pose.
+
+    :param path: a ROS 1 bag file or a ROS 2 bag folder
+    :raises ChannelError: when the bag cannot be read
+    """
+    from robot_calib.io import bags
+    buf: dict = {}
+    try:
+        for msg in bags.read_messages([path]):
+            if msg.msgtype not in COMPARED_TYPES and msg.msgtype not in TWIST_TYPES:
+                continue
+            for s in msg.samples:
+                _add(buf, msg.topic, msg.msgtype, s)
+    except bags.BagError as exc:
+        raise ChannelError(str(exc)) from None
+    except (OSError, ValueError, KeyError) as exc:
+        raise ChannelError(f'cannot read {path}: {exc}') from None
+    return _finish(buf)
 
 
 @dataclass

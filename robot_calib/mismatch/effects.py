@@ -18,7 +18,9 @@ parameters:
 - ``centripetal_acceleration``: real a_y = sim a_y + k v omega; regressor v omega
 - ``imu_mounting_tilt``: real a = R(roll, pitch)^T sim a with R = Ry(pitch) Rx(roll)
   (sensor in base); first order d a_x = -pitch a_z, d a_y = roll a_z,
-  d a_z = -roll a_y + pitch a_x; refined exactly afterwards
+  d a_z = -roll a_y + pitch a_x; refined exactly afterwards. A second variant
+  rotates the gyro too (a physically tilted IMU sees the yaw rate on x and y);
+  the selection keeps whichever the data support
 - ``wheel_radius_scale``: real v = (1 + k) sim v
 - ``track_width_scale``: real omega = sim omega / (1 + k); fitted as (1 + beta) sim,
   k = 1 / (1 + beta) - 1
@@ -292,6 +294,15 @@ def candidates(pt: PairedTopic, sigma: dict, aux: dict) -> tuple[list, list]:
                     fz: np.column_stack((-sy, sx))}
             terms.append(Term('imu_mounting_tilt', pt.name, cols, 'tilt', f'{pt.name}.{fy}',
                               windowable=False))
+            gx, gy, gz = (f'angular_velocity.{a}' for a in 'xyz')
+            if all(f in gyro for f in (gx, gy, gz)) and _informative(sim[gz], sigma[gz]):
+                # a tilted IMU also turns the yaw rate into its x and y gyro axes
+                qx, qy, qz = (np.nan_to_num(sim[f]) for f in (gx, gy, gz))
+                cols2 = dict(cols)
+                cols2.update({gx: np.column_stack((z, -qz)), gy: np.column_stack((qz, z)),
+                              gz: np.column_stack((-qy, qx))})
+                terms.append(Term('imu_mounting_tilt', pt.name, cols2, 'tilt',
+                                  f'{pt.name}.{fy}', windowable=False, meta={'gyro': True}))
     elif pt.msgtype == ODOM_TYPE:
         fv, fw = 'twist.twist.linear.x', 'twist.twist.angular.z'
         if fv in fields:

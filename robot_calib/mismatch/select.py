@@ -306,6 +306,31 @@ def backward_eliminate(prob: Problem, sel: list, margin: float) -> list:
     return out
 
 
+def unexcited_windows(prob: Problem, sel: list, frac: float = 0.03) -> list:
+    """Make windowed terms global when their regressor hardly acts outside the window.
+
+    When less than ``frac`` of a term's regressor energy lies outside its
+    window, the recording cannot tell "acts only here" from "acts always";
+    the simpler claim (no window) is reported.
+    """
+    out = list(sel)
+    for i, t in enumerate(out):
+        if t.window is None:
+            continue
+        i0, i1 = t.window
+        tot = inside = 0.0
+        for f in t.cols:
+            if f not in prob.fields:
+                continue
+            X = _mcols(prob, t, f)
+            e = np.einsum('ij,ij->i', X, X) * prob.w[f]
+            tot += float(e.sum())
+            inside += float(e[i0:i1].sum())
+        if tot > 0 and (tot - inside) < frac * tot:
+            out[i] = t.with_window(None)
+    return out
+
+
 def refine_windows(prob: Problem, sel: list, min_len: int) -> list:
     """Re-locate each windowed term's window given all the other terms."""
     out = list(sel)
@@ -325,12 +350,16 @@ def refine_windows(prob: Problem, sel: list, min_len: int) -> list:
     return out
 
 
-def _tilt_exact(prob: Problem, theta: np.ndarray) -> dict:
+def _tilt_exact(prob: Problem, theta: np.ndarray, term: E.Term) -> dict:
     pt = prob.pt
-    fx, fy, fz = ('linear_acceleration.x', 'linear_acceleration.y', 'linear_acceleration.z')
-    sx, sy, sz = (np.nan_to_num(pt.sim_reg[f]) for f in (fx, fy, fz))
-    rx, ry, rz = E.tilt_rotate(sx, sy, sz, theta[0], theta[1])
-    return {fx: rx - sx, fy: ry - sy, fz: rz - sz}
+    out = {}
+    kinds = ['linear_acceleration'] + (['angular_velocity'] if term.meta.get('gyro') else [])
+    for kind in kinds:
+        fx, fy, fz = (f'{kind}.{a}' for a in 'xyz')
+        sx, sy, sz = (np.nan_to_num(pt.sim_reg[f]) for f in (fx, fy, fz))
+        rx, ry, rz = E.tilt_rotate(sx, sy, sz, theta[0], theta[1])
+        out.update({fx: rx - sx, fy: ry - sy, fz: rz - sz})
+    return out
 
 
 def _time_exact(prob: Problem, term: E.Term, tau: float, nan: bool = False) -> dict:
@@ -344,11 +373,11 @@ def _time_exact(prob: Problem, term: E.Term, tau: float, nan: bool = False) -> d
 def _linearise(prob: Problem, term: E.Term, theta: np.ndarray) -> E.Term:
     """Return the term linearised at ``theta``: exact offset + Jacobian columns."""
     if term.effect == 'imu_mounting_tilt':
-        off = _tilt_exact(prob, theta)
+        off = _tilt_exact(prob, theta, term)
         h = 1e-6
         cols = {}
-        jr = _tilt_exact(prob, theta + [h, 0.0])
-        jp = _tilt_exact(prob, theta + [0.0, h])
+        jr = _tilt_exact(prob, theta + [h, 0.0], term)
+        jp = _tilt_exact(prob, theta + [0.0, h], term)
         for f in off:
             cols[f] = np.column_stack(((jr[f] - off[f]) / h, (jp[f] - off[f]) / h))
     else:
