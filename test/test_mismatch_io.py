@@ -191,3 +191,26 @@ def test_ferraris_protocol_scale_and_bias(shared_data):
     sx = eff.get(('gyro_scale', '/imu.angular_velocity.x'))
     assert sx is not None and 0.02 < sx['scale'] < 0.04
     assert any(e in ('accel_bias', 'imu_mounting_tilt') for e, _ in eff)
+
+
+def test_project_simulator_pair_gyro_bias():
+    sim_mod = pytest.importorskip('robot_calib.sim')
+    from robot_calib.mismatch.channels import recording_from_samples
+    base = {'imu.gyro_noise': '0.002', 'imu.accel_noise': '0.02'}
+    plain = sim_mod.run_scenario('drive', seed=3, duration=60.0, overrides=dict(base))
+    over = dict(base)
+    over['imu.gyro_bias'] = '[0.004, -0.003, 0.0]'
+    real = sim_mod.run_scenario('drive', seed=3, duration=60.0, overrides=over)
+    diff = np.array(real.truth['gyro_bias']) - np.array(plain.truth['gyro_bias'])
+    drop = ('/ground_truth/odom',)
+    res, _ = analyse_recordings(
+        recording_from_samples([m for m in plain.messages if m[0] not in drop]),
+        recording_from_samples([m for m in real.messages if m[0] not in drop]))
+    found = {f['channel']: f['parameters']['bias'] for f in res['findings']
+             if f['effect'] == 'gyro_bias'}
+    for ax, d in zip('xyz', diff):
+        ch = f'/imu.angular_velocity.{ax}'
+        if abs(d) > 1e-3:
+            assert found.get(ch) == pytest.approx(d, rel=0.1), res['findings']
+        else:
+            assert ch not in found
