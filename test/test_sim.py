@@ -347,3 +347,14 @@ def test_tipped_lidar_sees_the_floor():
     assert scan[180] == pytest.approx(z / math.sin(0.3), abs=1e-6)
     behind = 10.0 + r.true['pos'][-1, 0] + 0.2 * math.sin(0.3)
     assert scan[0] == pytest.approx(behind / math.cos(0.3), abs=1e-6)
+
+
+def test_repeated_closed_loop_steps_run_again():
+    lap = Plan().stop(1.0).goto([(2.0, 0.0)], speed=0.5).goto([(0.0, 0.0)], speed=0.5)
+    r = run_plan(Plan().repeat(lap, until=60.0), start=(0.0, 0.0, 0.0), duration=40.0)
+    tr = r.true
+    late = tr['t'] > 20.0
+    assert tr['x'][late].max() > 1.9  # the second lap's goto drove out again
+    assert 'drive' in SCENARIOS
+    drive = run_scenario('drive', duration=200.0)
+    assert np.mean(np.abs(drive.true['v'][drive.true['t'] > 100.0]) > 0.05) > 0.4

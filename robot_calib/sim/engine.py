@@ -178,15 +178,16 @@ def _run_plan(plant: Plant, plan: Any, total_ticks: int, tick_dt: float) -> list
             continue
         n_full = int(round(step.duration / tick_dt))
         n = min(n_full, left)
-        if step.controller is None:
+        if step.controller is None and step.factory is None:
             if n > 0:
                 values = step.values(n, tick_dt)
                 if step.exact and n_full > 0:
                     values = values * (step.duration / (n_full * tick_dt))
                 plant.advance(step.kind, values)
             continue
+        control = step.factory() if step.factory is not None else step.controller
         for _ in range(n):
-            cmd = step.controller(plant.state())
+            cmd = control(plant.state())
             if cmd is None:
                 break
             plant.advance(step.kind, np.asarray(cmd, dtype=float))

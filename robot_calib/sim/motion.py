@@ -68,6 +68,8 @@ class Step:
     values: Optional[Callable[[int, float], np.ndarray]] = None
     controller: Optional[Controller] = None
     event: Optional[dict] = None
+    factory: Optional[Callable[[], Controller]] = None
+    """Makes a fresh controller each time the step starts (stateful controllers, repeats)."""
     label: str = ''
     exact: bool = False
     """Scale the command so that its integral is exact despite whole control ticks."""
@@ -122,11 +124,37 @@ class TipOver:
         return self.direction * np.interp(tau, np.arange(n) * dt, theta)
 
 
+def _goto(s: State, points: list, index: list, speed: float, turn_rate: float,
+          tolerance: float, turn_first: float) -> Optional[tuple]:
+    """Waypoint controller step (see :meth:`Plan.goto`); ``index`` holds the progress."""
+    while index[0] < len(points):
+        gx, gy = points[index[0]]
+        dist = math.hypot(gx - s.x, gy - s.y)
+        if dist > tolerance:
+            break
+        index[0] += 1
+    else:
+        return None
+    err = wrap_angle(math.atan2(gy - s.y, gx - s.x) - s.yaw)
+    w = max(-turn_rate, min(turn_rate, 2.5 * err))
+    if abs(err) > turn_first:
+        return 0.0, w
+    last = index[0] == len(points) - 1
+    v = min(speed, 1.2 * dist) if last else speed
+    return v * math.cos(err), w
+
+
 @dataclass
 class Plan:
     """A sequence of motion steps (see the module docstring)."""
 
     steps: list = field(default_factory=list)
+
+    @property
+    def open_loop_duration(self) -> float:
+        """Return the length (s) of the open-loop steps only (closed-loop steps count 0)."""
+        return float(sum(s.duration for s in self.steps
+                         if s.controller is None and s.factory is None))
 
     @property
     def duration(self) -> float:
@@ -204,9 +232,18 @@ class Plan:
         return self
 
     # -- closed loop ---------------------------------------------------------------------
-    def custom(self, controller: Controller, timeout: float, label: str = 'custom') -> 'Plan':
-        """Run ``controller(state) -> (v, w) | None`` each tick until None or ``timeout`` (s)."""
-        self.steps.append(Step(float(timeout), TWIST, controller=controller, label=label))
+    def custom(self, controller: Controller, timeout: float, label: str = 'custom',
+               factory: bool = False) -> 'Plan':
+        """Run ``controller(state) -> (v, w) | None`` each tick until None or ``timeout`` (s).
+
+        With ``factory=True``, ``controller`` is a zero-argument callable that
+        returns a fresh controller each time the step starts: use this for
+        controllers with internal state in plans that are repeated.
+        """
+        if factory:
+            self.steps.append(Step(float(timeout), TWIST, factory=controller, label=label))
+        else:
+            self.steps.append(Step(float(timeout), TWIST, controller=controller, label=label))
         return self
 
     def goto(self, waypoints: Sequence[Sequence[float]], speed: float = 0.3,
@@ -219,25 +256,11 @@ class Plan:
         a waypoint is reached within ``tolerance`` (m). Stops after ``timeout`` (s).
         """
         points = [tuple(map(float, p[:2])) for p in waypoints]
-        index = [0]
 
-        def control(s: State) -> Optional[tuple]:
-            while index[0] < len(points):
-                gx, gy = points[index[0]]
-                dist = math.hypot(gx - s.x, gy - s.y)
-                if dist > tolerance:
-                    break
-                index[0] += 1
-            else:
-                return None
-            err = wrap_angle(math.atan2(gy - s.y, gx - s.x) - s.yaw)
-            w = max(-turn_rate, min(turn_rate, 2.5 * err))
-            if abs(err) > turn_first:
-                return 0.0, w
-            last = index[0] == len(points) - 1
-            v = min(speed, 1.2 * dist) if last else speed
-            return v * math.cos(err), w
-        return self.custom(control, timeout, 'goto')
+        def make() -> Controller:
+            index = [0]
+            return lambda s: _goto(s, points, index, speed, turn_rate, tolerance, turn_first)
+        return self.custom(make, timeout, 'goto', factory=True)
 
     def face(self, yaw: float, rate: float = 0.8, tolerance: float = 0.01,
              timeout: float = 20.0) -> 'Plan':
@@ -285,9 +308,16 @@ class Plan:
         return self
 
     def repeat(self, other: 'Plan', until: float) -> 'Plan':
-        """Append ``other``'s steps again and again until this plan lasts ``until`` (s)."""
-        if other.duration <= 0:
+        """Append ``other``'s steps again and again until this plan surely lasts ``until`` (s).
+
+        Closed-loop steps count as taking no time here (they usually end well
+        before their time limit), so enough repetitions are appended; the
+        engine cuts the plan at the run's duration.
+        """
+        lap = other.open_loop_duration
+        if lap <= 0:
+            self.steps.extend(other.steps)
             return self
-        while self.duration < until:
+        while self.open_loop_duration < until:
             self.steps.extend(other.steps)
         return self
