@@ -358,3 +358,21 @@ def test_repeated_closed_loop_steps_run_again():
     assert 'drive' in SCENARIOS
     drive = run_scenario('drive', duration=200.0)
     assert np.mean(np.abs(drive.true['v'][drive.true['t'] > 100.0]) > 0.05) > 0.4
+
+
+def test_gyro_drift_warmup_and_latency():
+    over = dict(IDEAL_IMU, **{'imu.gyro_bias': [0.0, 0.0, 0.01],
+                              'imu.gyro_bias_drift': [0.0, 0.0, 1e-4],
+                              'imu.gyro_warmup': [0.0, 0.0, 0.02], 'imu.gyro_warmup_tau': 5.0})
+    r = run_plan(Plan().stop(20.0), over)
+    t, gz = r.sensors['imu_t'], r.sensors['gyro'][:, 2]
+    assert np.allclose(gz, 0.01 + 1e-4 * t + 0.02 * np.exp(-t / 5.0), atol=1e-12)
+    plan = Plan().stop(1.0).turn(math.pi, 1.0).stop(1.0)
+    a = run_plan(plan, IDEAL_IMU)
+    b = run_plan(plan, dict(IDEAL_IMU, **{'latency.imu': 0.05, 'latency.scan': 0.1}))
+    ga = a.sensors['gyro'][:, 2]
+    gb = b.sensors['gyro'][:, 2]
+    # stamped t, measured at t - latency: b(t) = a(t - 0.05), 10 IMU periods later
+    assert np.allclose(gb[10:], ga[:-10], atol=1e-9)
+    assert np.ptp(ga) > 0.9
+    assert np.array_equal(a.sensors['imu_t'], b.sensors['imu_t'])

@@ -48,12 +48,25 @@ The pieces:
   ``add_polygon``, ``add_circle``, ``add_segment``, ``add_terrain(Ramp|Bump|Step)``),
   ``start`` (x, y, yaw of base_link in the world, m and rad), ``plan`` (a
   :class:`~robot_calib.sim.motion.Plan`: ``stop``, ``twist``, ``straight``,
-  ``turn``, ``arc``, ``wheels``, ``steer``, ``profile``, ``goto``,
+  ``turn``, ``arc``, ``wheels``, ``steer``, ``profile``, ``goto``, ``face``,
   ``follow_wall``, ``custom``, ``tip_over``, ``repeat``), and optionally
   ``truth`` (extra scenario facts for ``truth.json``, e.g. the reference
   wall angles; JSON-able values, merged into ``truth.json`` without replacing
   the engine's keys).
-- The plan is padded with a stop or cut to the duration.
+- The plan is padded with a stop or cut to the duration. ``repeat(lap,
+  until=ctx.duration)`` appends enough laps (closed-loop steps count as
+  instant there). A stateful ``custom`` controller in a repeated lap must be
+  given as a factory (``custom(make, timeout, factory=True)``) so each lap
+  starts fresh; ``goto``/``face``/``follow_wall`` already are.
+- Closed-loop steps see the TRUE state (``motion.State``: t, x, y, yaw, v, w,
+  world), as if a perfect localisation ran on the robot; open-loop steps are
+  affected by the wheel errors like a real robot driving blind.
+- Tilt: terrain features give roll, pitch and height under the wheels;
+  ``plan.tip_over(axis='pitch'|'roll', direction=+1|-1, angle=..., mode=
+  'scripted'|'free', duration=...)`` tips the robot over (see
+  :class:`~robot_calib.sim.motion.TipOver`); the IMU and the lidar follow.
+- Tests and tools can run a hand-made :class:`Setup` without registering it:
+  ``robot_calib.sim.run_setup(setup, engine.make_params(None, overrides), duration)``.
 - Time-dependent errors (``wheels.slip_episodes``, gyro drift, warm-up) are
   given in seconds from the start of the run.
 
