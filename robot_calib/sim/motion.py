@@ -310,14 +310,14 @@ class Plan:
     def repeat(self, other: 'Plan', until: float) -> 'Plan':
         """Append ``other``'s steps again and again until this plan surely lasts ``until`` (s).
 
-        Closed-loop steps count as taking no time here (they usually end well
-        before their time limit), so enough repetitions are appended; the
-        engine cuts the plan at the run's duration.
+        Laps are appended until both the open-loop time (closed-loop steps
+        counted as instant: they usually end well before their time limit)
+        and :attr:`duration` (closed-loop steps counted with their limit)
+        reach ``until``; the engine cuts the plan at the run's duration.
         """
-        lap = other.open_loop_duration
-        if lap <= 0:
-            self.steps.extend(other.steps)
+        if other.duration <= 0:
             return self
-        while self.open_loop_duration < until:
+        lap = other.open_loop_duration
+        while self.duration < until or (lap > 0 and self.open_loop_duration < until):
             self.steps.extend(other.steps)
         return self
