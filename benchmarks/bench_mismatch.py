@@ -199,9 +199,12 @@ def score_suite(rows: list) -> dict:
 def _stlsq(X: np.ndarray, y: np.ndarray, thr: float) -> np.ndarray:
     """Sequentially thresholded least squares (Brunton et al. 2016) on normalised columns."""
     try:
+        import warnings
         import pysindy as ps
         opt = ps.STLSQ(threshold=thr, alpha=0.0, normalize_columns=False)
-        opt.fit(X, y.reshape(-1, 1))
+        with warnings.catch_warnings():
+            warnings.simplefilter('ignore')  # "eliminated all coefficients" is the abstention
+            opt.fit(X, y.reshape(-1, 1))
         return np.asarray(opt.coef_).ravel()
     except ImportError:
         beta = np.linalg.lstsq(X, y, rcond=None)[0]

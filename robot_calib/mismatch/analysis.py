@@ -51,7 +51,7 @@ class MismatchParams:
                                 minimum=0.0)
     heldout_chunks: int = param(60, '', 'chunks of the time line; every third is held out',
                                 minimum=3)
-    max_terms: int = param(8, '', 'most effects selected per topic', minimum=1)
+    max_terms: int = param(14, '', 'most effects selected per topic', minimum=1)
 
 
 def _t_abs_interp(t_src: np.ndarray, x: np.ndarray, t_dst: np.ndarray) -> np.ndarray:
