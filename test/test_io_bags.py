@@ -449,3 +449,30 @@ def test_batch_decoder_equals_per_message(tmp_path):
     errors = {}
     assert len(list(bags.read_messages([path], errors=errors))) == 299
     assert errors == {'/imu': 1}
+
+
+@pytest.mark.parametrize('compress', [False, True])
+def test_direct_mcap_records_are_byte_identical(tmp_path, compress):
+    rng = np.random.default_rng(3)
+    items = []
+    for i in range(4000):  # several chunks, three topics, out-of-order times
+        ns = 10**9 + i * 5_000_000 + int(rng.integers(0, 20_000_000))
+        items.append(('/imu', T.ImuSample(ns * 1e-9, rng.normal(size=3), rng.normal(size=3),
+                                          stamp_ns=ns), ns))
+        if i % 4 == 0:
+            items.append(('/odom', T.OdomSample(ns * 1e-9, *rng.normal(size=3), stamp_ns=ns),
+                          ns))
+        if i % 50 == 0:
+            items.append(('/alert', T.BoolSample(ns * 1e-9, bool(i % 100)), ns))
+    files = []
+    for fast in (True, False):
+        (tmp_path / str(fast)).mkdir()
+        writer = bags.BagWriter(tmp_path / str(fast) / 'bag', compress=compress)
+        writer.fast_mcap = fast
+        with writer as w:
+            assert (w._mcap is not None) == fast
+            for topic, sample, ns in items:
+                w.write(topic, sample, ns)
+        files.append({p.name: p.read_bytes() for p in (tmp_path / str(fast) / 'bag').iterdir()})
+    assert files[0] == files[1]
+    assert len(list(bags.read_messages([tmp_path / 'True' / 'bag']))) == len(items)

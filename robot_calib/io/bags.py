@@ -718,6 +718,8 @@ class BagWriter:
         self._tmp = self._tmpdir / self.path.name
         self._latched = {normalize_topic(t) for t in latched}
         self._writer = None
+        self._mcap = None
+        self.fast_mcap = True  # write mcap records directly (same bytes as rosbags)
         self._conns: dict[str, Any] = {}
         self.count = 0
         self.counts: dict[str, int] = {}
@@ -733,6 +735,7 @@ class BagWriter:
             if self._compress:
                 self._writer.set_compression(CompressionMode.STORAGE, CompressionFormat.ZSTD)
             self._writer.open()
+            self._mcap = _fast_mcap_storage(self._writer) if self.fast_mcap else None
         except OSError as exc:
             shutil.rmtree(self._tmpdir, ignore_errors=True)
             raise BagError(f'cannot write bag {self.path}: {_one_line(exc)}') from None
@@ -771,9 +774,46 @@ class BagWriter:
         """Write CDR bytes of ``msgtype``."""
         topic = normalize_topic(topic)
         conn = self._connection(topic, msgtype)
-        self._writer.write(conn, int(time_ns), data)
+        time_ns = int(time_ns)
+        if self._mcap is not None:
+            self._write_mcap(conn, time_ns, data)
+        else:
+            self._writer.write(conn, time_ns, data)
         self.count += 1
         self.counts[topic] = self.counts.get(topic, 0) + 1
+
+    def _write_mcap(self, conn: Any, ts: int, data: bytes) -> None:
+        """
+        Append one message record as rosbags' McapWriter.write does, byte for byte.
+
+        rosbags builds each record field by field through a BytesIO and checks the
+        connection by equality against all others; this packs the 31-byte record
+        header at once (op 0x05, length, channel id, sequence 0, log and publish
+        time) and keeps the same chunk index and statistics.
+        """
+        writer, st = self._writer, self._mcap
+        cid = conn.id
+        chunk = st.chunk
+        if ts < st.message_start_time:
+            st.message_start_time = ts
+        if ts > st.message_end_time:
+            st.message_end_time = ts
+        st.channel_stats[cid] += 1
+        if ts < chunk.message_start_time:
+            chunk.message_start_time = ts
+        if ts > chunk.message_end_time:
+            chunk.message_end_time = ts
+        bio = chunk.bio
+        chunk.msgs[cid].append((ts, bio.tell()))
+        bio.write(_MCAP_RECORD.pack(0x05, 22 + len(data), cid, 0, ts, ts))
+        bio.write(data)
+        if bio.tell() > 2**20:
+            st.close_chunk()
+        writer.counts[cid] += 1
+        if ts < writer.min_timestamp:
+            writer.min_timestamp = ts
+        if ts > writer.max_timestamp:
+            writer.max_timestamp = ts
 
     def __exit__(self, exc_type, exc, tb) -> None:
         """Close; on success move the bag into place, on error remove the partial bag."""
@@ -786,6 +826,23 @@ class BagWriter:
         if exc_type is None:
             os.replace(self._tmp, self.path)
         shutil.rmtree(self._tmpdir, ignore_errors=True)
+
+
+_MCAP_RECORD = struct.Struct('<BQHIQQ')
+
+
+def _fast_mcap_storage(writer: Any) -> Any:
+    """Return rosbags' McapWriter of an open Writer when records can be appended directly."""
+    from rosbags.rosbag2 import CompressionMode
+    from rosbags.rosbag2.storage_mcap import McapWriter
+    st = getattr(writer, 'storage', None)
+    if type(st) is not McapWriter or writer.compression_mode == CompressionMode.MESSAGE:
+        return None
+    needed = ('chunk', 'channel_stats', 'message_start_time', 'message_end_time', 'close_chunk')
+    if not all(hasattr(st, n) for n in needed) or not all(
+            hasattr(writer, n) for n in ('counts', 'min_timestamp', 'max_timestamp')):
+        return None
+    return st
 
 
 def _latched_qos() -> Any:
