@@ -222,10 +222,11 @@ def regressor_signal(x: np.ndarray, half: int = 2) -> np.ndarray:
     xs = x[ok]
     nb = max(1, xs.size // 200)
     noisy = 0
+    tiny = 1e-6 * float(np.max(np.abs(xs))) + 1e-12  # rounding-level wiggles are not noise
     for blk in np.array_split(xs, nb):
         d1 = np.median(np.abs(np.diff(blk) - np.median(np.diff(blk))))
         d2 = np.median(np.abs(np.diff(blk, 2)))
-        noisy += d1 > 0 and d2 / d1 > 0.5
+        noisy += d1 > tiny and d2 / d1 > 0.5
     if noisy < max(1, 0.1 * nb):
         return x
     # correlated simulator noise (e.g. a rate differentiated over several samples):
