@@ -307,6 +307,8 @@ def imu_batch_from_cdr(raws: list) -> list:
 
 
 _FAST_CDR = {'sensor_msgs/msg/Imu': imu_from_cdr, 'nav_msgs/msg/Odometry': odom_from_cdr}
+FAST_DECODERS = _FAST_CDR
+"""Direct decoders of little-endian CDR by message type (same samples as convert.deserialize)."""
 _BATCH_CDR = {'sensor_msgs/msg/Imu': imu_batch_from_cdr}
 _FAST_ROS1 = {'sensor_msgs/msg/Imu': imu_from_ros1, 'nav_msgs/msg/Odometry': odom_from_ros1}
 

@@ -26,7 +26,7 @@ from rclpy.qos import (DurabilityPolicy, HistoryPolicy, qos_profile_sensor_data,
                        ReliabilityPolicy)
 
 from robot_calib.core.params import ParamError
-from robot_calib.io import convert
+from robot_calib.io import bags, convert
 from robot_calib.nodes.ros_params import declare_params
 from robot_calib.pipelines.base import KINDS, Pipeline
 
@@ -94,7 +94,11 @@ class PipelineNode(Node):
     def _on_message(self, key: str, msgtype: str, data: bytes) -> None:
         start = time.perf_counter()
         try:
-            samples = convert.deserialize(msgtype, data, self.get_clock().now().nanoseconds)
+            fast = bags.FAST_DECODERS.get(msgtype)
+            if fast is not None and len(data) > 1 and data[1] == 1:  # little-endian CDR
+                samples = [fast(data)]
+            else:
+                samples = convert.deserialize(msgtype, data, self.get_clock().now().nanoseconds)
         except Exception as exc:  # noqa: B902 - a bad message must never stop the node
             self.undecodable += 1
             self.pipeline.reject(key, 'undecodable')
@@ -116,7 +120,7 @@ class PipelineNode(Node):
     def publish(self, outputs: list) -> None:
         """Serialize and publish pipeline outputs."""
         for key, sample in outputs:
-            _, raw = convert.serialize(sample)
+            _, raw = bags.serialize(sample)
             self._pubs[key].publish(raw)
 
     def callback_p99(self) -> float:
