@@ -643,11 +643,11 @@ class ImprovedFusion(_Base):
         acc[3] += c * dt
         acc[4] += s * dt
         self.t = t
-        if acc[0] >= 0.1:
+        if acc[0] >= 0.25:
             self._flush()
 
     def _flush(self) -> None:
-        """Propagate P over the pending chunk of prediction (<= 0.1 s): P = F P F' + Q."""
+        """Propagate P over the pending chunk of prediction (<= 0.25 s): P = F P F' + Q."""
         dt, dx, dy, sc, ss = self._cov_acc
         if dt <= 0.0:
             return
