@@ -262,11 +262,9 @@ def _analyse_topic(pt: PairedTopic, sim: Recording, real: Recording, t0: float,
     for c in cannot:
         if c not in notes:
             notes.append(c)
-    dur = float(pt.t[-1] - pt.t[0]) if pt.t.size > 1 else 0.0
     min_len = max(20, int(prm.min_window * prob.n),
                   int(prm.min_window_s / max(pt.dt, 1e-9)))
-    if prm.mode == 'seed':
-        cands = [c for c in cands if True]
+    if prm.mode == 'seed':  # global effects only: no window can be as long as this
         min_len = prob.n + 1
     sel, _ = S.forward_select(prob, cands, prm.margin, min_len, prm.max_terms)
     if sel:
@@ -353,7 +351,6 @@ def _analyse_topic(pt: PairedTopic, sim: Recording, real: Recording, t0: float,
             fd['explanation'] += f' This recording cannot clearly tell it from {names}; ' \
                 f'{fd["alternatives"][0]["separating_motion"]}.'
         findings.append(fd)
-    _ = dur
     return findings, prob, sel
 
 
