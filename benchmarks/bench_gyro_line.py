@@ -1,6 +1,7 @@
 # Copyright 2026 robot_calib contributors
 # SPDX-License-Identifier: Apache-2.0
-"""Benchmark of gyro_line_calibration (issue 5): simulated vacuum runs, speed, real CARMEN data.
+"""
+Benchmark of gyro_line_calibration (issue 5): simulated vacuum runs, speed, real CARMEN data.
 
 Run from the repository root::
 

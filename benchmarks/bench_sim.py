@@ -1,6 +1,7 @@
 # Copyright 2026 robot_calib contributors
 # SPDX-License-Identifier: Apache-2.0
-"""Simulator speed benchmark: the ``drive`` scenario, in memory and written to a bag.
+"""
+Simulator speed benchmark: the ``drive`` scenario, in memory and written to a bag.
 
 Run from the repository root: ``.venv/bin/python benchmarks/bench_sim.py [--runs N]``.
 Prints a markdown table and writes it to ``docs/bench/2-sim.md``.

@@ -107,7 +107,8 @@ def fill_short_gaps(t: np.ndarray, x: np.ndarray, max_gap: float = 0.2) -> np.nd
 
 def score_alerts(t: np.ndarray, true_tilt: np.ndarray, alert: np.ndarray,
                  fall: float = FALL, band: float = TL.CLEAR_MARGIN) -> dict:
-    """Score an alert signal against the true tilt (rad) per sample.
+    """
+    Score an alert signal against the true tilt (rad) per sample.
 
     True episodes: runs of true tilt > ``fall``. An alert onset is spurious
     when the true tilt stays below ``fall - band`` within +-0.1 s of it (onsets

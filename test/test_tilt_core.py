@@ -24,7 +24,8 @@ def _expq(v):
 
 def synth(rate_fn, t_end, fs=200.0, q0=(1.0, 0.0, 0.0, 0.0), lin_acc_fn=None,
           gyro_bias=(0.0, 0.0, 0.0)):
-    """Integrate body rates exactly (constant per sample); return t, gyro, accel, q_true.
+    """
+    Integrate body rates exactly (constant per sample); return t, gyro, accel, q_true.
 
     The gyro reading of sample k is the rate over (t_{k-1}, t_k], as the estimator assumes;
     the specific force is R(q_k)' (a_lin + g up).

@@ -1,6 +1,7 @@
 # Copyright 2026 robot_calib contributors
 # SPDX-License-Identifier: Apache-2.0
-"""Gyro heading calibration from wall lines (seed 000), seed-faithful and automatic modes.
+"""
+Gyro heading calibration from wall lines (seed 000), seed-faithful and automatic modes.
 
 Heading is the integrated gyro z rate (IMU rotated into ``base_link`` by its
 mounting), position the odometry translation rotated by that heading. Scan
@@ -227,7 +228,8 @@ class Reference:
 
 @dataclass
 class Correction:
-    """One heading correction.
+    """
+    One heading correction.
 
     :ivar t: time (s).
     :ivar delta: heading change applied (rad).
@@ -252,7 +254,8 @@ class Correction:
 
 
 def condition2(ref: Line, new: Line, match: MatchParams) -> Optional[float]:
-    """Return the angle error ref - new (rad, modulo pi) when condition 2 holds, else None.
+    """
+    Return the angle error ref - new (rad, modulo pi) when condition 2 holds, else None.
 
     Seed 000, S31-S33: (a) length difference, (b) start points AND end points,
     (c) angle difference, each within its tolerance.
@@ -285,7 +288,8 @@ def _ref_arrays(refs: list) -> tuple:
 
 
 def condition2_many(refs: np.ndarray, new: Line, match: MatchParams) -> np.ndarray:
-    """Vectorised :func:`condition2` over references (N, 6).
+    """
+    Vectorised :func:`condition2` over references (N, 6).
 
     Columns: ``[p1x, p1y, p2x, p2y, angle, length]`` (m, rad).
 
@@ -317,7 +321,8 @@ def seed_heading_correction(ref_angle: float, line_angle: float, w1: float) -> f
 
 
 class GyroLineCalibrator:
-    """Streaming gyro-line heading calibration; feed samples in time order.
+    """
+    Streaming gyro-line heading calibration; feed samples in time order.
 
     :param params: the parameters (defaults when None).
     """
@@ -891,7 +896,8 @@ class GyroLineCalibrator:
         return line_from_endpoints(p1, p2, line.t, line.variance, line.n_cells)
 
     def _refine(self, ref: Reference, line: Line) -> None:
-        """Fuse a matched observation into a reference (angle and distance, Kalman weights).
+        """
+        Fuse a matched observation into a reference (angle and distance, Kalman weights).
 
         The observation's covariance is the current pose covariance projected on
         the line plus the fit noise, doubled because the pose was itself corrected
@@ -1045,7 +1051,8 @@ class GyroLineCalibrator:
 
     # -- batch ---------------------------------------------------------------------------
     def run(self, samples: Iterable) -> dict:
-        """Process a whole recording (core samples in time order); return a result dict.
+        """
+        Process a whole recording (core samples in time order); return a result dict.
 
         The result holds ``poses`` (list of (t, x, y, yaw) at each odometry
         sample), ``corrections`` and ``counts``.

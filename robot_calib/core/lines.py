@@ -1,6 +1,7 @@
 # Copyright 2026 robot_calib contributors
 # SPDX-License-Identifier: Apache-2.0
-"""Obstacle grid, wall-segment extraction and line fitting (seed 000, condition 1).
+"""
+Obstacle grid, wall-segment extraction and line fitting (seed 000, condition 1).
 
 The obstacle grid keeps, per cell of ``resolution`` metres, the running mean
 of the scan hits that fell into it (a sub-cell centroid, so the fitted angle
@@ -73,7 +74,8 @@ class LineParams:
 
 @dataclass(frozen=True)
 class Line:
-    """A fitted wall line in the grid (world) frame.
+    """
+    A fitted wall line in the grid (world) frame.
 
     :ivar p1: start point (m); endpoints are ordered along the direction
         ``(cos angle, sin angle)``, so start and end are comparable between lines.
@@ -114,7 +116,8 @@ class Line:
         return float(self.normal @ self.midpoint)
 
     def angle_sigma(self) -> float:
-        """Return the 1-sigma angle uncertainty (rad) of the fit from its scatter.
+        """
+        Return the 1-sigma angle uncertainty (rad) of the fit from its scatter.
 
         Total least squares with n points spread uniformly over length L and
         perpendicular noise variance s2: var(angle) = 12 s2 / (n L^2).
@@ -140,7 +143,8 @@ def line_from_endpoints(p1, p2, t: float = 0.0, variance: float = 0.0,
 
 
 class ObstacleGrid:
-    """A sparse obstacle grid of hit centroids, bounded in memory.
+    """
+    A sparse obstacle grid of hit centroids, bounded in memory.
 
     Cells live in fixed numpy arrays (``max_cells`` slots) addressed through a
     dict from the packed cell index, so a scan updates its cells with a few
@@ -187,7 +191,8 @@ class ObstacleGrid:
         return (ij[:, 0] << 32) + (ij[:, 1] & 0xFFFFFFFF)
 
     def add_points(self, pts: np.ndarray, t: float) -> np.ndarray:
-        """Add world hits (N, 2) (m) at time ``t`` (s); return the hit cells' centroids in order.
+        """
+        Add world hits (N, 2) (m) at time ``t`` (s); return the hit cells' centroids in order.
 
         The returned (M, 2) array lists every distinct cell hit, in the order of
         the input points (beam order), each cell's centroid over its recent hits.
@@ -252,7 +257,8 @@ class ObstacleGrid:
 
 
 def fit_line(pts: np.ndarray, method: str = 'total') -> tuple[np.ndarray, np.ndarray]:
-    """Return (centroid, unit direction) of the least-squares line through (N, 2) points (m).
+    """
+    Return (centroid, unit direction) of the least-squares line through (N, 2) points (m).
 
     ``total``: principal axis of the scatter (minimises perpendicular distances).
     ``ordinary``: regression of y on x (minimises vertical distances; undefined
@@ -272,7 +278,8 @@ def fit_line(pts: np.ndarray, method: str = 'total') -> tuple[np.ndarray, np.nda
 
 
 def condition1(pts: np.ndarray, params: LineParams, t: float = 0.0) -> Optional[Line]:
-    """Apply the seed's condition 1 loop to candidate cells (N, 2) (m); return the line or None.
+    """
+    Apply the seed's condition 1 loop to candidate cells (N, 2) (m); return the line or None.
 
     Seed 000, S11-S13: fit; drop when shorter than the preset length; pass when
     the variance of the cells' distances to the line is at most the preset;

@@ -1,6 +1,7 @@
 # Copyright 2026 robot_calib contributors
 # SPDX-License-Identifier: Apache-2.0
-"""Tilt estimation and fall detection from a 6D IMU (seed 002).
+"""
+Tilt estimation and fall detection from a 6D IMU (seed 002).
 
 Two estimators share one interface (:class:`TiltEstimator`):
 
@@ -216,7 +217,8 @@ def tilt_of(q: tuple) -> float:
 
 
 def _butter2(tau: float, ts: float) -> tuple:
-    """Return (b0, b1, b2, a1, a2) of a 2nd-order Butterworth low-pass, fc = sqrt(2)/(2 pi tau).
+    """
+    Return (b0, b1, b2, a1, a2) of a 2nd-order Butterworth low-pass, fc = sqrt(2)/(2 pi tau).
 
     Bilinear transform with pre-warping (Laidig & Seel 2023 choose the cut-off
     this way so that the filter's step response has time constant ``tau``).
@@ -229,7 +231,8 @@ def _butter2(tau: float, ts: float) -> tuple:
 
 
 class _LowPass:
-    """A bank of 2nd-order Butterworth low-pass filters (direct form I).
+    """
+    A bank of 2nd-order Butterworth low-pass filters (direct form I).
 
     Direct form I keeps past inputs and outputs as its state, so a new
     sampling period changes the coefficients without a jump. Until
@@ -333,7 +336,8 @@ class SeedKalmanAxis:
         self.P = np.zeros((2, 2))
 
     def step(self, rate: float, z_angle: float, dt: float) -> float:
-        """Run one predict/update: gyro rate (rad/s), accel angle (rad), dt (s); return angle.
+        """
+        Run one predict/update: gyro rate (rad/s), accel angle (rad), dt (s); return angle.
 
         The matrix products are written out for A = [[1, -dt], [0, 1]],
         B = [dt, 0]', H = [1, 0], Q = diag(Q_angle, Q_gyro).
@@ -363,7 +367,8 @@ class SeedKalmanAxis:
 
 
 def accel_roll_pitch(ax: float, ay: float, az: float) -> tuple:
-    """Return the accelerometer roll and pitch (rad) as the seed uses them as observations.
+    """
+    Return the accelerometer roll and pitch (rad) as the seed uses them as observations.
 
     roll = atan2(a_y, a_z), pitch = atan2(-a_x, sqrt(a_y^2 + a_z^2)) (REP-103, z up).
     """
@@ -404,7 +409,8 @@ class SeedEstimator:
 # Improved estimator
 # --------------------------------------------------------------------------------------------
 class AttitudeEstimator:
-    """Whole-sphere 6D attitude estimator with gyro bias estimation (see the module docstring).
+    """
+    Whole-sphere 6D attitude estimator with gyro bias estimation (see the module docstring).
 
     Call :meth:`update` with each sample; :attr:`quat` is the sensor-to-earth
     attitude (yaw drifts; inclination is what the accelerometer observes).
@@ -558,7 +564,8 @@ class AttitudeEstimator:
             self.rest = False
 
     def _bias_scale_update(self, ex: float, ey: float, dt: float, g: tuple) -> None:
-        """Kalman update of gyro bias (rad/s) and scale factors from rest or the correction.
+        """
+        Kalman update of gyro bias (rad/s) and scale factors from rest or the correction.
 
         The gyro error is modelled as ``b + diag(s) w``; its effect on the
         inclination is ``R (b + diag(s) w)``, compared after the same low-pass
@@ -624,7 +631,8 @@ class AttitudeEstimator:
         self.scale = [float(v) for v in xs[3:]]
 
     def _bias_update(self, ex: float, ey: float, dt: float) -> None:
-        """Kalman update of the gyro bias (3 states, rad/s) from rest or from the correction.
+        """
+        Kalman update of the gyro bias (3 states, rad/s) from rest or from the correction.
 
         ``ex``, ``ey``: summed inclination corrections (rad, about earth y and -x) over the
         last ``dt`` seconds.
@@ -704,7 +712,8 @@ def _inv3(m: list) -> Optional[list]:
 # Fall detector
 # --------------------------------------------------------------------------------------------
 class FallDetector:
-    """Latched fall alert with threshold, minimum duration, hysteresis and clear time.
+    """
+    Latched fall alert with threshold, minimum duration, hysteresis and clear time.
 
     Raised when the tilt (rad) stays above ``fall_angle`` for ``min_duration``
     seconds; cleared when it stays below ``clear_angle`` for ``clear_duration``.
@@ -761,7 +770,8 @@ class FallDetector:
 # --------------------------------------------------------------------------------------------
 @dataclass
 class TiltState:
-    """The result of one sample.
+    """
+    The result of one sample.
 
     ``quat`` is base_link-to-earth (w, x, y, z; yaw not meaningful), ``tilt``
     the angle between base_link z and up (rad), ``roll``/``pitch`` (rad),
@@ -781,7 +791,8 @@ class TiltState:
 
 
 class TiltEstimator:
-    """Streaming tilt estimation and fall detection; :meth:`update` per sample, :func:`run` batch.
+    """
+    Streaming tilt estimation and fall detection; :meth:`update` per sample, :func:`run` batch.
 
     The caller validates samples (finite, in range, increasing stamps); gaps
     longer than ``max_dt`` restart the attitude filter from the accelerometer.
@@ -864,7 +875,8 @@ class TiltEstimator:
 
 def run(t: np.ndarray, gyro: np.ndarray, accel: np.ndarray,
         params: Optional[TiltParams] = None) -> dict[str, np.ndarray]:
-    """Run the estimator over a whole recording (batch API, causal).
+    """
+    Run the estimator over a whole recording (batch API, causal).
 
     :param t: sample times (s), shape (N,)
     :param gyro: rates (rad/s), shape (N, 3), IMU frame

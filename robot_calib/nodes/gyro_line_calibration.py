@@ -1,6 +1,7 @@
 # Copyright 2026 robot_calib contributors
 # SPDX-License-Identifier: Apache-2.0
-"""The ``gyro_line_calibration`` node: ``imu`` + ``odom`` + ``scan`` -> ``gyro_line/odom``.
+"""
+The ``gyro_line_calibration`` node: ``imu`` + ``odom`` + ``scan`` -> ``gyro_line/odom``.
 
 A thin wrapper of :class:`robot_calib.pipelines.gyro_line_calibration.GyroLinePipeline`
 through :mod:`robot_calib.nodes.base`; it also publishes ``/diagnostics`` and,

@@ -1,6 +1,7 @@
 # Copyright 2026 robot_calib contributors
 # SPDX-License-Identifier: Apache-2.0
-"""The ``tilt_detection`` node: ``imu`` in; ``tilt/imu``, ``tilt/fall_alert``, ``/diagnostics``.
+"""
+The ``tilt_detection`` node: ``imu`` in; ``tilt/imu``, ``tilt/fall_alert``, ``/diagnostics``.
 
 A thin wrapper of :class:`robot_calib.pipelines.tilt_detection.TiltPipeline`
 through :mod:`robot_calib.nodes.base` (parameters from

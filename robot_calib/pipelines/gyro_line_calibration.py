@@ -1,6 +1,7 @@
 # Copyright 2026 robot_calib contributors
 # SPDX-License-Identifier: Apache-2.0
-"""Pipeline of the ``gyro_line_calibration`` node: imu + odom + scan -> ``gyro_line/odom``.
+"""
+Pipeline of the ``gyro_line_calibration`` node: imu + odom + scan -> ``gyro_line/odom``.
 
 Glue only: samples go to :class:`robot_calib.core.gyro_line.GyroLineCalibrator`.
 On every accepted odometry sample the pose with the corrected heading is

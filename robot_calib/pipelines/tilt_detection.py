@@ -1,6 +1,7 @@
 # Copyright 2026 robot_calib contributors
 # SPDX-License-Identifier: Apache-2.0
-"""Pipeline of ``tilt_detection``: IMU in; attitude, latched fall alert and diagnostics out.
+"""
+Pipeline of ``tilt_detection``: IMU in; attitude, latched fall alert and diagnostics out.
 
 Inputs: ``imu`` (sensor_msgs/Imu: raw gyro rad/s, specific force m/s^2) and
 ``/tf_static`` (a ``base_frame`` -> IMU frame transform gives the mounting
@@ -114,7 +115,8 @@ class TiltPipeline(Pipeline):
 
     # -- samples ---------------------------------------------------------------------------
     def process(self, key: str, sample: Any) -> list[Output]:
-        """Validate and process one sample; recover from a clock that jumped backwards.
+        """
+        Validate and process one sample; recover from a clock that jumped backwards.
 
         Stamps that repeat or go backwards are rejected (base class). When
         ``BACK_JUMP_SAMPLES`` consecutive IMU samples are older than the last

@@ -1,6 +1,7 @@
 # Copyright 2026 robot_calib contributors
 # SPDX-License-Identifier: Apache-2.0
-"""Simulator: a 2D world, differential-drive and steered-wheel robots, and their sensors.
+"""
+Simulator: a 2D world, differential-drive and steered-wheel robots, and their sensors.
 
 Public API (fixed, used by the CLI and the other methods' tests/benchmarks):
 

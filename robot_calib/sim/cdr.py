@@ -1,6 +1,7 @@
 # Copyright 2026 robot_calib contributors
 # SPDX-License-Identifier: Apache-2.0
-"""Fast CDR encoding of uniform message streams by template patching.
+"""
+Fast CDR encoding of uniform message streams by template patching.
 
 All messages of one simulated topic have the same layout (same frame ids,
 same array lengths), so their CDR bytes differ only in a few numeric fields.
@@ -45,7 +46,8 @@ def _sentinels(n: int, start: int, dtype: str) -> np.ndarray:
 
 def encode_stream(msgtype: str, msg: Any, patches: Sequence[tuple[str, str, np.ndarray]]
                   ) -> list[bytes]:
-    """Return the CDR bytes of N messages that differ from ``msg`` only in ``patches``.
+    """
+    Return the CDR bytes of N messages that differ from ``msg`` only in ``patches``.
 
     :param msgtype: ROS 2 type name, e.g. ``sensor_msgs/msg/Imu``
     :param msg: a rosbags message of that type (modified in place for the template)
@@ -107,7 +109,8 @@ def stamps(times: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 
 def quat_xyzw(roll: np.ndarray, pitch: np.ndarray, yaw: np.ndarray) -> np.ndarray:
-    """Return (N, 4) quaternions (x, y, z, w) of R = Rz(yaw) Ry(pitch) Rx(roll).
+    """
+    Return (N, 4) quaternions (x, y, z, w) of R = Rz(yaw) Ry(pitch) Rx(roll).
 
     Same formula as :func:`robot_calib.core.geometry.quat_from_rpy` (no sign flip).
     """

@@ -1,6 +1,7 @@
 # Copyright 2026 robot_calib contributors
 # SPDX-License-Identifier: Apache-2.0
-"""The simulation engine: scenario -> true trajectory -> sensors -> messages (and a bag).
+"""
+The simulation engine: scenario -> true trajectory -> sensors -> messages (and a bag).
 
 Pipeline (all vectorised over whole arrays except closed-loop plan steps):
 
@@ -56,7 +57,8 @@ class SimError(ValueError):
 
 
 class SimResult:
-    """An in-memory simulation.
+    """
+    An in-memory simulation.
 
     ``messages``: list of (topic, core sample) in time order (``/tf_static``
     carries a list of :class:`StaticTransform`; built on first access);
@@ -226,7 +228,8 @@ def _jsonable(value: Any) -> Any:
 
 def run_scenario(name: str, seed: int = 0, duration: Optional[float] = None,
                  overrides: Union[None, Mapping[str, Any], Iterable[str]] = None) -> SimResult:
-    """Simulate scenario ``name`` in memory; raise :class:`SimError` on bad input.
+    """
+    Simulate scenario ``name`` in memory; raise :class:`SimError` on bad input.
 
     :param name: scenario name (see ``SCENARIOS``)
     :param seed: random seed (int >= 0)
@@ -393,7 +396,8 @@ def simulate(scenario: str, out: Union[str, os.PathLike], seed: int = 0,
              duration: Optional[float] = None,
              overrides: Union[None, Mapping[str, Any], Iterable[str]] = None,
              storage: str = 'mcap', compress: bool = False) -> dict:
-    """Simulate and write the ROS 2 bag folder ``out`` and ``<out>.truth.json``; return the truth.
+    """
+    Simulate and write the ROS 2 bag folder ``out`` and ``<out>.truth.json``; return the truth.
 
     ``compress`` zstd-compresses the mcap chunks (about 5x smaller, slower).
     Raises :class:`SimError` (one line) for an unknown scenario, a bad
@@ -423,7 +427,8 @@ def write_messages(writer: Any, messages: list) -> None:
 
 
 def encoded_streams(result: SimResult) -> list[tuple[str, str, np.ndarray, list]]:
-    """Return per topic (topic, msgtype, receive times ns, CDR bytes) of a result (fast path).
+    """
+    Return per topic (topic, msgtype, receive times ns, CDR bytes) of a result (fast path).
 
     Every topic but ``/tf_static`` is encoded by :func:`robot_calib.sim.cdr.encode_stream`
     from the arrays; a topic whose template cannot be patched falls back to rosbags.

@@ -1,6 +1,7 @@
 # Copyright 2026 robot_calib contributors
 # SPDX-License-Identifier: Apache-2.0
-"""Motion plans: what the robot is commanded to do, step by step.
+"""
+Motion plans: what the robot is commanded to do, step by step.
 
 A :class:`Plan` is a list of steps executed one after the other at the
 control rate (``odom.cmd_vel_rate``). Open-loop steps (``stop``, ``twist``,
@@ -40,7 +41,8 @@ WHEELS = 'wheels'
 
 @dataclass
 class State:
-    """True robot state handed to closed-loop controllers (world frame).
+    """
+    True robot state handed to closed-loop controllers (world frame).
 
     ``t`` (s, from the start), ``x``, ``y`` (m), ``yaw`` (rad), ``v`` (m/s),
     ``w`` (rad/s), and ``world`` (the :class:`~robot_calib.sim.world.World`).
@@ -77,7 +79,8 @@ class Step:
 
 @dataclass
 class TipOver:
-    """A tip-over: the robot rotates about a wheel/edge until it lies at ``angle`` (rad).
+    """
+    A tip-over: the robot rotates about a wheel/edge until it lies at ``angle`` (rad).
 
     :param axis: 'pitch' (forward/backward) or 'roll' (sideways)
     :param direction: +1 or -1: sign of the added pitch/roll (ROS: +pitch is nose down,
@@ -164,7 +167,8 @@ class Plan:
     # -- open loop -----------------------------------------------------------------------
     def twist(self, v: float, w: float, duration: float, label: str = 'twist',
               exact: bool = False) -> 'Plan':
-        """Command a constant twist: ``v`` (m/s) and ``w`` (rad/s) for ``duration`` (s).
+        """
+        Command a constant twist: ``v`` (m/s) and ``w`` (rad/s) for ``duration`` (s).
 
         The duration is rounded to whole control ticks; with ``exact`` the
         command is scaled so that v * duration and w * duration are kept.
@@ -205,7 +209,8 @@ class Plan:
         return self
 
     def steer(self, angle: float, speed: float, duration: float) -> 'Plan':
-        """Steered wheel: steering READING ``angle`` (rad) and traction speed ``speed`` (m/s).
+        """
+        Steered wheel: steering READING ``angle`` (rad) and traction speed ``speed`` (m/s).
 
         The traction speed is converted with the nominal wheel radius (rad/s =
         speed / robot.wheel_radius) by the engine.
@@ -216,7 +221,8 @@ class Plan:
         return self
 
     def profile(self, times: Sequence[float], v: Sequence[float], w: Sequence[float]) -> 'Plan':
-        """Command a twist profile: v (m/s), w (rad/s) at ``times`` (s from the step start).
+        """
+        Command a twist profile: v (m/s), w (rad/s) at ``times`` (s from the step start).
 
         Values between the times are linearly interpolated.
         """
@@ -234,7 +240,8 @@ class Plan:
     # -- closed loop ---------------------------------------------------------------------
     def custom(self, controller: Controller, timeout: float, label: str = 'custom',
                factory: bool = False) -> 'Plan':
-        """Run ``controller(state) -> (v, w) | None`` each tick until None or ``timeout`` (s).
+        """
+        Run ``controller(state) -> (v, w) | None`` each tick until None or ``timeout`` (s).
 
         With ``factory=True``, ``controller`` is a zero-argument callable that
         returns a fresh controller each time the step starts: use this for
@@ -249,7 +256,8 @@ class Plan:
     def goto(self, waypoints: Sequence[Sequence[float]], speed: float = 0.3,
              turn_rate: float = 0.8, tolerance: float = 0.05, timeout: float = 120.0,
              turn_first: float = 0.6) -> 'Plan':
-        """Follow waypoints (x, y world, m) with a simple heading controller.
+        """
+        Follow waypoints (x, y world, m) with a simple heading controller.
 
         Turns in place while the heading error exceeds ``turn_first`` (rad),
         else drives at up to ``speed`` (m/s) steering towards the waypoint;
@@ -274,7 +282,8 @@ class Plan:
 
     def follow_wall(self, duration: float, side: str = 'right', distance: float = 0.3,
                     speed: float = 0.25, turn_rate: float = 0.8, gain: float = 3.0) -> 'Plan':
-        """Follow the wall on ``side`` (left/right) at ``distance`` (m) for ``duration`` (s).
+        """
+        Follow the wall on ``side`` (left/right) at ``distance`` (m) for ``duration`` (s).
 
         Uses ray casts from base_link in the world (an ideal side range
         sensor): a PD-like law on the side distance and heading to the wall,
@@ -298,7 +307,8 @@ class Plan:
 
     # -- events --------------------------------------------------------------------------
     def tip_over(self, tip: Optional[TipOver] = None, **kwargs: Any) -> 'Plan':
-        """Tip the robot over at this point of the plan (a :class:`TipOver`, or its fields).
+        """
+        Tip the robot over at this point of the plan (a :class:`TipOver`, or its fields).
 
         After the tip starts the body no longer moves in the plane (the wheels
         may keep turning in the air); add steps after it to keep commanding.
@@ -308,7 +318,8 @@ class Plan:
         return self
 
     def repeat(self, other: 'Plan', until: float) -> 'Plan':
-        """Append ``other``'s steps again and again until this plan surely lasts ``until`` (s).
+        """
+        Append ``other``'s steps again and again until this plan surely lasts ``until`` (s).
 
         Laps are appended until both the open-loop time (closed-loop steps
         counted as instant: they usually end well before their time limit)

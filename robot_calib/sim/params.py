@@ -1,6 +1,7 @@
 # Copyright 2026 robot_calib contributors
 # SPDX-License-Identifier: Apache-2.0
-"""Simulator parameters: every error source is a named, documented, seeded parameter.
+"""
+Simulator parameters: every error source is a named, documented, seeded parameter.
 
 :class:`SimParams` is the single source of defaults (``config/sim.yaml`` is
 generated from it with ``python -m robot_calib.sim.params``). Dotted names

@@ -1,6 +1,7 @@
 # Copyright 2026 robot_calib contributors
 # SPDX-License-Identifier: Apache-2.0
-"""Robot models: wheel actuators, true planar kinematics, and the 3D attitude on terrain.
+"""
+Robot models: wheel actuators, true planar kinematics, and the 3D attitude on terrain.
 
 :class:`Plant` turns control-rate commands into the TRUE state at the internal
 rate (``SimParams.rate``), in vectorised chunks (a whole open-loop stretch at
@@ -60,7 +61,8 @@ def true_geometry(p: SimParams) -> dict[str, float]:
 
 
 class Plant:
-    """Integrate the true robot state chunk by chunk (see the module docstring).
+    """
+    Integrate the true robot state chunk by chunk (see the module docstring).
 
     :param params: the simulator parameters
     :param start: start pose (x m, y m, yaw rad) in the world
@@ -259,7 +261,8 @@ def rotation_matrix(roll: float, pitch: float, yaw: float) -> np.ndarray:
 
 def attitude(arr: dict[str, np.ndarray], params: SimParams, world: Any,
              tips: Optional[list] = None) -> dict[str, np.ndarray]:
-    """Add z, roll, pitch, body rates and the specific force at the IMU to the true arrays.
+    """
+    Add z, roll, pitch, body rates and the specific force at the IMU to the true arrays.
 
     Adds ``z``, ``roll``, ``pitch`` (m, rad), ``gyro_body`` (N, 3) rad/s in
     base_link, ``accel_body`` (N, 3) m/s^2 specific force at the IMU point in

@@ -1,6 +1,7 @@
 # Copyright 2026 robot_calib contributors
 # SPDX-License-Identifier: Apache-2.0
-"""Furnished home rooms for robot-vacuum scenarios, and a boustrophedon coverage path.
+"""
+Furnished home rooms for robot-vacuum scenarios, and a boustrophedon coverage path.
 
 Layouts (all drawn with the scenario's own random generator, so a seed gives
 one room):
@@ -144,7 +145,8 @@ def _segment_free(room: Room, a, b, margin: float) -> bool:
 
 def boustrophedon(room: Room, lane: float = 0.3, margin: float = 0.25,
                   axis: int = 0) -> list:
-    """Return coverage waypoints (x, y) (m): lanes along x (``axis=0``) or y, snaking.
+    """
+    Return coverage waypoints (x, y) (m): lanes along x (``axis=0``) or y, snaking.
 
     Each lane is the longest free run at that offset; a lane whose connection
     from the previous lane end is blocked is skipped.

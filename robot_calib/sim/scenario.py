@@ -1,6 +1,7 @@
 # Copyright 2026 robot_calib contributors
 # SPDX-License-Identifier: Apache-2.0
-"""Scenarios: what world, which robot settings and which motion a simulation runs.
+"""
+Scenarios: what world, which robot settings and which motion a simulation runs.
 
 How to add a scenario
 =====================

@@ -1,6 +1,7 @@
 # Copyright 2026 robot_calib contributors
 # SPDX-License-Identifier: Apache-2.0
-"""Sensor models on the true internal-rate arrays: IMU, encoders, wheel odometry, lidar.
+"""
+Sensor models on the true internal-rate arrays: IMU, encoders, wheel odometry, lidar.
 
 Each function takes the true arrays (from :mod:`robot_calib.sim.robot`), the
 parameters, the sample times (s from the start) and its own random generator,
@@ -48,7 +49,8 @@ def true_gyro_bias(p: SimParams, rng_bias: np.random.Generator) -> np.ndarray:
 
 def imu(tr: dict[str, np.ndarray], p: SimParams, times: np.ndarray, rng: np.random.Generator,
         gyro_bias: np.ndarray) -> tuple[np.ndarray, np.ndarray, dict[str, np.ndarray]]:
-    """Return gyro (N, 3) rad/s, accel (N, 3) m/s^2 in imu_link and the true bias series.
+    """
+    Return gyro (N, 3) rad/s, accel (N, 3) m/s^2 in imu_link and the true bias series.
 
     gyro = (1 + scale) R_bi^T w_b + b0 + drift t + warmup exp(-t / tau) + rw(t) + n,
     accel = (1 + scale) R_bi^T f_b + b + rw(t) + n, with white noise of density
@@ -86,7 +88,8 @@ def imu(tr: dict[str, np.ndarray], p: SimParams, times: np.ndarray, rng: np.rand
 def encoders(tr: dict[str, np.ndarray], p: SimParams, times: np.ndarray,
              rng: np.random.Generator,
              latency: Optional[float] = None) -> tuple[np.ndarray, np.ndarray]:
-    """Return joint positions and velocities (N, 2) at ``times`` (s), latency included.
+    """
+    Return joint positions and velocities (N, 2) at ``times`` (s), latency included.
 
     ``latency`` (s) defaults to ``latency.joint_states`` (odometry passes its own).
 
@@ -121,7 +124,8 @@ def encoders(tr: dict[str, np.ndarray], p: SimParams, times: np.ndarray,
 
 
 def wheel_odometry(p: SimParams, times: np.ndarray, pos: np.ndarray) -> dict[str, np.ndarray]:
-    """Integrate odometry from encoder positions (N, 2) with the NOMINAL geometry.
+    """
+    Integrate odometry from encoder positions (N, 2) with the NOMINAL geometry.
 
     Differential: ds = r (dR + dL) / 2, dyaw = r (dR - dL) / T; steered wheel:
     ds = r dTraction cos(delta), dyaw = r dTraction sin(delta) / L with delta the
@@ -164,7 +168,8 @@ def lidar_geometry(p: SimParams) -> tuple[float, float, float]:
 
 def lidar(tr: dict[str, np.ndarray], p: SimParams, world: Any, times: np.ndarray,
           rng: np.random.Generator) -> np.ndarray:
-    """Return ranges (S, beams) (m) of scans stamped ``times`` (s), REP-117 invalid values.
+    """
+    Return ranges (S, beams) (m) of scans stamped ``times`` (s), REP-117 invalid values.
 
     Beam i of a scan is cast from the laser pose at ``t - latency + i * time_increment``
     (world frame, interpolated), adds Gaussian noise, and then: below

@@ -1,6 +1,7 @@
 # Copyright 2026 robot_calib contributors
 # SPDX-License-Identifier: Apache-2.0
-"""A 2D world of wall and obstacle segments, terrain features, and vectorised ray casting.
+"""
+A 2D world of wall and obstacle segments, terrain features, and vectorised ray casting.
 
 Coordinates are the world frame (m, rad; x east, y north, z up). Walls and
 obstacles are line segments; polygons and circles are stored as their edges.
@@ -21,7 +22,8 @@ import numpy as np
 
 @dataclass
 class Ramp:
-    """A ramp: height rises linearly from 0 to ``height`` (m) over ``length`` (m).
+    """
+    A ramp: height rises linearly from 0 to ``height`` (m) over ``length`` (m).
 
     The ramp starts on the line through ``(x, y)`` perpendicular to direction
     ``yaw`` (rad), spans ``width`` (m) across, and stays at ``height`` for
@@ -68,7 +70,8 @@ class Bump:
 
 @dataclass
 class Step:
-    """A step of ``height`` (m) on the half plane ahead of the line through (x, y).
+    """
+    A step of ``height`` (m) on the half plane ahead of the line through (x, y).
 
     The half plane is the side direction ``yaw`` (rad) points to; the edge is
     smoothed over ``edge`` (m) so that the attitude stays differentiable.
@@ -133,7 +136,8 @@ class World:
                                  [x0, y0 + depth]])
 
     def add_terrain(self, feature) -> 'World':
-        """Add a terrain feature: a :class:`Ramp`, :class:`Bump` or :class:`Step`.
+        """
+        Add a terrain feature: a :class:`Ramp`, :class:`Bump` or :class:`Step`.
 
         Any object with a method ``height_at(px, py)`` returning heights (m) works.
         """
@@ -152,7 +156,8 @@ class World:
 
     def raycast(self, ox, oy, angles, max_range: float = np.inf,
                 chunk: int = 1 << 16) -> np.ndarray:
-        """Return the distance (m) along each ray to the nearest segment, inf when none.
+        """
+        Return the distance (m) along each ray to the nearest segment, inf when none.
 
         :param ox: ray origins x (m), any shape broadcastable with ``angles``
         :param oy: ray origins y (m)
@@ -200,7 +205,8 @@ class World:
         return out.reshape(shape)
 
     def raycast_fan(self, ox: np.ndarray, oy: np.ndarray, angles: np.ndarray) -> np.ndarray:
-        """Return ranges (m, inf: no hit) of S fans of B rays, as :meth:`raycast` but faster.
+        """
+        Return ranges (m, inf: no hit) of S fans of B rays, as :meth:`raycast` but faster.
 
         Row s of ``ox``, ``oy``, ``angles`` (S, B) is one scan: ray origins
         that move little (a rotating lidar on a moving robot) and directions

@@ -1,6 +1,7 @@
 # Copyright 2026 robot_calib contributors
 # SPDX-License-Identifier: Apache-2.0
-"""Loader and metric for BROAD (Berlin Robust Orientation Estimation Assessment Dataset).
+"""
+Loader and metric for BROAD (Berlin Robust Orientation Estimation Assessment Dataset).
 
 Laidig, Caruso, Cereatti, Seel, *Data* 6(7):72, 2021 (CC BY 4.0). Each trial
 here is an ``.npz`` with ``t`` (s), ``fs`` (Hz), ``gyr`` (rad/s, the gyro bias is

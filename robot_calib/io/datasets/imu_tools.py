@@ -1,6 +1,7 @@
 # Copyright 2026 robot_calib contributors
 # SPDX-License-Identifier: Apache-2.0
-"""Loader for the imu_tools sample bags (ROS 1, real IMUs; ``phidgets_imu_upside_down.bag``).
+"""
+Loader for the imu_tools sample bags (ROS 1, real IMUs; ``phidgets_imu_upside_down.bag``).
 
 Each bag holds one ``sensor_msgs/Imu`` topic (raw gyro rad/s, specific force
 m/s^2) next to a magnetometer topic; :func:`load_imu` finds the IMU topic and

@@ -1,6 +1,7 @@
 # Copyright 2026 robot_calib contributors
 # SPDX-License-Identifier: Apache-2.0
-"""Scenario ``bumpy_drive``: rough driving that must never raise a fall alert.
+"""
+Scenario ``bumpy_drive``: rough driving that must never raise a fall alert.
 
 A 24 m x 12 m hall with a 15 deg ramp (up, plateau, down) crossed straight
 and diagonally, an 8 deg ramp, a row of 3-5 cm bumps, hard braking from 1 m/s

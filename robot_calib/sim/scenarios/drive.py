@@ -1,6 +1,7 @@
 # Copyright 2026 robot_calib contributors
 # SPDX-License-Identifier: Apache-2.0
-"""Scenario ``drive``: general mixed driving in a furnished room (differential drive).
+"""
+Scenario ``drive``: general mixed driving in a furnished room (differential drive).
 
 A 10 m x 8 m room with boxes and a pillar. Each lap: straight runs at two
 speeds, turns in place both ways (including a full turn), arcs left and
@@ -34,7 +35,8 @@ def room() -> World:
 
 
 def lap() -> Plan:
-    """Return one lap starting at START (heading east) and returning to it.
+    """
+    Return one lap starting at START (heading east) and returning to it.
 
     Open-loop manoeuvres are anchored by closed-loop ``goto``/``face`` steps
     (perfect localisation), so the wheel errors change the details of each

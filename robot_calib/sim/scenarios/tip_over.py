@@ -1,6 +1,7 @@
 # Copyright 2026 robot_calib contributors
 # SPDX-License-Identifier: Apache-2.0
-"""Scenario ``tip_over``: drive up a ramp, stop on its top and fall over sideways.
+"""
+Scenario ``tip_over``: drive up a ramp, stop on its top and fall over sideways.
 
 The robot drives 1 m/s-class laps on the flat, climbs a 14 deg ramp onto a
 plateau, stops, and tips over to its right side (a free inverted-pendulum

@@ -1,6 +1,7 @@
 # Copyright 2026 robot_calib contributors
 # SPDX-License-Identifier: Apache-2.0
-"""Scenario ``vacuum``: a robot vacuum cleans a furnished room, then follows the walls.
+"""
+Scenario ``vacuum``: a robot vacuum cleans a furnished room, then follows the walls.
 
 The room is one of :data:`robot_calib.sim.rooms.LAYOUTS` (``rect``,
 ``chamfer``, ``l_shape``, ``slanted``, ``parallel``), chosen by the seed
