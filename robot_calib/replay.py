@@ -45,6 +45,7 @@ import numpy as np
 
 from robot_calib import pipelines
 from robot_calib.core import types as T
+from robot_calib.core.jsonable import jsonable
 from robot_calib.core.params import describe, flatten_nested, from_flat, ParamError
 from robot_calib.io import convert
 from robot_calib.io.bags import BagError, BagSet, BagWriter, normalize_topic, serialize
@@ -273,27 +274,6 @@ def _params_for(name: str, cls: type, file_params: dict[str, dict[str, Any]],
 
 def _p(values: Sequence[float], q: float) -> Optional[float]:
     return float(np.percentile(values, q)) if len(values) else None
-
-
-def _jsonable(value: Any) -> Any:
-    if isinstance(value, dict):
-        return {str(k): _jsonable(v) for k, v in value.items()}
-    if isinstance(value, (list, tuple)):
-        return [_jsonable(v) for v in value]
-    if isinstance(value, np.ndarray):
-        return _jsonable(value.tolist())
-    if isinstance(value, (float, np.floating)):
-        v = float(value)
-        return v if math.isfinite(v) else None
-    if isinstance(value, (np.integer,)):
-        return int(value)
-    if isinstance(value, (np.bool_,)):
-        return bool(value)
-    if isinstance(value, Path):
-        return str(value)
-    if value is None or isinstance(value, (str, int, bool)):
-        return value
-    return str(value)
 
 
 def _check_out_dir(out_dir: Path) -> None:
@@ -695,7 +675,7 @@ def _run(bagset: BagSet, bag_list: list, runs: list[_Node], skipped: dict[str, s
         'timing': {'wall_seconds': replay_seconds, 'messages': n_msgs,
                    'messages_per_second': n_msgs / replay_seconds if replay_seconds else None},
     }
-    summary = _jsonable(summary)
+    summary = jsonable(summary)
 
     # -- plots and report --------------------------------------------------------------------
     from robot_calib import report

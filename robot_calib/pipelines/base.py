@@ -27,6 +27,7 @@ from typing import Any, Callable, ClassVar, Optional
 import numpy as np
 
 from robot_calib.core import types as T
+from robot_calib.core.jsonable import jsonable
 from robot_calib.core.params import to_flat
 
 # Sample kind -> (ROS message type, core type)
@@ -162,10 +163,10 @@ class Pipeline(abc.ABC):
     def summary(self) -> dict[str, Any]:
         """Return the JSON-ready summary: parameters, inputs read/rejected, outputs, results."""
         return {
-            'params': {k: _jsonable(v) for k, v in to_flat(self.params).items()},
+            'params': {k: jsonable(v) for k, v in to_flat(self.params).items()},
             'inputs': {k: dict(v) for k, v in self.counts.items()},
             'outputs': dict(self.n_outputs),
-            **{k: _jsonable(v) for k, v in self.method_summary().items()},
+            **{k: jsonable(v) for k, v in self.method_summary().items()},
         }
 
 
@@ -192,21 +193,3 @@ def _finite_sample(sample: Any) -> bool:
         # A joint may legitimately report only position or only velocity (NaN elsewhere).
         return bool(np.all(np.isfinite(sample.position) | np.isfinite(sample.velocity)))
     return True
-
-
-def _jsonable(value: Any) -> Any:
-    """Convert numpy scalars/arrays and tuples into JSON-ready Python values."""
-    if isinstance(value, dict):
-        return {str(k): _jsonable(v) for k, v in value.items()}
-    if isinstance(value, (list, tuple)):
-        return [_jsonable(v) for v in value]
-    if isinstance(value, np.ndarray):
-        return _jsonable(value.tolist())
-    if isinstance(value, (np.floating, float)):
-        v = float(value)
-        return v if math.isfinite(v) else None
-    if isinstance(value, np.integer):
-        return int(value)
-    if isinstance(value, np.bool_):
-        return bool(value)
-    return value

@@ -33,6 +33,7 @@ import numpy as np
 
 from robot_calib.core import types as T
 from robot_calib.core.geometry import quat_from_rpy, wrap_angle
+from robot_calib.core.jsonable import jsonable
 from robot_calib.core.params import from_flat, ParamError, to_flat
 from robot_calib.sim import cdr as C
 from robot_calib.sim import sensors as S
@@ -209,23 +210,6 @@ def _static_transforms(p: SimParams, t: float) -> list:
     ]
 
 
-def _jsonable(value: Any) -> Any:
-    if isinstance(value, dict):
-        return {str(k): _jsonable(v) for k, v in value.items()}
-    if isinstance(value, (list, tuple)):
-        return [_jsonable(v) for v in value]
-    if isinstance(value, np.ndarray):
-        return _jsonable(value.tolist())
-    if isinstance(value, (np.floating, float)):
-        v = float(value)
-        return v if math.isfinite(v) else None
-    if isinstance(value, (np.integer,)):
-        return int(value)
-    if isinstance(value, (np.bool_,)):
-        return bool(value)
-    return value
-
-
 def run_scenario(name: str, seed: int = 0, duration: Optional[float] = None,
                  overrides: Union[None, Mapping[str, Any], Iterable[str]] = None) -> SimResult:
     """
@@ -291,7 +275,7 @@ def run_setup(setup: Any, params: SimParams, duration: float, seed: int = 0,
                        'imu': p.imu.frame_id, 'laser': p.lidar.frame_id}
     truth['params'] = to_flat(p)
     truth['topics'] = message_counts(sens)
-    return SimResult(_jsonable(truth), tr, sens, setup.world, p, tuple(setup.start))
+    return SimResult(jsonable(truth), tr, sens, setup.world, p, tuple(setup.start))
 
 
 def message_counts(sens: dict[str, Any]) -> dict[str, int]:
