@@ -171,7 +171,7 @@ def simulated(args, out_lines):
 
 def render_simulated(data, out_lines):
     """Append the simulated tables to ``out_lines``; return the goal rows."""
-    rows, lat, cpu, ratios = data['rows'], data['lat'], data['cpu'], data['ratios']
+    rows, lat, cpu = data['rows'], data['lat'], data['cpu']
     false_total = data['false']
     if not rows:
         return []
@@ -183,7 +183,9 @@ def render_simulated(data, out_lines):
         f'(seeds {", ".join(str(r["n"]) for r in rows)}; {data["requested"]} requested, '
         f'run until the time budget of {data["budget"]:.0f} s per process was spent)',
         '',
-        'Heading RMSE (deg) per seed, against ground truth at every published pose:',
+        'Heading RMSE (deg) per seed, against ground truth at every published pose. The true '
+        'gyro bias column is the turn-on value; the scenario adds a drift of 4e-6 rad/s^2 '
+        '(+0.0024 rad/s by 600 s), and the learned bias is the filter’s value at the end.',
         '',
         '| seed | true gyro bias (rad/s) | learned bias | raw gyro | seed-faithful | '
         'default (improved) | global optimisation | closures (default) | refusals |',
@@ -215,21 +217,27 @@ def render_simulated(data, out_lines):
         f'{np.median([r["graph_last_ms"] for r in rows]):.0f} ms wall / '
         f'{np.median([r["graph_last_cpu_ms"] for r in rows]):.0f} ms CPU over about '
         f'{int(np.median([r["graph_nodes"] for r in rows]))} nodes (keyframes and closure '
-        f'frames); ratio to the default mode’s median closure latency in the same run (the '
-        f'smaller of the wall and CPU ratios): median x{np.median(ratios):.1f} '
-        f'(min x{min(ratios):.1f}). Keyframe memory at the end: at most {mem / 1e3:.0f} kB.',
+        f'frames); ratio to the default mode’s median closure latency in the same run: see '
+        f'the goals (wall-clock ratios swing with the machine’s load, CPU ratios do not). '
+        f'Keyframe memory at the end: at most {mem / 1e3:.0f} kB.',
         '',
     ]
     mean_imp = float(deg['improved'].mean())
+    rw = [r['ratio'] for r in rows]
+    rc = [r['ratio_cpu'] for r in rows]
+
+    def met(ok):
+        return 'met' if ok else 'missed'
     return [('heading RMSE <= 0.3 deg (default mode, mean over seeds)', f'{mean_imp:.3f} deg',
-             mean_imp <= 0.3),
+             met(mean_imp <= 0.3)),
             ('zero accepted false closures (default mode, all seeds)',
-             str(false_total['improved']), false_total['improved'] == 0),
+             str(false_total['improved']), met(false_total['improved'] == 0)),
             ('closure latency p95 <= 30 ms', f'{p95_wall:.1f} ms wall, {p95_cpu:.1f} ms CPU',
-             p95_wall <= 30.0),
+             f'{met(p95_wall <= 30.0)} on wall clock, {met(p95_cpu <= 30.0)} on CPU time'),
             ('>= 10x faster than the global optimisation at the end of the run',
-             f'x{np.median(ratios):.1f} (median), x{min(ratios):.1f} (worst seed)',
-             min(ratios) >= 10.0)]
+             f'wall x{np.median(rw):.1f} median (worst x{min(rw):.1f}); CPU '
+             f'x{np.median(rc):.1f} median (worst x{min(rc):.1f})',
+             f'{met(min(rw) >= 10.0)} on wall clock, {met(min(rc) >= 10.0)} on CPU time')]
 
 
 def mit_csail(out_lines):
@@ -309,6 +317,9 @@ def main() -> int:
             for key in data['false']:
                 data['false'][key] += part['false'][key]
         data['rows'].sort(key=lambda r: r['n'])
+        lines += [f'Simulated results merged from {len(parts)} runs of this script over '
+                  'disjoint seed ranges (`--first-seed N --json FILE`, then `--merge FILE ...`), '
+                  'run side by side on the shared machine.', '']
         goals = render_simulated(data, lines)
     else:
         goals = simulated(args, lines)
@@ -318,8 +329,8 @@ def main() -> int:
         else:
             print(f'real part skipped: {DATA} is absent')
     lines += ['## Goals', '', '| goal | measured | status |', '|---|---|---|']
-    for goal, value, ok in goals:
-        lines.append(f'| {goal} | {value} | {"met" if ok else "missed"} |')
+    for goal, value, status in goals:
+        lines.append(f'| {goal} | {value} | {status} |')
     lines += ['', 'Machine: 2 cores shared with other jobs during the run, so wall-clock '
               'latencies are inflated; CPU (thread) time is given next to them.', '']
     out.parent.mkdir(parents=True, exist_ok=True)
