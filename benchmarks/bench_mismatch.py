@@ -489,6 +489,11 @@ def _real_sections(args) -> list:
               '; '.join(f'{k}: scale {v[0]:+.4f}, cross ' +
                         ', '.join(f'{kk}:{vv:+.4f}' for kk, vv in v[1].items())
                         for k, v in fr['ref_scale'].items()), '']
+    cross = [f for f in fr['findings'] if f['effect'] in ('gyro_cross_axis', 'imu_mounting_tilt')]
+    lines += ['Misalignment found: ' + ('; '.join(
+        f'{f["effect"]} on `{f["channel"]}` {f["parameters"]}' for f in cross) if cross else
+        'none (the reference misalignments are below 1 %, and the 3 rotations give the '
+        'selection little to separate them from scale and offset terms)'), '']
     print('\n'.join(lines))
     return lines
 

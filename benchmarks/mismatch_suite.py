@@ -212,7 +212,7 @@ def make_pair(seed: int, n_effects: int | None = None, duration: float | None = 
     m = make_motion(rng, kind, duration + 1.0)
     if effects is None:
         k = int(rng.choice([0, 1, 2])) if n_effects is None else int(n_effects)
-        names = list(rng.choice(EFFECTS, size=k, replace=False))
+        names = [str(x) for x in rng.choice(EFFECTS, size=k, replace=False)]
         if 'gyro_bias' in names and 'gyro_bias_drift' in names:
             names.remove('gyro_bias')
         effects = [draw_effect(rng, nm, duration) for nm in names]
