@@ -1,6 +1,7 @@
 # Copyright 2026 robot_calib contributors
 # SPDX-License-Identifier: Apache-2.0
-"""Benchmark of the sim-vs-real mismatch analyser (issue 8).
+"""
+Benchmark of the sim-vs-real mismatch analyser (issue 8).
 
 Run from the repository root: ``.venv/bin/python benchmarks/bench_mismatch.py [--pairs N]``.
 Prints the tables and writes them to ``docs/bench/8-mismatch.md``.
@@ -68,7 +69,8 @@ def _matches(f: dict, e: dict) -> bool:
 
 
 def _param_ok(f: dict, e: dict, dur: float) -> tuple[bool, float]:
-    """Return (within 10 %, relative error) of the effect's size.
+    """
+    Return (within 10 %, relative error) of the effect's size.
 
     Single-parameter effects: |est - true| / |true|. Tilt: norm of the
     (roll, pitch) error over the true norm. Drift: error of the offset over
@@ -217,7 +219,8 @@ def _stlsq(X: np.ndarray, y: np.ndarray, thr: float) -> np.ndarray:
 
 
 def baseline(rows: list, thr_rel: float = 0.05) -> dict:
-    """Run the sparse-regression baseline per channel on every suite pair.
+    """
+    Run the sparse-regression baseline per channel on every suite pair.
 
     The library per channel is the analyser's global candidate regressors
     (no windows, no alignment search beyond the analyser's own pairing);
@@ -344,7 +347,7 @@ def _met(ok: bool) -> str:
 
 def main(argv=None) -> int:
     """Run the benchmark and write docs/bench/8-mismatch.md."""
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap = argparse.ArgumentParser(description=__doc__.strip().splitlines()[0])
     ap.add_argument('--pairs', type=int, default=120)
     ap.add_argument('--broad', type=int, default=12, help='BROAD trials to run')
     ap.add_argument('--no-speed', action='store_true')

@@ -1,6 +1,7 @@
 # Copyright 2026 robot_calib contributors
 # SPDX-License-Identifier: Apache-2.0
-"""Concealed-effect generator: pairs of a plain simulation and a "real" run with 0-2 effects.
+"""
+Concealed-effect generator: pairs of a plain simulation and a "real" run with 0-2 effects.
 
 A differential-drive robot follows random velocity commands (ramped with
 acceleration limits; the published ``/cmd_vel`` is the ramped command) with a
@@ -193,7 +194,8 @@ def make_pair(seed: int, n_effects: int | None = None, duration: float | None = 
               imu_rate: float | None = None, odom_rate: float | None = None,
               kind: str | None = None, noise: bool = True,
               effects: list | None = None) -> tuple[dict, dict, dict]:
-    """Return ``(sim, real, truth)`` for one seeded pair.
+    """
+    Return ``(sim, real, truth)`` for one seeded pair.
 
     :param seed: random seed
     :param n_effects: number of concealed effects (0-2; random when None)

@@ -1,6 +1,7 @@
 # Copyright 2026 robot_calib contributors
 # SPDX-License-Identifier: Apache-2.0
-"""Sim-vs-real mismatch analyser: locate the mismatch, name the missing physics, model it.
+"""
+Sim-vs-real mismatch analyser: locate the mismatch, name the missing physics, model it.
 
 ``analyse(sim_bag, real_bag, out_dir)`` reads both bags, aligns them
 (:mod:`.channels`), measures the noise floor and where the residual leaves it
@@ -28,7 +29,8 @@ class MismatchError(ValueError):
 def analyse(sim_bag: os.PathLike | str, real_bag: os.PathLike | str,
             out_dir: os.PathLike | str, params: Optional[MismatchParams] = None,
             plots: bool = True) -> dict:
-    """Compare a simulated and a real recording of the same run; write findings and a report.
+    """
+    Compare a simulated and a real recording of the same run; write findings and a report.
 
     :param sim_bag: the simulated bag (ROS 2 folder or ROS 1 file)
     :param real_bag: the real bag

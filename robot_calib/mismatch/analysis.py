@@ -1,6 +1,7 @@
 # Copyright 2026 robot_calib contributors
 # SPDX-License-Identifier: Apache-2.0
-"""The mismatch analysis: align, locate, name, model and show, or abstain.
+"""
+The mismatch analysis: align, locate, name, model and show, or abstain.
 
 :func:`analyse_recordings` takes two :class:`~robot_calib.mismatch.channels.Recording`
 objects (the simulated and the real run) and returns the findings dict of
@@ -120,7 +121,8 @@ def _problem(pt: PairedTopic, smooth: float, not_judged: list) -> Optional[S.Pro
 
 
 def _implausible(prob: S.Problem, sel: list, not_judged: list) -> list:
-    """Move effects fitted far beyond their plausible range into ``not_judged``.
+    """
+    Move effects fitted far beyond their plausible range into ``not_judged``.
 
     A parameter beyond twice the plausible magnitude (e.g. a gyro scale of
     -1: the real channel does not follow the simulation at all) is not a
@@ -356,7 +358,8 @@ def _analyse_topic(pt: PairedTopic, sim: Recording, real: Recording, t0: float,
 
 def analyse_recordings(sim: Recording, real: Recording,
                        params: Optional[MismatchParams] = None) -> tuple[dict, list]:
-    """Compare two recordings; return (findings dict, per-topic details for the report).
+    """
+    Compare two recordings; return (findings dict, per-topic details for the report).
 
     :raises ChannelError: when nothing can be compared
     """

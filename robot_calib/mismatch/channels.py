@@ -1,6 +1,7 @@
 # Copyright 2026 robot_calib contributors
 # SPDX-License-Identifier: Apache-2.0
-"""Recordings as channels, and their alignment: pairing, resampling and a lagged cross-correlation.
+"""
+Recordings as channels, and their alignment: pairing, resampling and a lagged cross-correlation.
 
 A :class:`Recording` maps a topic (``/imu``) to a :class:`Topic`: one time
 vector (s, header stamps) and named field arrays whose names follow the ROS
@@ -118,7 +119,8 @@ def _finish(buf: dict) -> Recording:
 
 
 def recording_from_samples(items) -> Recording:
-    """Return a :class:`Recording` of ``(topic, core sample)`` pairs (e.g. a simulator run).
+    """
+    Return a :class:`Recording` of ``(topic, core sample)`` pairs (e.g. a simulator run).
 
     IMU, odometry and twist samples are kept; others are ignored.
     """
@@ -129,7 +131,8 @@ def recording_from_samples(items) -> Recording:
 
 
 def read_bag(path: os.PathLike | str) -> Recording:
-    """Read the IMU, odometry and velocity-command topics of a bag into a :class:`Recording`.
+    """
+    Read the IMU, odometry and velocity-command topics of a bag into a :class:`Recording`.
 
     Odometry without a twist (all zero while the pose moves) gets its forward
     speed (m/s) and yaw rate (rad/s) differentiated from the pose.
@@ -154,7 +157,8 @@ def read_bag(path: os.PathLike | str) -> Recording:
 
 @dataclass
 class PairedTopic:
-    """A topic of both recordings on common times (s from the sim bag start).
+    """
+    A topic of both recordings on common times (s from the sim bag start).
 
     ``sim`` and ``real`` map field -> array (NaN where a side has no value);
     ``tau_xcorr`` is the lag (s, positive: real lags) of the cross-correlation
@@ -183,7 +187,8 @@ class PairedTopic:
 
 
 def loo_derivative(x: np.ndarray, dt: float, half: int = 2) -> np.ndarray:
-    """Return dx/dt from the means of the ``half`` samples after and before each sample.
+    """
+    Return dx/dt from the means of the ``half`` samples after and before each sample.
 
     The sample itself is left out, so its noise does not enter (see
     :func:`regressor_signal`); exact for a straight line.
@@ -204,7 +209,8 @@ def loo_derivative(x: np.ndarray, dt: float, half: int = 2) -> np.ndarray:
 
 
 def regressor_signal(x: np.ndarray, half: int = 2) -> np.ndarray:
-    """Return ``x`` for use as a regressor: a leave-one-out average when ``x`` is noisy.
+    """
+    Return ``x`` for use as a regressor: a leave-one-out average when ``x`` is noisy.
 
     A noisy simulation used as a regressor of its own residual biases the fit
     (errors in variables: the sim noise is in both). When the second
@@ -286,7 +292,8 @@ def median_dt(t: np.ndarray) -> float:
 
 
 def xcorr_lag(sim: dict, real: dict, dt: float, max_lag: float) -> tuple[float, float]:
-    """Return (lag s, correlation gain) of the peak of the summed normalised cross-correlation.
+    """
+    Return (lag s, correlation gain) of the peak of the summed normalised cross-correlation.
 
     Each channel is mean-removed and divided by its standard deviation; the
     correlations of all channels are summed; the peak is refined by a parabola
@@ -341,7 +348,8 @@ def topic_start(rec: Recording) -> float:
 
 def pair_topics(sim: Recording, real: Recording,
                 max_lag: float = 0.5) -> tuple[list, list, float, list]:
-    """Pair and resample the compared topics of two recordings.
+    """
+    Pair and resample the compared topics of two recordings.
 
     :param sim: the simulated recording
     :param real: the real recording

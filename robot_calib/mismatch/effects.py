@@ -1,6 +1,7 @@
 # Copyright 2026 robot_calib contributors
 # SPDX-License-Identifier: Apache-2.0
-"""The library of physical effects: parametric models, units, plausible ranges and regressors.
+"""
+The library of physical effects: parametric models, units, plausible ranges and regressors.
 
 Each effect predicts the difference ``real - sim`` of one or more channels
 as a linear combination of regressors built from the simulation (its own
@@ -115,7 +116,8 @@ def separating_motion(a: str, b: str) -> str:
 
 @dataclass
 class Term:
-    """A candidate effect on a paired topic: its regressor columns per channel (field).
+    """
+    A candidate effect on a paired topic: its regressor columns per channel (field).
 
     ``cols[field]`` is an (n, p) array; the contribution to ``real - sim`` is
     ``cols @ beta`` inside ``window`` (sample indices [i0, i1), None: everywhere).
@@ -159,7 +161,8 @@ def _informative(x: np.ndarray, sigma: float) -> bool:
 
 
 def shifted(pt: PairedTopic, f: str, tau: float) -> np.ndarray:
-    """Return the simulated channel ``f`` delayed by ``tau`` s: sim(t - tau), NaN outside.
+    """
+    Return the simulated channel ``f`` delayed by ``tau`` s: sim(t - tau), NaN outside.
 
     For a noisy simulation (see :func:`~robot_calib.mismatch.channels.regressor_signal`)
     a shift shorter than one sample is taken to first order from the
@@ -188,7 +191,8 @@ def shifted(pt: PairedTopic, f: str, tau: float) -> np.ndarray:
 
 
 def shifted_smooth(pt: PairedTopic, f: str, tau: float, width: int = 5) -> np.ndarray:
-    """Return a noisy simulated channel, box-averaged over ``width`` samples, delayed by ``tau``.
+    """
+    Return a noisy simulated channel, box-averaged over ``width`` samples, delayed by ``tau``.
 
     Used by the exact time-offset model of a noisy simulation: the model is
     ``real(t) = S(t - tau)``, which compares the real channel with a smoothed,
@@ -217,7 +221,8 @@ def shifted_smooth(pt: PairedTopic, f: str, tau: float, width: int = 5) -> np.nd
 
 def tilt_rotate(ax: np.ndarray, ay: np.ndarray, az: np.ndarray, roll: float,
                 pitch: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Return the specific force seen by an IMU mounted with ``roll``, ``pitch`` (rad).
+    """
+    Return the specific force seen by an IMU mounted with ``roll``, ``pitch`` (rad).
 
     a_sensor = Rx(roll)^T Ry(pitch)^T a_base (REP-103, sensor orientation in
     base = Ry(pitch) Rx(roll)); level gravity (0, 0, g) becomes
@@ -232,7 +237,8 @@ def tilt_rotate(ax: np.ndarray, ay: np.ndarray, az: np.ndarray, roll: float,
 
 
 def candidates(pt: PairedTopic, sigma: dict, aux: dict) -> tuple[list, list]:
-    """Build the candidate terms for one paired topic.
+    """
+    Build the candidate terms for one paired topic.
 
     :param pt: the paired topic
     :param sigma: noise standard deviation per field (channel units)
@@ -342,7 +348,8 @@ def candidates(pt: PairedTopic, sigma: dict, aux: dict) -> tuple[list, list]:
 
 
 def to_params(term: Term, beta: np.ndarray, cov: np.ndarray) -> tuple[dict, dict]:
-    """Return the effect's parameters and their standard deviations in the table's units.
+    """
+    Return the effect's parameters and their standard deviations in the table's units.
 
     :param term: the term
     :param beta: its fitted linear coefficients

@@ -1,6 +1,7 @@
 # Copyright 2026 robot_calib contributors
 # SPDX-License-Identifier: Apache-2.0
-"""Locate a mismatch: the noise floor of a residual, where it stops being noise, and windows.
+"""
+Locate a mismatch: the noise floor of a residual, where it stops being noise, and windows.
 
 - :func:`noise_level`: standard deviation (channel units) of the part of a
   residual faster than a few seconds (the residual minus its moving average),
@@ -38,7 +39,8 @@ def moving_average(x: np.ndarray, width: int) -> np.ndarray:
 
 def noise_level(r: np.ndarray, mask: np.ndarray, dt: float,
                 smooth: float = 2.0) -> tuple[float, float]:
-    """Return (sigma, phi): the fast noise level of a residual and its variance inflation.
+    """
+    Return (sigma, phi): the fast noise level of a residual and its variance inflation.
 
     :param r: residual real - sim (channel units), NaN-free where ``mask``
     :param mask: valid samples
@@ -99,7 +101,8 @@ def _segments(z: np.ndarray, thr: float, min_len: int) -> list:
 
 def active_windows(t: np.ndarray, r: np.ndarray, mask: np.ndarray, sigma: float, phi: float,
                    block: float = 2.0, z_thr: float = 5.0) -> list:
-    """Return the time windows [[t0, t1], ...] (s) where the residual is beyond noise.
+    """
+    Return the time windows [[t0, t1], ...] (s) where the residual is beyond noise.
 
     Blocks of ``block`` s get a statistic ``z = (sum r^2 / sigma^2 - m) / sqrt(2 m phi)``
     (m samples); change points split the block sequence where its mean
@@ -156,7 +159,8 @@ def _dchi(CG: np.ndarray, Ch: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.nd
 
 def scan_window(xs: list, es: list, ws: list, min_len: int,
                 n_blocks: int = 160) -> Optional[tuple]:
-    """Return ``(i0, i1, dchi2)``: the window that best explains ``es`` with regressors ``xs``.
+    """
+    Return ``(i0, i1, dchi2)``: the window that best explains ``es`` with regressors ``xs``.
 
     :param xs: per channel (n, p) regressors (already zero where invalid)
     :param es: per channel current residual (n,), zero where invalid

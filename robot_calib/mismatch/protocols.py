@@ -1,6 +1,7 @@
 # Copyright 2026 robot_calib contributors
 # SPDX-License-Identifier: Apache-2.0
-"""Simulated counterparts of real IMU recordings, for sim-vs-real comparison.
+"""
+Simulated counterparts of real IMU recordings, for sim-vs-real comparison.
 
 - :func:`imu_from_orientation`: the ideal IMU of an orientation trajectory:
   body rates from consecutive quaternions (rotation vector of
@@ -36,7 +37,8 @@ def _qmul(a: np.ndarray, b: np.ndarray) -> np.ndarray:
 
 def imu_from_orientation(t: np.ndarray, q: np.ndarray, g: float = G,
                          half: int = 5) -> tuple[np.ndarray, np.ndarray]:
-    """Return (gyro (N, 3) rad/s, specific force (N, 3) m/s^2) of sensor-to-world quaternions.
+    """
+    Return (gyro (N, 3) rad/s, specific force (N, 3) m/s^2) of sensor-to-world quaternions.
 
     :param t: times (s)
     :param q: (N, 4) quaternions [w x y z] of the sensor frame w.r.t. ENU
@@ -92,7 +94,8 @@ ROT_AXIS = {'x_rot': 0, 'y_rot': 1, 'z_rot': 2}
 
 
 def ferraris_pair(rec, turn: float = -2.0 * np.pi) -> tuple[dict, dict]:
-    """Return (sim, real) recordings of the Ferraris protocol (see module doc).
+    """
+    Return (sim, real) recordings of the Ferraris protocol (see module doc).
 
     :param rec: a :class:`robot_calib.io.datasets.ferraris.Ferraris` recording
     :param turn: the protocol's rotation angle per rotation section (rad)

@@ -1,6 +1,7 @@
 # Copyright 2026 robot_calib contributors
 # SPDX-License-Identifier: Apache-2.0
-"""Write the mismatch findings: findings.json, report.md and PNG plots.
+"""
+Write the mismatch findings: findings.json, report.md and PNG plots.
 
 Per finding one figure: the channel (sim and real), the residual with the
 fitted effect and its window shaded, and the residual after the effect is

@@ -1,6 +1,7 @@
 # Copyright 2026 robot_calib contributors
 # SPDX-License-Identifier: Apache-2.0
-"""Select the smallest set of effects that explains a topic's residual.
+"""
+Select the smallest set of effects that explains a topic's residual.
 
 Forward stepwise sparse regression with the Bayesian information criterion
 on the whitened residual (Schwarz 1978): a model's score is
@@ -62,7 +63,8 @@ class Fit:
 
 
 def tdot(X: np.ndarray, Y: np.ndarray) -> np.ndarray:
-    """Return X^T Y for tall X (n, p) and Y (n,) or (n, q) with column dot products.
+    """
+    Return X^T Y for tall X (n, p) and Y (n,) or (n, q) with column dot products.
 
     Tall-skinny products through einsum: a threaded BLAS dot/gemv is tens of
     times slower for these shapes on a busy machine.
@@ -145,7 +147,8 @@ def n_coef(terms: list) -> int:
 
 
 def fit(prob: Problem, terms: list, contributions: bool = False) -> Fit:
-    """Fit ``terms`` jointly by weighted least squares; chi2 of the whitened residual.
+    """
+    Fit ``terms`` jointly by weighted least squares; chi2 of the whitened residual.
 
     Cross products are cached per (term, window, channel), so refitting
     subsets during the selection costs only small matrix algebra.
@@ -307,7 +310,8 @@ def backward_eliminate(prob: Problem, sel: list, margin: float) -> list:
 
 
 def unexcited_windows(prob: Problem, sel: list, frac: float = 0.03) -> list:
-    """Make windowed terms global when their regressor hardly acts outside the window.
+    """
+    Make windowed terms global when their regressor hardly acts outside the window.
 
     When less than ``frac`` of a term's regressor energy lies outside its
     window, the recording cannot tell "acts only here" from "acts always";
@@ -443,7 +447,8 @@ def refine_nonlinear(prob: Problem, sel: list, iters: int = 8) -> list:
 
 def alternatives(prob: Problem, sel: list, cands: list, min_len: int,
                  alt_margin: float) -> dict:
-    """Return {index of selected term: [(candidate, its fit, score difference)]}.
+    """
+    Return {index of selected term: [(candidate, its fit, score difference)]}.
 
     A candidate is an alternative to a selected term when it acts on the same
     channel(s), names a different effect, and the model with it in place of

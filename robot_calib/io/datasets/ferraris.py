@@ -1,6 +1,7 @@
 # Copyright 2026 robot_calib contributors
 # SPDX-License-Identifier: Apache-2.0
-"""Loader for the Ferraris-protocol IMU recording (``shared/data/imucal/``).
+"""
+Loader for the Ferraris-protocol IMU recording (``shared/data/imucal/``).
 
 ``ferraris.csv`` holds one row per sample (``n_samples, gyr_x, gyr_y, gyr_z,
 acc_x, acc_y, acc_z``; gyro in deg/s, accelerometer in m/s^2) at 102.4 Hz;
@@ -32,7 +33,8 @@ class Ferraris:
 
 
 def load(folder: os.PathLike | str) -> Ferraris:
-    """Load ``ferraris.csv`` and ``ferraris_sections.json`` from ``folder``.
+    """
+    Load ``ferraris.csv`` and ``ferraris_sections.json`` from ``folder``.
 
     :param folder: the ``imucal`` folder
     :raises ValueError: when a file is missing or malformed (one-line message)
