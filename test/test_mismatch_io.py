@@ -214,3 +214,14 @@ def test_project_simulator_pair_gyro_bias():
             assert found.get(ch) == pytest.approx(d, rel=0.1), res['findings']
         else:
             assert ch not in found
+
+
+def test_renamed_topic_is_paired_by_type():
+    t = np.arange(0, 30, 0.01)
+    rng = np.random.default_rng(3)
+    sim = _imu_rec(t, np.sin(t))
+    real = _imu_rec(t, np.sin(t) + 0.01 + 0.005 * rng.standard_normal(t.size))
+    real = {'/imu/data': Topic('/imu/data', IMU_TYPE, t, real['/imu'].fields)}
+    res, _ = analyse_recordings(sim, real)
+    assert any('/imu/data' in n for n in res['notes'])
+    assert [f['effect'] for f in res['findings']] == ['gyro_bias']

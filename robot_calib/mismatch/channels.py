@@ -379,6 +379,16 @@ def pair_topics(sim: Recording, real: Recording,
         shift = s0 - r0
         notes.append(f'the recordings use different clocks (starts {s0:.3f} s and {r0:.3f} s); '
                      'their starts were aligned')
+    # a topic renamed on one side (/imu vs /imu/data): pair the only unmatched topic of a
+    # type with the only unmatched one of the same type on the other side
+    for mt in COMPARED_TYPES:
+        us = [k for k, v in sim_c.items() if v.msgtype == mt and k not in real_c]
+        ur = [k for k, v in real_c.items() if v.msgtype == mt and k not in sim_c]
+        if len(us) == 1 and len(ur) == 1:
+            notes.append(f'sim topic {us[0]} compared with real topic {ur[0]} (same type, '
+                         'different names)')
+            tp = real_c.pop(ur[0])
+            real_c[us[0]] = Topic(us[0], tp.msgtype, tp.t, tp.fields)
     paired = []
     for name in sorted(set(sim_c) | set(real_c)):
         if name not in real_c:
