@@ -75,7 +75,7 @@ import numpy as np
 from robot_calib.core import types as T
 from robot_calib.core.geometry import quat_from_rpy, quat_to_matrix, wrap_angle
 from robot_calib.core.params import param
-from scipy.stats import chi2
+from scipy.special import chdtri
 
 G = 9.80665
 """Standard gravity (m/s^2)."""
@@ -207,6 +207,11 @@ class FusionParams:
     seed: SeedParams = field(default_factory=SeedParams)
 
 
+def _chi2_ppf(probability: float, dof: float) -> float:
+    """Return the chi-square quantile of ``probability`` with ``dof`` degrees of freedom."""
+    return float(chdtri(dof, 1.0 - probability))
+
+
 def _wrap(a: float) -> float:
     """Wrap a scalar angle (rad) to (-pi, pi] (fast path of geometry.wrap_angle)."""
     if -math.pi < a <= math.pi:
@@ -241,7 +246,7 @@ def nis_band(dof: int, window: int, prob: float = 0.95) -> tuple[float, float]:
     """
     n = dof * window
     a = (1.0 - prob) / 2.0
-    return float(chi2.ppf(a, n) / window), float(chi2.ppf(1.0 - a, n) / window)
+    return float(_chi2_ppf(a, n) / window), float(_chi2_ppf(1.0 - a, n) / window)
 
 
 def wheel_twist(params: FusionParams, sample: T.JointStateSample,
@@ -569,7 +574,7 @@ class ImprovedFusion(_Base):
         self.nis_avg = float('nan')
         self.nis_in_band = 0
         self.nis_checked = 0
-        self._gate = float(chi2.ppf(p.gate_probability, 1)) if p.gate_probability < 1 \
+        self._gate = float(_chi2_ppf(p.gate_probability, 1)) if p.gate_probability < 1 \
             else float('inf')
         self._band = {}
         self._rej_since: dict = {'slip_speed': None, 'slip_yaw_rate': None}
