@@ -28,3 +28,12 @@ def shared_data() -> Path:
 def repo_root() -> Path:
     """Return the repository root."""
     return REPO
+
+
+@pytest.fixture
+def ros():
+    """Initialise rclpy for one test and shut it down after."""
+    import rclpy
+    rclpy.init()
+    yield
+    rclpy.try_shutdown()

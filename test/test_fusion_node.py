@@ -17,13 +17,6 @@ from robot_calib.pipelines.odometry_fusion import FusionPipeline  # noqa: E402
 from sensor_msgs.msg import Imu  # noqa: E402
 
 
-@pytest.fixture
-def ros():
-    rclpy.init()
-    yield
-    rclpy.try_shutdown()
-
-
 def _stamp(msg, t):
     msg.header.stamp.sec = int(t)
     msg.header.stamp.nanosec = int(round((t - int(t)) * 1e9))

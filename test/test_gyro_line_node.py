@@ -21,13 +21,6 @@ from sensor_msgs.msg import Imu, LaserScan  # noqa: E402
 from std_msgs.msg import Bool  # noqa: E402
 
 
-@pytest.fixture
-def ros():
-    rclpy.init()
-    yield
-    rclpy.try_shutdown()
-
-
 def _stamp(msg, t):
     msg.header.stamp.sec = int(t)
     msg.header.stamp.nanosec = int(round((t - int(t)) * 1e9))

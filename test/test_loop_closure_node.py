@@ -20,13 +20,6 @@ from robot_calib.pipelines.loop_closure_correction import LoopClosurePipeline  #
 from sensor_msgs.msg import Imu, LaserScan  # noqa: E402
 
 
-@pytest.fixture
-def ros():
-    rclpy.init()
-    yield
-    rclpy.try_shutdown()
-
-
 def _stamp(msg, t):
     msg.header.stamp.sec = int(t)
     msg.header.stamp.nanosec = int(round((t - int(t)) * 1e9))

@@ -41,13 +41,6 @@ class _Alerting(Pipeline):
         return out
 
 
-@pytest.fixture
-def ros():
-    rclpy.init()
-    yield
-    rclpy.try_shutdown()
-
-
 def _spin_until(executor, condition, steps=100):
     for _ in range(steps):
         executor.spin_once(timeout_sec=0.02)
