@@ -157,6 +157,20 @@ def _dchi(CG: np.ndarray, Ch: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.nd
     return np.where(np.isfinite(out), out, 0.0)
 
 
+def _move_edges(CG: np.ndarray, Ch: np.ndarray, a0: int, b0: int, n: int, reach: int,
+                stride: int, min_len: int) -> tuple[int, int]:
+    """Move the start, then the end of window [a0, b0) within +-reach samples to the best fit."""
+    cand = np.arange(max(0, a0 - reach), min(n, a0 + reach) + 1, stride)
+    cand = cand[b0 - cand >= min_len]
+    if cand.size:
+        a0 = int(cand[int(np.argmax(_dchi(CG, Ch, cand, np.full(cand.size, b0))))])
+    cand = np.arange(max(0, b0 - reach), min(n, b0 + reach) + 1, stride)
+    cand = cand[cand - a0 >= min_len]
+    if cand.size:
+        b0 = int(cand[int(np.argmax(_dchi(CG, Ch, np.full(cand.size, a0), cand)))])
+    return a0, b0
+
+
 def scan_window(xs: list, es: list, ws: list, min_len: int,
                 n_blocks: int = 160) -> Optional[tuple]:
     """
@@ -187,35 +201,10 @@ def scan_window(xs: list, es: list, ws: list, min_len: int,
     a0, b0 = int(a[k]), int(b[k])
     step = max(1, int(np.ceil(n / nb)))
     for _ in range(3):
-        for which in (0, 1):
-            lo = (a0 if which == 0 else b0) - 2 * step
-            hi = (a0 if which == 0 else b0) + 2 * step
-            cand = np.arange(max(0, lo), min(n, hi) + 1, max(1, step // 16))
-            if which == 0:
-                cand = cand[b0 - cand >= min_len]
-                if cand.size:
-                    dd = _dchi(CG, Ch, cand, np.full(cand.size, b0))
-                    a0 = int(cand[int(np.argmax(dd))])
-            else:
-                cand = cand[cand - a0 >= min_len]
-                if cand.size:
-                    dd = _dchi(CG, Ch, np.full(cand.size, a0), cand)
-                    b0 = int(cand[int(np.argmax(dd))])
+        a0, b0 = _move_edges(CG, Ch, a0, b0, n, 2 * step, max(1, step // 16), min_len)
         step = max(1, step // 8)
         if step == 1:
-            for which in (0, 1):
-                c0 = a0 if which == 0 else b0
-                cand = np.arange(max(0, c0 - 8), min(n, c0 + 8) + 1)
-                if which == 0:
-                    cand = cand[b0 - cand >= min_len]
-                    if cand.size:
-                        dd = _dchi(CG, Ch, cand, np.full(cand.size, b0))
-                        a0 = int(cand[int(np.argmax(dd))])
-                else:
-                    cand = cand[cand - a0 >= min_len]
-                    if cand.size:
-                        dd = _dchi(CG, Ch, np.full(cand.size, a0), cand)
-                        b0 = int(cand[int(np.argmax(dd))])
+            a0, b0 = _move_edges(CG, Ch, a0, b0, n, 8, 1, min_len)
             break
     best = float(_dchi(CG, Ch, np.array([a0]), np.array([b0]))[0])
     return a0, b0, best
