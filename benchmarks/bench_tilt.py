@@ -281,18 +281,9 @@ def bags_section() -> None:
 
 # -- simulation -------------------------------------------------------------------------------
 def _run_pipeline(messages: list, params: TL.TiltParams) -> tuple:
-    from robot_calib.pipelines.tilt_detection import TiltPipeline
+    from robot_calib.pipelines.tilt_detection import fall_alert_onsets, TiltPipeline
     pipe = TiltPipeline(params)
-    onsets = []
-    for topic, s in messages:
-        if topic == '/tf_static':
-            for x in s:
-                pipe.process('tf_static', x)
-        elif topic == '/imu':
-            for key, out in pipe.process('imu', s):
-                if key == 'fall_alert' and out.value:
-                    onsets.append(out.t)
-    return pipe, onsets
+    return pipe, fall_alert_onsets(pipe, messages)
 
 
 def sim_section(hours: float = 1.0, seeds: int = 10) -> None:

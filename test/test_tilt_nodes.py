@@ -10,7 +10,7 @@ import pytest
 
 from robot_calib.core import types as T
 from robot_calib.core.tilt import TiltParams
-from robot_calib.pipelines.tilt_detection import TiltPipeline
+from robot_calib.pipelines.tilt_detection import fall_alert_onsets, TiltPipeline
 
 G = 9.80665
 DT = 0.005
@@ -175,19 +175,6 @@ def test_seed_mode_pipeline_runs():
 
 
 # -- simulated scenarios ------------------------------------------------------------------------
-def _sim_feed(pipe, messages):
-    onsets = []
-    for topic, s in messages:
-        if topic == '/tf_static':
-            for x in s:
-                pipe.process('tf_static', x)
-        elif topic == '/imu':
-            for key, out in pipe.process('imu', s):
-                if key == 'fall_alert' and out.value:
-                    onsets.append(out.t)
-    return onsets
-
-
 def test_sim_tip_over_alerts_within_100_ms():
     sim = pytest.importorskip('robot_calib.sim')
     r = sim.run_scenario('tip_over', seed=2, overrides={'lidar.rate': 0.5})
@@ -195,7 +182,7 @@ def test_sim_tip_over_alerts_within_100_ms():
     tilt = np.arccos(np.cos(tr['roll']) * np.cos(tr['pitch']))
     cross = float(tr['t'][np.argmax(tilt > math.pi / 4)]) + r.truth['start_time']
     assert r.truth['tilt_crossing'] + r.truth['start_time'] == pytest.approx(cross, abs=0.005)
-    onsets = _sim_feed(TiltPipeline(), r.messages)
+    onsets = fall_alert_onsets(TiltPipeline(), r.messages)
     assert len(onsets) == 1
     assert 0.0 <= onsets[0] - cross <= 0.1
 
@@ -207,7 +194,7 @@ def test_sim_bumpy_drive_has_no_alert():
     true_tilt = np.degrees(np.arccos(np.cos(tr['roll']) * np.cos(tr['pitch'])))
     assert 13.0 < true_tilt.max() < 20.0            # the ramps were really driven over
     pipe = TiltPipeline()
-    assert _sim_feed(pipe, r.messages) == []
+    assert fall_alert_onsets(pipe, r.messages) == []
     assert pipe.method_summary()['max_tilt_deg'] < 25.0
 
 
@@ -342,9 +329,9 @@ def test_sim_rotated_imu_mounting_from_tf_static():
     r = sim.run_scenario('tip_over', seed=5, overrides=over)
     cross = r.truth['tilt_crossing'] + r.truth['start_time']
     pipe = TiltPipeline()
-    onsets = _sim_feed(pipe, r.messages)
+    onsets = fall_alert_onsets(pipe, r.messages)
     assert pipe.method_summary()['mounting'] == '/tf_static'
     assert len(onsets) == 1 and 0.0 <= onsets[0] - cross <= 0.1
     # ignoring the mounting, the IMU on its side looks like a fallen robot at once
-    onsets = _sim_feed(TiltPipeline(TiltParams(use_tf_static=False)), r.messages)
+    onsets = fall_alert_onsets(TiltPipeline(TiltParams(use_tf_static=False)), r.messages)
     assert onsets and onsets[0] - r.truth['start_time'] < 0.1

@@ -271,6 +271,21 @@ class TiltPipeline(Pipeline):
             'mounting_quat': list(self.mounting),
         }
 
-    def plot(self, out_dir: str) -> list[str]:
-        """No plot: the tilt is in the output bag (tilt/imu)."""
-        return []
+
+def fall_alert_onsets(pipeline: TiltPipeline, messages: list) -> list[float]:
+    """
+    Feed ``(topic, sample)`` messages of a recording and return the alert onset times (s).
+
+    ``/tf_static`` messages (lists of static transforms) and ``/imu`` samples are
+    used, as :func:`robot_calib.sim.run_scenario` gives them; other topics are skipped.
+    """
+    onsets = []
+    for topic, sample in messages:
+        if topic == '/tf_static':
+            for transform in sample:
+                pipeline.process('tf_static', transform)
+        elif topic == '/imu':
+            for key, out in pipeline.process('imu', sample):
+                if key == 'fall_alert' and out.value:
+                    onsets.append(out.t)
+    return onsets
