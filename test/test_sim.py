@@ -376,3 +376,28 @@ def test_gyro_drift_warmup_and_latency():
     assert np.allclose(gb[10:], ga[:-10], atol=1e-9)
     assert np.ptp(ga) > 0.9
     assert np.array_equal(a.sensors['imu_t'], b.sensors['imu_t'])
+
+
+def test_route_goes_around_furniture_not_through_it():
+    from robot_calib.sim.rooms import _segment_free, free, make_room, route
+    room = make_room('rect', np.random.default_rng(0))
+    sofa = room.obstacles[0]
+    lo, hi = sofa.min(axis=0), sofa.max(axis=0)
+    mid_y = 0.5 * (lo[1] + hi[1])
+    a, b = (hi[0] + 0.4, mid_y), (lo[0] + 0.3, lo[1] - 0.4)  # beside it, in front of it
+    assert free(room, [a[0], b[0]], [a[1], b[1]], 0.2).all()
+    assert not _segment_free(room, a, b, 0.2)
+    way = route(room, a, b, 0.2)
+    assert way is not None and way[-1] == b and len(way) >= 2
+    for p, q in zip([a] + way[:-1], way):
+        assert _segment_free(room, p, q, 0.2)
+    assert route(room, a, (lo[0] + 0.1, mid_y), 0.2) is None  # inside the sofa: unreachable
+
+
+def test_vacuum_robot_never_drives_through_furniture():
+    from robot_calib.sim.rooms import inside
+    r = run_scenario('vacuum', seed=0, duration=600.0)  # passes change at ~200 s
+    s = r.sensors
+    x0, y0, _ = r.truth['start_pose']
+    for ob in r.truth['obstacles']:
+        assert not inside(np.array(ob), s['gt_x'] + x0, s['gt_y'] + y0).any()

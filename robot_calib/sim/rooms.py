@@ -179,3 +179,61 @@ def boustrophedon(room: Room, lane: float = 0.3, margin: float = 0.25,
         points.extend(pts)
         flip = not flip
     return points
+
+
+def route(room: Room, a, b, margin: float, step: float = 0.1) -> list | None:
+    """
+    Return waypoints (x, y) (m) leading from ``a`` to ``b`` through free space, ``b`` last.
+
+    Straight when the segment is free; otherwise the shortest path over a grid
+    of ``step`` metres (8-connected, every cell ``margin`` from walls and
+    furniture), shortened where a straight segment is free. None when ``b``
+    cannot be reached or is not free itself.
+    """
+    a, b = (float(a[0]), float(a[1])), (float(b[0]), float(b[1]))
+    if not free(room, b[0], b[1], margin)[0]:
+        return None
+    if _segment_free(room, a, b, margin):
+        return [b]
+    lo = room.outline.min(axis=0)
+    hi = room.outline.max(axis=0)
+    xs = np.arange(lo[0], hi[0] + step, step)
+    ys = np.arange(lo[1], hi[1] + step, step)
+    gx, gy = np.meshgrid(xs, ys, indexing='ij')
+    ok = free(room, gx.ravel(), gy.ravel(), margin).reshape(gx.shape)
+
+    def nearest_free(p):
+        d = np.where(ok, (gx - p[0]) ** 2 + (gy - p[1]) ** 2, np.inf)
+        k = np.unravel_index(int(np.argmin(d)), d.shape)
+        return k if np.isfinite(d[k]) else None
+
+    start, goal = nearest_free(a), nearest_free(b)
+    if start is None or goal is None:
+        return None
+    came = {start: None}
+    frontier = [start]
+    while frontier and goal not in came:  # breadth-first: the cells are few (a room)
+        nxt = []
+        for i, j in frontier:
+            for di in (-1, 0, 1):
+                for dj in (-1, 0, 1):
+                    c = (i + di, j + dj)
+                    if 0 <= c[0] < ok.shape[0] and 0 <= c[1] < ok.shape[1] and ok[c] \
+                            and c not in came:
+                        came[c] = (i, j)
+                        nxt.append(c)
+        frontier = nxt
+    if goal not in came:
+        return None
+    cells = [goal]
+    while came[cells[-1]] is not None:
+        cells.append(came[cells[-1]])
+    path = [a] + [(float(gx[c]), float(gy[c])) for c in reversed(cells)] + [b]
+    out, i = [], 0
+    while i < len(path) - 1:  # keep the farthest point reachable in a straight line
+        j = len(path) - 1
+        while j > i + 1 and not _segment_free(room, path[i], path[j], margin):
+            j -= 1
+        out.append(path[j])
+        i = j
+    return out

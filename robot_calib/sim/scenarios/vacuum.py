@@ -29,7 +29,7 @@ import math
 import numpy as np
 
 from robot_calib.sim.motion import Plan, State
-from robot_calib.sim.rooms import boustrophedon, LAYOUTS, make_room
+from robot_calib.sim.rooms import boustrophedon, LAYOUTS, make_room, route
 from robot_calib.sim.scenario import BuildContext, Scenario, Setup
 
 DEG_H = math.pi / 180.0 / 3600.0
@@ -66,19 +66,23 @@ def build(ctx: BuildContext) -> Setup:
     work = 0.5 * ctx.duration
     planned = 2.0
     passes = [lanes_x, lanes_y]
-    k = 0
-    while planned < work:
+    here = start[:2]
+    k = failed = 0
+    while planned < work and failed < len(passes):
         pts = passes[k % 2]
-        if len(pts) < 2:
-            k += 1
-            if k > 4:
-                break
+        k += 1
+        # reach the first lane around the furniture, never through it
+        way = route(room, here, pts[0], 0.2) if len(pts) >= 2 else None
+        if way is None:
+            failed += 1
             continue
+        failed = 0
+        pts = way[:-1] + list(pts)
         est = _pass_time(pts)
         plan.goto(pts, speed=SPEED, turn_rate=TURN_RATE, tolerance=0.05,
                   timeout=2.0 * est + 30.0)
         planned += est
-        k += 1
+        here = pts[-1]
 
     def mark(s: State):
         if truth['phase_switch_time'] is None:
