@@ -114,7 +114,12 @@ class Truth:
         self.t = s['gt_t']
         self.x, self.y = s['gt_x'], s['gt_y']
         self.yaw = np.unwrap(s['gt_yaw'])
-        self.walls = np.array(result.truth['walls'])
+        # the ground truth starts at (0, 0, 0); the walls are in the world frame: move them
+        # into the ground-truth frame (world pose of the start: truth.json start_pose)
+        x0, y0, yaw0 = result.truth['start_pose']
+        c, sn = math.cos(yaw0), math.sin(yaw0)
+        w = np.array(result.truth['walls'], dtype=float).reshape(-1, 2, 2) - [x0, y0]
+        self.walls = (w @ np.array([[c, -sn], [sn, c]])).reshape(-1, 4)
         a = self.walls[:, 2:] - self.walls[:, :2]
         self.wall_angle = np.arctan2(a[:, 1], a[:, 0])
 
