@@ -128,7 +128,10 @@ class ImprovedParams:
 
     heading_sigma0: float = param(0.1 * _DEG, 'rad', 'Initial heading uncertainty (1 sigma).',
                                   minimum=0.0)
-    gyro_noise: float = param(0.005, 'rad/sqrt(s)', 'Gyro angle random walk.', minimum=0.0)
+    gyro_noise: float = param(0.001, 'rad/sqrt(s)', 'Gyro angle random walk (with margin: a '
+                              'consumer MEMS gyro has 1e-4 to 3e-4).', minimum=0.0)
+    odom_yaw_noise: float = param(0.005, 'rad/sqrt(s)', 'Random walk of the odometry yaw when it '
+                                  'stands in for the gyro (wheel slip).', minimum=0.0)
     bias_sigma0: float = param(60.0 * _DEG / 3600.0, 'rad/s', 'Initial gyro bias uncertainty.',
                                minimum=0.0)
     bias_walk: float = param(2.0e-5, 'rad/s/sqrt(s)', 'Gyro bias random walk.', minimum=0.0)
@@ -354,6 +357,7 @@ class GyroLineCalibrator:
         self._odom_rate = 0.0
         self._acc_dt = 0.0
         self._acc_wdt = 0.0
+        self._acc_q = 0.0
         self._untrusted_until = -math.inf
         self._stopped_turning_since = None
         self._prev_ranges = None
@@ -474,14 +478,16 @@ class GyroLineCalibrator:
             self.P[2, 2] += (self.params.max_turn_rate * min(dt, 10.0)) ** 2 * 0.01
             self.distrust(s.t, 'time_jump')
             return
-        self._integrate_rate(0.5 * (rate + prev_rate), dt)  # trapezoidal rule
+        self._integrate_rate(0.5 * (rate + prev_rate), dt,  # trapezoidal rule
+                             self.params.improved.gyro_noise)
         self._carried_check(s.t)
 
-    def _integrate_rate(self, rate: float, dt: float) -> None:
-        # heading = integral of (1 - s) * rate - b
+    def _integrate_rate(self, rate: float, dt: float, noise: float) -> None:
+        # heading = integral of (1 - s) * rate - b; noise: angle random walk (rad/sqrt(s))
         self.x[2] += (rate * (1.0 - self.x[4]) - self.x[3]) * dt
         self._acc_dt += dt
         self._acc_wdt += rate * dt
+        self._acc_q += noise ** 2 * dt
 
     def _flush_gyro(self) -> None:
         """Propagate the covariance over the gyro samples integrated since the last flush."""
@@ -493,10 +499,11 @@ class GyroLineCalibrator:
         # P = F P F^T with F = I - a e2 e3^T - w e2 e4^T (rows, then columns)
         P[2, :] -= a * P[3, :] + w * P[4, :]
         P[:, 2] -= a * P[:, 3] + w * P[:, 4]
-        P[2, 2] += ip.gyro_noise ** 2 * self._acc_dt
+        P[2, 2] += self._acc_q
         P[3, 3] += ip.bias_walk ** 2 * self._acc_dt
         self._acc_dt = 0.0
         self._acc_wdt = 0.0
+        self._acc_q = 0.0
 
     def update_odom(self, s: T.OdomSample) -> np.ndarray:
         """Apply one odometry sample; return the estimated pose [x, y, yaw] (m, m, rad)."""
@@ -530,7 +537,7 @@ class GyroLineCalibrator:
         self._odom_v = d[0] / dt
         self._odom_rate = d[2] / dt
         if not self._use_gyro(s.t):
-            self._integrate_rate(d[2] / dt, dt)
+            self._integrate_rate(d[2] / dt, dt, self.params.improved.odom_yaw_noise)
         self._flush_gyro()
         th = self.x[2]
         c, sn = math.cos(th), math.sin(th)
