@@ -180,8 +180,9 @@ def render_simulated(data, out_lines):
     p95_cpu = float(np.percentile(cpu, 95))
     out_lines += [
         f'## Simulated `revisit`: {len(rows)} seeds of {data["duration"]:.0f} s '
-        f'(seeds {", ".join(str(r["n"]) for r in rows)}; {data["requested"]} requested: the '
-        f'rest did not fit the time available on the shared machine)',
+        f'(seeds {", ".join(str(r["n"]) for r in rows)}'
+        + (f'; {data["requested"]} requested: the rest did not fit the time available on the '
+           'shared machine)' if len(rows) < data['requested'] else ')'),
         '',
         'Heading RMSE (deg) per seed, against ground truth at every published pose. The true '
         'gyro bias column is the turn-on value; the scenario adds a drift of 4e-6 rad/s^2 '
@@ -221,6 +222,12 @@ def render_simulated(data, out_lines):
         f'the goals (wall-clock ratios swing with the machine’s load, CPU ratios do not). '
         f'Keyframe memory at the end: at most {mem / 1e3:.0f} kB.',
         '',
+        'A closure makes the heading agree with the keyframe it matched, and a keyframe keeps '
+        'the heading error it was stored with on the first lap (gyro scale error in the turns, '
+        'bias random walk); so a seed whose first lap drifted more stays above the others '
+        'however many closures follow, and the global optimisation, which sees only relative '
+        'constraints too, lands at the same level (see the seeds above 0.3 deg in the goals).',
+        '',
     ]
     mean_imp = float(deg['improved'].mean())
     rw = [r['ratio'] for r in rows]
@@ -228,8 +235,14 @@ def render_simulated(data, out_lines):
 
     def met(ok):
         return 'met' if ok else 'missed'
+    over = [(r['n'], math.degrees(r['improved']), math.degrees(r['global'])) for r in rows
+            if math.degrees(r['improved']) > 0.3]
     return [('heading RMSE <= 0.3 deg (default mode, mean over seeds)', f'{mean_imp:.3f} deg',
              met(mean_imp <= 0.3)),
+            ('heading RMSE <= 0.3 deg (default mode, every seed)',
+             f'{len(rows) - len(over)} of {len(rows)} seeds'
+             + ''.join(f'; seed {n}: {a:.3f} deg (global optimisation {g:.3f})'
+                       for n, a, g in over), met(not over)),
             ('zero accepted false closures (default mode, all seeds)',
              str(false_total['improved']), met(false_total['improved'] == 0)),
             ('closure latency p95 <= 30 ms', f'{p95_wall:.1f} ms wall, {p95_cpu:.1f} ms CPU',
