@@ -226,7 +226,9 @@ def render_simulated(data, out_lines):
         'the heading error it was stored with on the first lap (gyro scale error in the turns, '
         'bias random walk); so a seed whose first lap drifted more stays above the others '
         'however many closures follow, and the global optimisation, which sees only relative '
-        'constraints too, lands at the same level (see the seeds above 0.3 deg in the goals).',
+        'constraints too, lands at the same level (see the seeds above 0.3 deg in the goals; '
+        'seed 11, inspected: 0.33 deg RMS over the first 30 s, before any closure, and '
+        '0.1-0.7 deg per 30 s window after).',
         '',
     ]
     mean_imp = float(deg['improved'].mean())
