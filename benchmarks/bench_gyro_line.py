@@ -511,8 +511,8 @@ def main() -> int:
     lines = ['## Gyro line calibration (issue 5)\n',
              f'Simulated part: {how}. The goal run is '
              '`.venv/bin/python benchmarks/bench_gyro_line.py --seeds 50 --duration 3600` '
-             '(about 2.5 min of CPU per run here); the default (8 runs of 10 min) is a quick '
-             'check.\n',
+             '(about 3 min per run here; 50 runs in two parallel processes took 85 min); the '
+             'default (8 runs of 10 min) is a quick check.\n',
              'Methods and metrics: see the docstring of `benchmarks/bench_gyro_line.py` '
              '(heading error = estimate - true yaw at the IMU stamps, same start; '
              'wrong wall = line and reference on different true walls).\n']
