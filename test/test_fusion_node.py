@@ -14,6 +14,7 @@ from rclpy.executors import SingleThreadedExecutor  # noqa: E402
 from rclpy.qos import qos_profile_sensor_data  # noqa: E402
 from robot_calib.nodes.base import PipelineNode  # noqa: E402
 from robot_calib.pipelines.odometry_fusion import FusionPipeline  # noqa: E402
+from ros_helpers import spin_until  # noqa: E402
 from sensor_msgs.msg import Imu  # noqa: E402
 
 
@@ -36,11 +37,8 @@ def test_node_fuses_imu_and_odom_and_publishes_diagnostics(ros):
     ex.add_node(node)
     ex.add_node(peer)
     # wait for discovery both ways
-    for _ in range(100):
-        ex.spin_once(timeout_sec=0.02)
-        if imu_pub.get_subscription_count() and odom_pub.get_subscription_count() and \
-                node._pubs['odom'].get_subscription_count():
-            break
+    spin_until(ex, lambda: imu_pub.get_subscription_count() and odom_pub.get_subscription_count()
+               and node._pubs['odom'].get_subscription_count())
     v, w = 0.5, 0.2
     sent_odom = []
     for i in range(300):  # 100 Hz IMU, 20 Hz odometry, 3 s, driving an arc
@@ -59,10 +57,7 @@ def test_node_fuses_imu_and_odom_and_publishes_diagnostics(ros):
             odom_pub.publish(od)
             sent_odom.append((od.header.stamp.sec, od.header.stamp.nanosec))
         ex.spin_once(timeout_sec=0.002)
-    for _ in range(200):
-        ex.spin_once(timeout_sec=0.01)
-        if len(fused) >= 50 and diags:
-            break
+    spin_until(ex, lambda: len(fused) >= 50 and diags, 200, 0.01)
     assert len(fused) >= 50, len(fused)
     stamps = {(m.header.stamp.sec, m.header.stamp.nanosec) for m in fused}
     assert stamps <= set(sent_odom)  # each output carries the stamp of its input

@@ -17,6 +17,7 @@ from rclpy.qos import qos_profile_sensor_data  # noqa: E402
 from robot_calib.nodes.base import PipelineNode  # noqa: E402
 from robot_calib.pipelines.gyro_line_calibration import GyroLinePipeline  # noqa: E402
 from robot_calib.sim.world import World  # noqa: E402
+from ros_helpers import spin_until  # noqa: E402
 from sensor_msgs.msg import Imu, LaserScan  # noqa: E402
 from std_msgs.msg import Bool  # noqa: E402
 
@@ -24,14 +25,6 @@ from std_msgs.msg import Bool  # noqa: E402
 def _stamp(msg, t):
     msg.header.stamp.sec = int(t)
     msg.header.stamp.nanosec = int(round((t - int(t)) * 1e9))
-
-
-def _spin_until(ex, cond, n=200):
-    for _ in range(n):
-        ex.spin_once(timeout_sec=0.01)
-        if cond():
-            return True
-    return False
 
 
 def test_node_publishes_corrected_odometry_and_diagnostics(ros):
@@ -51,9 +44,9 @@ def test_node_publishes_corrected_odometry_and_diagnostics(ros):
     ex = SingleThreadedExecutor()
     ex.add_node(node)
     ex.add_node(peer)
-    _spin_until(ex, lambda: imu_pub.get_subscription_count() and scan_pub.get_subscription_count()
-                and phase_pub.get_subscription_count() and
-                node._pubs['odom'].get_subscription_count())
+    spin_until(ex, lambda: imu_pub.get_subscription_count() and scan_pub.get_subscription_count()
+               and phase_pub.get_subscription_count()
+               and node._pubs['odom'].get_subscription_count(), 200, 0.01)
     world = World().add_room(5.0, 4.0)
     angles = -math.pi + np.arange(360) * math.pi / 180
     sent = []
@@ -87,7 +80,7 @@ def test_node_publishes_corrected_odometry_and_diagnostics(ros):
         if i == 200:
             phase_pub.publish(Bool(data=True))   # the cleaning pass is over
         ex.spin_once(timeout_sec=0.003)
-    _spin_until(ex, lambda: len(out) >= 140 and len(diags) >= 2)
+    spin_until(ex, lambda: len(out) >= 140 and len(diags) >= 2, 200, 0.01)
     assert len(out) >= 50   # best-effort sensor QoS may drop a few under load
     stamps = {(m.header.stamp.sec, m.header.stamp.nanosec) for m in out}
     assert stamps <= set(sent)  # each output carries the stamp of its input odometry

@@ -17,6 +17,7 @@ from rclpy.executors import SingleThreadedExecutor  # noqa: E402
 from rclpy.qos import qos_profile_sensor_data  # noqa: E402
 from robot_calib.nodes.base import PipelineNode  # noqa: E402
 from robot_calib.pipelines.loop_closure_correction import LoopClosurePipeline  # noqa: E402
+from ros_helpers import spin_until  # noqa: E402
 from sensor_msgs.msg import Imu, LaserScan  # noqa: E402
 
 
@@ -51,11 +52,9 @@ def test_node_publishes_corrected_odometry_and_diagnostics(ros):
     ex = SingleThreadedExecutor()
     ex.add_node(node)
     ex.add_node(peer)
-    for _ in range(100):
-        ex.spin_once(timeout_sec=0.02)
-        if imu_pub.get_subscription_count() and odom_pub.get_subscription_count() and \
-                scan_pub.get_subscription_count() and node._pubs['odom'].get_subscription_count():
-            break
+    spin_until(ex, lambda: imu_pub.get_subscription_count() and odom_pub.get_subscription_count()
+               and scan_pub.get_subscription_count()
+               and node._pubs['odom'].get_subscription_count())
     sent = []
     v = 0.5
     for i in range(40):            # 2 s at 20 Hz, driving forward in a square room
@@ -92,10 +91,7 @@ def test_node_publishes_corrected_odometry_and_diagnostics(ros):
             scan_pub.publish(bad)
         for _ in range(3):
             ex.spin_once(timeout_sec=0.01)
-    for _ in range(100):
-        ex.spin_once(timeout_sec=0.02)
-        if len(got) >= len(sent):
-            break
+    spin_until(ex, lambda: len(got) >= len(sent))
     assert len(got) >= 0.9 * len(sent)
     stamps = {m.header.stamp.sec + m.header.stamp.nanosec * 1e-9 for m in got}
     assert all(any(abs(s - t) < 1e-6 for t in sent) for s in stamps)

@@ -15,6 +15,7 @@ from robot_calib.core import types as T  # noqa: E402
 from robot_calib.core.params import param, ParamError  # noqa: E402
 from robot_calib.nodes.base import LATCHED_QOS, PipelineNode  # noqa: E402
 from robot_calib.pipelines.base import InputSpec, OutputSpec, Pipeline  # noqa: E402
+from ros_helpers import spin_until  # noqa: E402
 from sensor_msgs.msg import Imu  # noqa: E402
 from std_msgs.msg import Bool  # noqa: E402
 
@@ -41,14 +42,6 @@ class _Alerting(Pipeline):
         return out
 
 
-def _spin_until(executor, condition, steps=100):
-    for _ in range(steps):
-        executor.spin_once(timeout_sec=0.02)
-        if condition():
-            return True
-    return False
-
-
 def test_node_converts_publishes_and_latches(ros):
     node = PipelineNode(_Alerting)
     peer = rclpy.create_node('peer')
@@ -66,13 +59,13 @@ def test_node_converts_publishes_and_latches(ros):
     def publish_until_received():
         pub.publish(msg)
         return bool(echoes)
-    assert _spin_until(executor, publish_until_received)
+    assert spin_until(executor, publish_until_received)
     assert echoes[0].header.stamp.sec == 12 and echoes[0].header.stamp.nanosec == 345
     assert echoes[0].linear_acceleration.z == 30.0
     late = rclpy.create_node('late')
     late.create_subscription(Bool, 'alerting/alert', alerts.append, LATCHED_QOS)
     executor.add_node(late)
-    assert _spin_until(executor, lambda: bool(alerts))
+    assert spin_until(executor, lambda: bool(alerts))
     assert alerts[0].data is True
     node.destroy_node()
     peer.destroy_node()

@@ -11,6 +11,7 @@ import pytest
 from robot_calib.core import types as T
 from robot_calib.core.tilt import TiltParams
 from robot_calib.pipelines.tilt_detection import fall_alert_onsets, TiltPipeline
+from ros_helpers import spin_until
 
 G = 9.80665
 DT = 0.005
@@ -256,10 +257,7 @@ def test_node_in_process_latched_alert_and_late_subscriber():
             s = _imu(1.0 + k * DT, acc=acc)
             pub.publish(convert.serialize(s)[1])
             ex.spin_once(timeout_sec=0.05)
-        for _ in range(50):
-            ex.spin_once(timeout_sec=0.02)
-            if got_alert and got_alert[-1].data and len(got_imu) >= 20:
-                break
+        spin_until(ex, lambda: got_alert and got_alert[-1].data and len(got_imu) >= 20, 50)
         assert len(got_imu) >= 20
         q = got_imu[-1].orientation
         assert abs(q.w) + abs(q.x) + abs(q.y) + abs(q.z) > 0.5
@@ -269,10 +267,7 @@ def test_node_in_process_latched_alert_and_late_subscriber():
         late = rclpy.create_node('tilt_late_peer')
         late.create_subscription(Bool, 'tilt/fall_alert', late_alert.append, latched)
         ex.add_node(late)
-        for _ in range(100):
-            ex.spin_once(timeout_sec=0.02)
-            if late_alert:
-                break
+        spin_until(ex, lambda: late_alert)
         assert late_alert and late_alert[-1].data is True
         # best-effort delivery may drop some; every delivered one was accepted
         assert node.pipeline.counts['imu']['accepted'] == node.pipeline.counts['imu']['read']

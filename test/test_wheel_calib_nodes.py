@@ -9,6 +9,7 @@ import pytest
 from robot_calib.core import types as T
 from robot_calib.core.wheel_calib import WheelCalibParams
 from robot_calib.pipelines.wheel_odometry_calibration import WheelCalibrationPipeline
+from ros_helpers import spin_until
 import yaml
 
 AGV = {'drive_type': 'steered_wheel', 'wheel_radius': 0.1, 'wheel_base': 1.0, 'lidar_x': 0.3}
@@ -106,10 +107,7 @@ def test_node_in_process_publishes_status_and_writes_yaml(tmp_path):
             if key in pubs:
                 pubs[key].publish(convert.serialize(sample)[1])
                 ex.spin_once(timeout_sec=0.0)
-        for _ in range(100):
-            ex.spin_once(timeout_sec=0.02)
-            if got:
-                break
+        spin_until(ex, lambda: got)
         assert got, 'no status received'
         status = got[-1].status[0]
         keys = [kv.key for kv in status.values]

@@ -1,0 +1,15 @@
+# Copyright 2026 robot_calib contributors
+# SPDX-License-Identifier: Apache-2.0
+"""Helpers for the in-process rclpy tests."""
+
+from typing import Callable
+
+
+def spin_until(executor, condition: Callable[[], object], steps: int = 100,
+               timeout: float = 0.02) -> bool:
+    """Spin ``executor`` until ``condition()`` is true, at most ``steps`` times ``timeout`` s."""
+    for _ in range(steps):
+        executor.spin_once(timeout_sec=timeout)
+        if condition():
+            return True
+    return False
