@@ -64,7 +64,7 @@ class _Params:
     angle: float = param(math.pi / 4, 'rad', 'an angle')
     count: int = param(3, '', 'a count', minimum=1)
     enabled: bool = param(False, '', 'a switch')
-    weights: list = param([1.0, 2.0], '', 'weights')
+    weights: list = param([1.0, 2.0], '', 'weights', length=2)
     inner: _Inner = dataclasses.field(default_factory=_Inner)
 
 
@@ -86,6 +86,38 @@ def test_params_describe_flatten_and_validate():
         from_flat(_Params, {'count': 1.5})
     with pytest.raises(ParamError, match='expected float'):
         from_flat(_Params, {'angle': 'abc'})
+    with pytest.raises(ParamError, match='must be finite'):
+        from_flat(_Params, {'angle': 'nan'})
+
+
+@pytest.mark.parametrize('value, message', [
+    ('nan,1', 'must be finite'), ([1.0, math.inf], 'must be finite'), ('-inf, 2', 'finite'),
+    ('1,2,3', 'expected a list of 2 numbers, got 3'), ([1.0], 'expected a list of 2 numbers'),
+    ('', 'got 0 element'), ('a,b', 'expected a list of 2 numbers'), (7.0, 'expected a list'),
+    ({'a': 1, 'b': 2}, 'expected a list')])
+def test_list_params_check_element_type_length_and_finiteness(value, message):
+    with pytest.raises(ParamError, match=message) as err:
+        from_flat(_Params, {'weights': value})
+    assert '\n' not in str(err.value) and str(err.value).startswith('parameter weights: ')
+
+
+def test_list_params_parse_every_form_and_declare_their_shape():
+    for value in ('0.5, pi', '[0.5, pi]', [0.5, math.pi], (0.5, math.pi)):
+        assert from_flat(_Params, {'weights': value}).weights == [0.5, math.pi]
+
+    @dataclasses.dataclass
+    class Groups:
+        episodes: list = param([], 's', 'pairs', length_multiple=2, items=float, minimum=0.0)
+
+    assert from_flat(Groups, {'episodes': '1,2,3,4'}).episodes == [1.0, 2.0, 3.0, 4.0]
+    with pytest.raises(ParamError, match='in groups of 2, got 3'):
+        from_flat(Groups, {'episodes': '1,2,3'})
+    with pytest.raises(ParamError, match='below the minimum'):
+        from_flat(Groups, {'episodes': '1,-2'})
+    with pytest.raises(TypeError, match='length'):
+        param([1.0], '', 'no shape')
+    with pytest.raises(TypeError, match='items'):
+        param([], '', 'no element type', length_multiple=2)
 
 
 class _Counter(Pipeline):

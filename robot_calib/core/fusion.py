@@ -115,7 +115,7 @@ class FusionParams:
         'else the up axis from gravity at start), param (imu_rpy), tf (only /tf_static), '
         'gravity (up axis from gravity)', choices=('auto', 'param', 'tf', 'gravity'))
     imu_rpy: list = param([0.0, 0.0, 0.0], 'rad',
-                          'base_link -> IMU rotation as roll, pitch, yaw (R = Rz Ry Rx)')
+                          'base_link -> IMU rotation as roll, pitch, yaw (R = Rz Ry Rx)', length=3)
     accel_units: str = param('auto', '', 'IMU acceleration units: auto (detected from the '
                              'gravity magnitude), mps2 or g', choices=('auto', 'mps2', 'g'))
     wheel_source: str = param('auto', '', 'Wheel input: auto (odom; joint_states only when no '

@@ -185,9 +185,9 @@ class GyroLineParams:
                                 'the gyro) or auto (gyro when IMU data arrive).',
                                 choices=('auto', 'imu', 'odom'))
     imu_rpy: list = param([0.0, 0.0, 0.0], 'rad', 'IMU mounting roll, pitch, yaw in base_link '
-                          '(used until /tf_static gives it).')
+                          '(used until /tf_static gives it).', length=3)
     laser_pose: list = param([0.0, 0.0, 0.0], 'm, m, rad', 'Laser x, y, yaw in base_link '
-                             '(used until /tf_static gives it).')
+                             '(used until /tf_static gives it).', length=3)
     base_frame: str = param('base_link', '', 'Robot body frame in /tf_static.')
     max_dt: float = param(0.5, 's', 'A larger gap between two IMU or odometry samples is a '
                           'time jump (not integrated; no correction until trusted again).',

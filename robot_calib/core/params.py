@@ -22,14 +22,40 @@ class ParamError(ValueError):
 
 
 def param(default: Any, unit: str, doc: str, *, choices: Optional[Iterable[Any]] = None,
-          minimum: Optional[float] = None, maximum: Optional[float] = None) -> Any:
-    """Declare a parameter field with its default, unit ('' if none), description and limits."""
+          minimum: Optional[float] = None, maximum: Optional[float] = None,
+          length: Optional[int] = None, length_multiple: Optional[int] = None,
+          items: Optional[type] = None) -> Any:
+    """
+    Declare a parameter field with its default, unit ('' if none), description and limits.
+
+    A list parameter also declares its shape: ``length`` (exact number of
+    elements) or ``length_multiple`` (the length is a multiple of it, e.g. groups
+    of four numbers), and the element type ``items`` (taken from the default's
+    elements when omitted). ``minimum`` and ``maximum`` then apply to every
+    element; float elements, like float parameters, must be finite.
+    """
+    if isinstance(default, list):
+        if (length is None) == (length_multiple is None):
+            raise TypeError('a list parameter needs exactly one of length= or length_multiple=')
+        items = items if items is not None else _item_type(default)
+        if items is None:
+            raise TypeError('a list parameter with an empty or mixed default needs items=')
     meta = {'unit': unit, 'doc': doc,
             'choices': tuple(choices) if choices is not None else None,
-            'minimum': minimum, 'maximum': maximum}
+            'minimum': minimum, 'maximum': maximum,
+            'length': length, 'length_multiple': length_multiple, 'items': items}
     if isinstance(default, (list, dict)):
         return dataclasses.field(default_factory=lambda: type(default)(default), metadata=meta)
     return dataclasses.field(default=default, metadata=meta)
+
+
+def _item_type(values: list) -> Optional[type]:
+    """Return the element type of a non-empty default list (numbers are float), else None."""
+    if values and all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in values):
+        return float
+    if values and all(isinstance(v, str) for v in values):
+        return str
+    return None
 
 
 @dataclasses.dataclass(frozen=True)
@@ -44,6 +70,9 @@ class ParamInfo:
     choices: Optional[tuple]
     minimum: Optional[float]
     maximum: Optional[float]
+    length: Optional[int] = None
+    length_multiple: Optional[int] = None
+    items: Optional[type] = None
 
 
 def _resolved_types(cls: type) -> dict:
@@ -81,7 +110,8 @@ def describe(cls: type, prefix: str = '') -> list[ParamInfo]:
         meta = f.metadata
         out.append(ParamInfo(name, default, _base_type(tp), meta.get('unit', ''),
                              meta.get('doc', ''), meta.get('choices'), meta.get('minimum'),
-                             meta.get('maximum')))
+                             meta.get('maximum'), meta.get('length'),
+                             meta.get('length_multiple'), meta.get('items')))
     return out
 
 
@@ -97,46 +127,82 @@ def to_flat(params: Any, prefix: str = '') -> dict[str, Any]:
     return out
 
 
+def _scalar(tp: type, value: Any) -> Any:
+    """Convert one value to ``tp`` (bool, int, float, str); raise ValueError or TypeError."""
+    if tp is bool:
+        if isinstance(value, str):
+            low = value.strip().lower()
+            if low not in ('true', 'false', '1', '0', 'yes', 'no'):
+                raise ValueError(value)
+            return low in ('true', '1', 'yes')
+        return bool(value)
+    if tp is int:
+        if isinstance(value, float) and not value.is_integer():
+            raise ValueError(value)
+        return int(value)
+    if tp is float:
+        if isinstance(value, str) and value.strip().lower() in ('pi', '-pi'):
+            return math.copysign(math.pi, -1.0 if value.strip()[0] == '-' else 1.0)
+        return float(value)
+    if tp is str:
+        return str(value)
+    return value
+
+
+def _as_list(info: ParamInfo, value: Any) -> list:
+    """Return ``value`` as a list of the parameter's element type ('a,b' and '[a, b]' parse)."""
+    if isinstance(value, str):
+        value = [v.strip() for v in value.strip().strip('[]').split(',') if v.strip()]
+    if isinstance(value, (dict, set)):
+        raise TypeError(value)
+    value = list(value)
+    return value if info.items is None else [_scalar(info.items, v) for v in value]
+
+
+_ITEM_NAMES = {float: 'numbers', int: 'integers', str: 'strings', bool: 'booleans'}
+
+
+def _expected(info: ParamInfo) -> str:
+    """Return what a parameter expects, for the one-line error message."""
+    if info.value_type is not list:
+        return info.value_type.__name__
+    kind = _ITEM_NAMES.get(info.items, 'values')
+    if info.length is not None:
+        return f'a list of {info.length} {kind}'
+    if info.length_multiple is not None:
+        return f'a list of {kind} in groups of {info.length_multiple}'
+    return f'a list of {kind}'
+
+
 def coerce(info: ParamInfo, value: Any) -> Any:
-    """Convert ``value`` to the parameter's type and check its limits; raise ParamError."""
+    """
+    Convert ``value`` to the parameter's type and check it; raise ParamError (one line).
+
+    Checked: the type (of every element of a list), a list's length, choices,
+    finiteness of floats (NaN and inf are never a parameter value) and the
+    limits (of every element of a list).
+    """
     tp = info.value_type
     try:
-        if tp is bool:
-            if isinstance(value, str):
-                low = value.strip().lower()
-                if low not in ('true', 'false', '1', '0', 'yes', 'no'):
-                    raise ValueError(value)
-                value = low in ('true', '1', 'yes')
-            else:
-                value = bool(value)
-        elif tp is int:
-            if isinstance(value, float) and not value.is_integer():
-                raise ValueError(value)
-            value = int(value)
-        elif tp is float:
-            if isinstance(value, str) and value.strip().lower() in ('pi', '-pi'):
-                value = math.copysign(math.pi, -1.0 if value.strip()[0] == '-' else 1.0)
-            value = float(value)
-        elif tp is list:
-            if isinstance(value, str):
-                value = [v.strip() for v in value.strip('[]').split(',') if v.strip()]
-            value = list(value)
-            if isinstance(info.default, list) and info.default and \
-                    isinstance(info.default[0], (int, float)):
-                value = [float(v) for v in value]
-        elif tp is str:
-            value = str(value)
+        value = _as_list(info, value) if tp is list else _scalar(tp, value)
     except (TypeError, ValueError):
-        raise ParamError(f'parameter {info.name}: expected {tp.__name__}, got {value!r}') from None
+        raise ParamError(f'parameter {info.name}: expected {_expected(info)}, '
+                         f'got {value!r}') from None
+    if tp is list and (info.length is not None and len(value) != info.length or (
+            info.length_multiple and len(value) % info.length_multiple)):
+        raise ParamError(f'parameter {info.name}: expected {_expected(info)}, '
+                         f'got {len(value)} element(s) {value!r}')
     if info.choices is not None and value not in info.choices:
         raise ParamError(f'parameter {info.name}: {value!r} is not one of {list(info.choices)}')
-    if isinstance(value, float) and not math.isfinite(value) and tp is float \
-            and (info.minimum is not None or info.maximum is not None):
-        raise ParamError(f'parameter {info.name}: must be finite, got {value!r}')
-    if info.minimum is not None and value < info.minimum:
-        raise ParamError(f'parameter {info.name}: {value!r} is below the minimum {info.minimum}')
-    if info.maximum is not None and value > info.maximum:
-        raise ParamError(f'parameter {info.name}: {value!r} is above the maximum {info.maximum}')
+    for v in value if tp is list else (value,):
+        if isinstance(v, float) and not math.isfinite(v):
+            raise ParamError(f'parameter {info.name}: must be finite, got {value!r}')
+        if info.minimum is not None and v < info.minimum:
+            raise ParamError(f'parameter {info.name}: {value!r} is below the minimum '
+                             f'{info.minimum}')
+        if info.maximum is not None and v > info.maximum:
+            raise ParamError(f'parameter {info.name}: {value!r} is above the maximum '
+                             f'{info.maximum}')
     return value
 
 

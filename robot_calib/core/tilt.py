@@ -133,7 +133,7 @@ class TiltParams:
                                'again; negative: fall_angle - 0.0873', maximum=math.pi)
     clear_duration: float = param(1.0, 's', 'Upright time that clears the alert', minimum=0.0)
     mounting_rpy: list = param([0.0, 0.0, 0.0], 'rad', 'Rotation of the IMU frame in base_link '
-                               '(roll, pitch, yaw); replaced by /tf_static when present')
+                               '(roll, pitch, yaw); replaced by /tf_static when present', length=3)
     use_tf_static: bool = param(True, '', 'Take the IMU mounting rotation from /tf_static '
                                 '(base_link -> IMU frame) when available')
     base_frame: str = param('base_link', '', 'Robot body frame the tilt refers to')

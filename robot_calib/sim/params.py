@@ -75,7 +75,8 @@ class WheelParams:
                                     minimum=-1.0, maximum=1.0)
     slip_episodes: list = param([], '', 'slip episodes as a flat list [t0, t1, left, right, '
                                 '...]: between t0 and t1 (s) the left/right wheel ground speed '
-                                'is rim speed * (1 - ratio) (tricycle: mean ratio)')
+                                'is rim speed * (1 - ratio) (tricycle: mean ratio)',
+                                length_multiple=4, items=float)
     encoder_ticks: int = param(4096, 'ticks/rev', 'encoder resolution; positions are '
                                'quantised to 2 pi / ticks (0: continuous)', minimum=0)
     velocity_noise: float = param(0.0, 'rad/s', 'white noise (1 sigma) of the joint '
@@ -89,22 +90,24 @@ class ImuParams:
     """IMU: gyro and accelerometer error model and mounting (imu_link in base_link)."""
 
     rate: float = param(200.0, 'Hz', 'IMU sample rate', minimum=1.0)
-    gyro_bias: list = param([0.0, 0.0, 0.0], 'rad/s', 'constant gyro bias x, y, z (imu_link)')
+    gyro_bias: list = param([0.0, 0.0, 0.0], 'rad/s', 'constant gyro bias x, y, z (imu_link)',
+                            length=3)
     gyro_bias_sigma: float = param(0.0, 'rad/s', 'per-seed random turn-on bias (1 sigma per '
                                    'axis) added to gyro_bias; the drawn value is in truth.json',
                                    minimum=0.0)
-    gyro_bias_drift: list = param([0.0, 0.0, 0.0], 'rad/s^2', 'linear bias drift x, y, z')
+    gyro_bias_drift: list = param([0.0, 0.0, 0.0], 'rad/s^2', 'linear bias drift x, y, z',
+                                  length=3)
     gyro_warmup: list = param([0.0, 0.0, 0.0], 'rad/s', 'warm-up bias at t = 0 decaying '
-                              'exponentially to 0, x, y, z')
+                              'exponentially to 0, x, y, z', length=3)
     gyro_warmup_tau: float = param(60.0, 's', 'warm-up time constant', minimum=1e-3)
     gyro_scale: list = param([0.0, 0.0, 0.0], '', 'gyro scale error x, y, z: reading = '
-                             '(1 + s) rate')
+                             '(1 + s) rate', length=3)
     gyro_noise: float = param(0.0, 'rad/s/sqrt(Hz)', 'gyro white noise density (angle random '
                               'walk)', minimum=0.0)
     gyro_random_walk: float = param(0.0, 'rad/s^2/sqrt(Hz)', 'gyro bias random walk density',
                                     minimum=0.0)
-    accel_bias: list = param([0.0, 0.0, 0.0], 'm/s^2', 'accelerometer bias x, y, z')
-    accel_scale: list = param([0.0, 0.0, 0.0], '', 'accelerometer scale error x, y, z')
+    accel_bias: list = param([0.0, 0.0, 0.0], 'm/s^2', 'accelerometer bias x, y, z', length=3)
+    accel_scale: list = param([0.0, 0.0, 0.0], '', 'accelerometer scale error x, y, z', length=3)
     accel_noise: float = param(0.0, 'm/s^2/sqrt(Hz)', 'accelerometer white noise density',
                                minimum=0.0)
     accel_random_walk: float = param(0.0, 'm/s^3/sqrt(Hz)', 'accelerometer bias random walk '
