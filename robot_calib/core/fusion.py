@@ -617,6 +617,12 @@ class ImprovedFusion(_Base):
         dt = t - self.t
         if dt <= 0.0:
             return
+        if dt > self.p.sensor_timeout:
+            # every input silent (a gap, or a clock that jumped ahead): nothing is known about
+            # the motion in between, so none is invented; the odometry re-initialises after it
+            self._flush()
+            self.t = t
+            return
         p = self.p
         x = self.x
         mode = (self.imu_stale, self.use_acc)
@@ -1011,6 +1017,8 @@ class SeedFusion(_Base):
             self.heading = self.odom_yaw = s.yaw
         self.initialised = True
 
+    _z_t: Optional[float] = None
+
     @staticmethod
     def transition(dt: float) -> np.ndarray:
         """Return F of the constant-acceleration model over ``dt`` (s)."""
@@ -1029,6 +1037,8 @@ class SeedFusion(_Base):
         if dt <= 0:
             return 'stale'
         self.t = t
+        if dt > self.p.sensor_timeout:  # a gap or a clock jump: no motion is invented over it
+            return None
         self.heading = wrap_angle(self.heading + gz * dt)
         # IMU acceleration, clamped to the robot's limits (seed 004), into the odom frame
         a = max(-sp.max_accel, min(sp.max_accel, ax))
@@ -1048,9 +1058,9 @@ class SeedFusion(_Base):
     def _odom(self, t: float, v: float, w: float) -> Optional[str]:
         if not self.initialised:
             self._init_pose(None)
-        last = getattr(self, '_z_t', None)
+        last = self._z_t
         self._z_t = t
-        if last is None:
+        if last is None or t - last > self.p.sensor_timeout:  # first, or after a gap or jump
             self.z[SVX] = v * math.cos(self.odom_yaw)
             self.z[SVY] = v * math.sin(self.odom_yaw)
             if self.t is None:
