@@ -306,9 +306,12 @@ def test_clock_jumping_back_recovers_after_a_few_samples():
     logs = []
     pipe = TiltPipeline(log=lambda level, msg: logs.append((level, msg)))
     _feed(pipe, _upright(50))
-    _feed(pipe, [_imu(100.0)])                          # one stamp from the future
-    outs = _feed(pipe, [_imu(0.3 + k * DT, acc=(0.0, 0.0, -G)) for k in range(40)])
-    assert pipe.counts['imu']['rejected_out_of_order'] == 9
+    _feed(pipe, [_imu(100.0, acc=(0.0, 0.0, -G))])     # one stray stamp from the future
+    outs = _feed(pipe, [_imu(-30.0 + k * DT, acc=(0.0, 0.0, -G)) for k in range(40)])
+    # the stray stamp is not used; the samples that confirm the reset are (nothing is lost)
+    assert pipe.counts['imu']['rejected_clock_jump'] == 1
+    assert 'rejected_out_of_order' not in pipe.counts['imu']
+    assert pipe.counts['imu']['accepted'] == 90 and pipe.counts['imu']['clock_jumps'] == 1
     assert any('jumped back' in msg for _, msg in logs)
     assert _alerts(outs) and _alerts(outs)[-1][1] is True   # data flows again
     # a driver repeating one stamp is rejected forever (no recovery from duplicates)

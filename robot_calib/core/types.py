@@ -57,7 +57,10 @@ class OdomSample:
 
     ``pose_cov`` and ``twist_cov`` are 3x3 covariances of (x, y, yaw) and
     (vx, vy, wz); NaN-filled when unknown. ``z``, ``roll`` and ``pitch`` are
-    carried through for completeness (m, rad).
+    carried through for completeness (m, rad). ``orientation_norm`` is the norm
+    of the message's quaternion before it was normalised (1 for a proper
+    rotation, 0 when the driver left it unset) so that validation can tell a
+    corrupt one.
     """
 
     t: float
@@ -75,6 +78,7 @@ class OdomSample:
     roll: float = 0.0
     pitch: float = 0.0
     stamp_ns: int = -1
+    orientation_norm: float = 1.0
 
 
 @dataclass(frozen=True, slots=True)

@@ -145,11 +145,13 @@ def _odom_sample(ns: int, frame: str, child: str, v: np.ndarray) -> T.OdomSample
     """Build an OdomSample from the 85 doubles of a nav_msgs/Odometry after its frames."""
     # v: position (0:3), orientation x y z w (3:7), pose cov 6x6 (7:43), linear (43:46),
     # angular (46:49), twist cov 6x6 (49:85)
-    roll, pitch, yaw = quat_to_rpy(quat_normalize((v[6], v[3], v[4], v[5])))
+    q = (float(v[6]), float(v[3]), float(v[4]), float(v[5]))
+    roll, pitch, yaw = quat_to_rpy(quat_normalize(q))
     pcov = v[7:43].reshape(6, 6)[convert._POSE_IDX]
     tcov = v[49:85].reshape(6, 6)[convert._POSE_IDX]
     return T.OdomSample(ns * 1e-9, float(v[0]), float(v[1]), yaw, float(v[43]), float(v[44]),
-                        float(v[48]), frame, child, pcov, tcov, float(v[2]), roll, pitch, ns)
+                        float(v[48]), frame, child, pcov, tcov, float(v[2]), roll, pitch, ns,
+                        math.sqrt(q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3]))
 
 
 def odom_from_cdr(raw: bytes) -> T.OdomSample:

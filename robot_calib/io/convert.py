@@ -12,6 +12,7 @@ into CDR bytes, which rclpy publishes and receives as they are (``raw=True``).
 from __future__ import annotations
 
 from functools import lru_cache
+import math
 from typing import Any, Optional
 
 import numpy as np
@@ -69,13 +70,14 @@ def odom_from_msg(msg: Any) -> T.OdomSample:
     ns = stamp_ns(msg.header.stamp)
     p = msg.pose.pose.position
     q = msg.pose.pose.orientation
-    roll, pitch, yaw = quat_to_rpy(quat_normalize((q.w, q.x, q.y, q.z)))
+    quat = (float(q.w), float(q.x), float(q.y), float(q.z))
+    roll, pitch, yaw = quat_to_rpy(quat_normalize(quat))
     lin, ang = msg.twist.twist.linear, msg.twist.twist.angular
     pcov = np.asarray(msg.pose.covariance, dtype=float).reshape(6, 6)[_POSE_IDX]
     tcov = np.asarray(msg.twist.covariance, dtype=float).reshape(6, 6)[_POSE_IDX]
     return T.OdomSample(ns * 1e-9, float(p.x), float(p.y), yaw, float(lin.x), float(lin.y),
                         float(ang.z), msg.header.frame_id, msg.child_frame_id, pcov, tcov,
-                        float(p.z), roll, pitch, ns)
+                        float(p.z), roll, pitch, ns, math.sqrt(sum(v * v for v in quat)))
 
 
 def scan_from_msg(msg: Any) -> T.ScanSample:

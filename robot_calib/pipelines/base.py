@@ -12,23 +12,27 @@ same pipeline object, so a bag replayed offline gives the messages the node
 would publish live.
 
 Input validation common to every method lives here: samples with non-finite
-fields, stamps that go backwards or repeat, and gaps are counted per reason
-(``summary()['inputs']``); a method adds its own reasons with :meth:`reject`.
+or physically implausible fields (:mod:`robot_calib.pipelines.validation`),
+stamps that go backwards or repeat, samples coming impossibly fast, gaps and
+clock jumps are counted per reason (``summary()['inputs']``); a method adds
+its own reasons with :meth:`reject`.
 """
 
 from __future__ import annotations
 
 import abc
 from collections import defaultdict
+import dataclasses
 from dataclasses import dataclass
-import math
 from typing import Any, Callable, ClassVar, Optional
-
-import numpy as np
 
 from robot_calib.core import types as T
 from robot_calib.core.jsonable import jsonable
 from robot_calib.core.params import to_flat
+from robot_calib.pipelines.validation import RateGuard, sample_problem
+
+CLOCK_JUMP_SAMPLES = 5
+"""Samples in a row continuing from a stamp far off the time line that mean the clock jumped."""
 
 # Sample kind -> (ROS message type, core type)
 KINDS = {
@@ -88,12 +92,19 @@ class Pipeline(abc.ABC):
     outputs: ClassVar[tuple[OutputSpec, ...]] = ()
     max_gap: ClassVar[float] = 1.0
     """Seconds between samples of one input above which a gap is counted (s)."""
+    clock_jump: ClassVar[float] = 60.0
+    """A step ahead between samples of one input longer than this is a clock jump (s)."""
 
     def __init__(self, params: Any = None, log: Optional[Callable[[str, str], None]] = None):
         """Create the pipeline with a params instance (defaults when None) and a logger."""
         self.params = params if params is not None else self.params_type()
         self._log = log
         self._last_t: dict[str, float] = {}
+        self._pending: dict[str, tuple[str, list]] = {}
+        self._shift: dict[str, float] = {}
+        self._jumps: list[tuple[float, float]] = []
+        self._rate: dict[str, RateGuard] = {}
+        self._kinds = {spec.key: spec.kind for spec in self.inputs}
         self.counts: dict[str, dict[str, int]] = defaultdict(lambda: defaultdict(int))
         self.n_outputs: dict[str, int] = defaultdict(int)
         self.static_transforms: dict[tuple[str, str], T.StaticTransform] = {}
@@ -112,28 +123,109 @@ class Pipeline(abc.ABC):
         return []
 
     def process(self, key: str, sample: Any) -> list[Output]:
-        """Validate one sample of input ``key`` and hand it to :meth:`handle`."""
+        """
+        Validate one sample of input ``key`` and hand it to :meth:`handle`.
+
+        Rejected and counted by reason: non-finite and physically implausible
+        values (:func:`validation.sample_problem`), repeated stamps, stamps going
+        backwards, stray stamps far ahead (``clock_jump``) and samples coming
+        impossibly fast for their kind (``implausible_rate``). A clock jump is
+        never integrated: see :meth:`_off_time_line` and :meth:`_clock_jumped`.
+        """
         if isinstance(sample, T.StaticTransform):
             self.static_transforms[(sample.parent, sample.child)] = sample
             self.on_static_transform(sample)
             return []
-        self.counts[key]['read'] += 1
-        if not _finite_sample(sample):
-            return self.reject(key, 'non_finite')
+        counts = self.counts[key]
+        counts['read'] += 1
+        problem = sample_problem(sample)
+        if problem is not None:
+            return self.reject(key, problem)
+        shift = self._shift.get(key)
+        if shift is not None:
+            sample = dataclasses.replace(sample, t=sample.t + shift)
         last = self._last_t.get(key)
         if last is not None:
-            if sample.t == last:
+            step = sample.t - last
+            if step == 0.0:
                 return self.reject(key, 'duplicate_stamp')
-            if sample.t < last:
+            if -self.max_gap <= step < 0.0:
                 return self.reject(key, 'out_of_order')
-            if sample.t - last > self.max_gap:
-                self.counts[key]['gaps'] += 1
+            if step < 0.0 or step > self.clock_jump:
+                return self._off_time_line(key, sample, last)
+            self._pending.pop(key, None)  # the time line goes on: those were stray stamps
+            if step > self.max_gap:
+                counts['gaps'] += 1
+        return self._accept(key, sample)
+
+    def _accept(self, key: str, sample: Any) -> list[Output]:
+        """Check the rate of an in-order sample and hand it to :meth:`handle`."""
+        guard = self._rate.get(key)
+        if guard is None:
+            guard = self._rate[key] = RateGuard(self._kinds.get(key, ''))
+        if not guard.allow(sample.t):
+            return self.reject(key, 'implausible_rate')
         self._last_t[key] = sample.t
         outs = self.handle(key, sample)
         self.counts[key]['accepted'] += 1
         for out_key, _ in outs:
             self.n_outputs[out_key] += 1
         return outs
+
+    def _off_time_line(self, key: str, sample: Any, last: float) -> list[Output]:
+        """
+        Hold a sample far from the time line until more samples confirm that the clock jumped.
+
+        A stamp more than :attr:`max_gap` behind the last accepted one, or more
+        than :attr:`clock_jump` ahead of it, is a stray stamp or a clock jump.
+        It is rejected (``out_of_order`` behind, ``clock_jump`` ahead) unless
+        :data:`CLOCK_JUMP_SAMPLES` samples in a row continue from it (each within
+        :attr:`max_gap` of the one before): then the clock did jump, and those
+        samples are taken back from the rejections and used.
+        """
+        reason = 'out_of_order' if sample.t < last else 'clock_jump'
+        held = self._pending.get(key)
+        if held and held[0] == reason and 0.0 < sample.t - held[1][-1].t <= self.max_gap:
+            held[1].append(sample)
+        else:
+            held = self._pending[key] = (reason, [sample])
+        samples = held[1]
+        if len(samples) < CLOCK_JUMP_SAMPLES:
+            return self.reject(key, reason)
+        del self._pending[key]
+        counts = self.counts[key]
+        for name in ('rejected', 'rejected_' + reason):
+            counts[name] -= len(samples) - 1
+            if not counts[name]:
+                del counts[name]
+        outs: list[Output] = []
+        for s in self._clock_jumped(key, last, samples):
+            outs += self._accept(key, s)
+        return outs
+
+    def _clock_jumped(self, key: str, last: float, samples: list) -> list:
+        """
+        Report a clock jump of input ``key`` and return ``samples`` moved onto the time line.
+
+        From now on the input's stamps are shifted so that the jump becomes a gap
+        of exactly :attr:`clock_jump` seconds, which every method treats as a gap
+        (nothing is integrated across it, time lines restart). Another input
+        jumping by the same amount (within :attr:`max_gap`) gets the same shift,
+        so the inputs stay aligned. Outputs keep the original header stamps
+        (``stamp_ns``); times inside the method and its summary are the shifted
+        ones.
+        """
+        jump = samples[0].t - last
+        change = next((c for j, c in self._jumps if abs(j - jump) <= self.max_gap),
+                      self.clock_jump - jump)
+        if len(self._jumps) < 16:
+            self._jumps.append((jump, change))
+        self._shift[key] = self._shift.get(key, 0.0) + change
+        self.counts[key]['clock_jumps'] += 1
+        self.log('warn', f'{key}: clock jumped {"ahead" if jump > 0 else "back"} by '
+                 f'{abs(jump):.3f} s: taken as a gap of {jump + change:.1f} s (nothing '
+                 'integrated across it)')
+        return [dataclasses.replace(s, t=s.t + change) for s in samples]
 
     # -- hooks -----------------------------------------------------------------------------
     @abc.abstractmethod
@@ -168,28 +260,3 @@ class Pipeline(abc.ABC):
             'outputs': dict(self.n_outputs),
             **{k: jsonable(v) for k, v in self.method_summary().items()},
         }
-
-
-def _finite_sample(sample: Any) -> bool:
-    """Return False when a numeric field that must be finite is NaN or inf."""
-    if not math.isfinite(sample.t):
-        return False
-    if isinstance(sample, T.ImuSample):
-        g, a = sample.gyro, sample.accel
-        if len(g) == 3 and len(a) == 3:  # element-wise: ~10x faster than np.all (replay speed)
-            isf = math.isfinite
-            return (isf(g[0]) and isf(g[1]) and isf(g[2]) and isf(a[0]) and isf(a[1])
-                    and isf(a[2]))
-        return bool(np.all(np.isfinite(g)) and np.all(np.isfinite(a)))
-    if isinstance(sample, T.OdomSample):
-        return all(math.isfinite(v) for v in (sample.x, sample.y, sample.yaw, sample.vx,
-                                              sample.vy, sample.wz))
-    if isinstance(sample, T.TwistSample):
-        return all(math.isfinite(v) for v in (sample.vx, sample.vy, sample.wz))
-    if isinstance(sample, T.ScanSample):
-        # NaN/inf beams are normal (no return); only the geometry must be finite.
-        return math.isfinite(sample.angle_min) and math.isfinite(sample.angle_increment)
-    if isinstance(sample, T.JointStateSample):
-        # A joint may legitimately report only position or only velocity (NaN elsewhere).
-        return bool(np.all(np.isfinite(sample.position) | np.isfinite(sample.velocity)))
-    return True

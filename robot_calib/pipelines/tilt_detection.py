@@ -26,7 +26,7 @@ Bad input: non-finite values, repeated or backwards stamps (base class),
 specific force above ``max_accel``, rates above ``max_gyro`` and an all-zero
 accelerometer are rejected and counted; a gap above ``max_dt`` restarts the
 filter from the accelerometer with a warning (the alert state is kept), and
-so does a clock that jumps backwards (after ``BACK_JUMP_SAMPLES`` samples).
+so does a clock that jumps (the base class turns a jump into such a gap).
 """
 
 from __future__ import annotations
@@ -41,8 +41,6 @@ from robot_calib.core.tilt import TiltEstimator, TiltParams, TiltState
 from robot_calib.pipelines.base import InputSpec, Output, OutputSpec, Pipeline
 
 STATUS_NAME = 'tilt_detection'
-BACK_JUMP_SAMPLES = 10
-"""Consecutive increasing samples older than the last accepted one that mean a clock reset."""
 _IDENTITY = (1.0, 0.0, 0.0, 0.0)
 
 
@@ -83,8 +81,6 @@ class TiltPipeline(Pipeline):
         self._restarts_at_diag = 0
         self._last_stop: Optional[float] = None
         self._reason = 'upright'
-        self._back_run = 0
-        self._back_prev: Optional[float] = None
         self._cov = self._orientation_cov()
 
     # -- configuration -----------------------------------------------------------------------
@@ -114,36 +110,6 @@ class TiltPipeline(Pipeline):
                  f'q = ({", ".join(f"{v:.4f}" for v in self.mounting)})')
 
     # -- samples ---------------------------------------------------------------------------
-    def process(self, key: str, sample: Any) -> list[Output]:
-        """
-        Validate and process one sample; recover from a clock that jumped backwards.
-
-        Stamps that repeat or go backwards are rejected (base class). When
-        ``BACK_JUMP_SAMPLES`` consecutive IMU samples are older than the last
-        accepted one but increase among themselves, the clock was reset (or one
-        bad stamp from the future was accepted): restart from them with a warning.
-        """
-        if key == 'imu' and isinstance(sample, T.ImuSample):
-            last = self._last_t.get(key)
-            t = sample.t
-            if last is not None and math.isfinite(t) and t <= last:
-                if self._back_prev is not None and t > self._back_prev:
-                    self._back_run += 1
-                else:
-                    self._back_run = 1
-                self._back_prev = t
-                if self._back_run >= BACK_JUMP_SAMPLES:
-                    self.log('warn', f'IMU stamps jumped back by {last - t:.3f} s: '
-                             'attitude filter restarted')
-                    del self._last_t[key]
-                    self.est.reset()
-                    self._back_run = 0
-                    self._back_prev = None
-            else:
-                self._back_run = 0
-                self._back_prev = None
-        return super().process(key, sample)
-
     def handle(self, key: str, sample: Any) -> list[Output]:
         """Process one IMU sample; return tilt/imu plus alert, diagnostics and stop outputs."""
         if key != 'imu':
