@@ -101,6 +101,15 @@ def _simulate(args: argparse.Namespace) -> int:
     return 0
 
 
+def _warn_corrupt(chunks: list) -> None:
+    """Say on stderr how many corrupt mcap chunks were skipped (their data was not used)."""
+    if chunks:
+        lost = sum(n for c in chunks for n in c['messages'].values())
+        print(f'robot-calib replay: warning: skipped {len(chunks)} corrupt mcap chunk(s), '
+              f'{lost} message(s) not used (first: {chunks[0]["reason"]} at byte '
+              f'{chunks[0]["offset"]} of {chunks[0]["file"]})', file=sys.stderr)
+
+
 def _replay(args: argparse.Namespace) -> int:
     if args.live:
         from robot_calib import live
@@ -112,6 +121,7 @@ def _replay(args: argparse.Namespace) -> int:
               f'in {stats["wall_seconds"]:.1f} s')
         for topic, why in stats['skipped'].items():
             print(f'not published {topic}: {why}')
+        _warn_corrupt(stats['corrupt_chunks'])
         return 0
     if not args.out:
         raise ValueError('replay needs --out DIR (or --live)')
@@ -126,6 +136,7 @@ def _replay(args: argparse.Namespace) -> int:
           f'summary.json, report.md')
     for name, why in summary['skipped'].items():
         print(f'skipped {name}: {why}')
+    _warn_corrupt(summary['corrupt_chunks'])
     for name, node in summary['nodes'].items():
         errors = node.get('errors') if isinstance(node.get('errors'), dict) else \
             node.get('replay_errors', {})

@@ -58,7 +58,8 @@ def play(bags: Union[str, os.PathLike, Sequence[Union[str, os.PathLike]]], rate:
     :param start_offset: skip the first ``start_offset`` seconds of the recording (s).
     :param duration: play at most this many seconds after the start offset (s).
     :return: ``{'messages', 'topics': {topic: count}, 'skipped': {topic: reason},
-        'wall_seconds', 'bag_seconds'}``.
+        'wall_seconds', 'bag_seconds', 'corrupt_chunks': [...]}`` (the mcap chunks
+        skipped as corrupt, see :attr:`robot_calib.io.bags.BagSet.corrupt_chunks`).
     """
     if not rate > 0:
         raise ValueError(f'bad rate {rate}: expected a positive factor')
@@ -158,4 +159,5 @@ def play(bags: Union[str, os.PathLike, Sequence[Union[str, os.PathLike]]], rate:
                 rclpy.try_shutdown()
     return {'messages': n, 'topics': counts, 'skipped': skipped,
             'wall_seconds': time.monotonic() - wall0,
-            'bag_seconds': 0.0 if first is None else (last - first) / _NS}
+            'bag_seconds': 0.0 if first is None else (last - first) / _NS,
+            'corrupt_chunks': bagset.corrupt_chunks}

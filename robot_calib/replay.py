@@ -15,7 +15,9 @@ pipeline before any other message. The outputs land in ``DIR``:
 - ``summary.json``: per node its pipeline summary (parameters, inputs read /
   accepted / rejected per reason, outputs, method results) and timing; at the
   top level the bags, their duration, the topics read with counts, the
-  undecodable messages per topic and the nodes skipped (with the reason);
+  undecodable messages per topic, the mcap chunks skipped as corrupt
+  (``corrupt_chunks``: file, offset, time span, messages lost per topic,
+  reason) and the nodes skipped (with the reason);
 - ``report.md`` with PNG plots under ``plots/``, and each pipeline's
   artifacts (e.g. ``wheel_calibration.yaml``).
 
@@ -665,6 +667,7 @@ def _run(bagset: BagSet, bag_list: list, runs: list[_Node], skipped: dict[str, s
                    for t, (ty, n) in sorted(bag_topics.items())},
         'topics_read': dict(sorted(read.items())),
         'undecodable': dict(sorted(undecodable.items())),
+        'corrupt_chunks': bagset.corrupt_chunks,
         'static_transforms': n_static,
         'remaps': remaps,
         'nodes': nodes_summary,

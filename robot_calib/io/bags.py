@@ -28,6 +28,7 @@ from pathlib import Path
 import shutil
 import struct
 from typing import Any, Callable, Iterable, Iterator, Optional
+import zlib
 
 import numpy as np
 
@@ -429,6 +430,8 @@ class BagSet:
         self.paths = _reader_paths(paths)
         self._readers: list[tuple[Any, bool]] = []
         self.streams: list[Stream] = []
+        self.corrupt_chunks: list[dict] = []
+        """mcap chunks skipped while reading (see :func:`_mcap_messages`), in reading order."""
         try:
             for path in self.paths:
                 self._open(path)
@@ -526,7 +529,7 @@ class BagSet:
         for reader, _ in self._readers:
             mine = {id(s.conn): s for s in wanted if any(s.conn is c for c in reader.connections)}
             if mine:
-                iters.append(self._iter(reader, mine))
+                iters.append(self._iter(reader, mine, self.corrupt_chunks))
         if len(iters) == 1:
             return iters[0]
         return heapq.merge(*iters, key=itemgetter(1))
@@ -574,10 +577,11 @@ class BagSet:
             yield from [(b[0], b[1], b[2], r) for b, r in zip(batch, results)]
 
     @staticmethod
-    def _iter(reader: Any, mine: dict[int, Stream]) -> Iterator[tuple[Stream, int, bytes]]:
+    def _iter(reader: Any, mine: dict[int, Stream], corrupt: list
+              ) -> Iterator[tuple[Stream, int, bytes]]:
         conns = [s.conn for s in mine.values()]
         try:
-            fast = _mcap_messages(reader, conns, mine)
+            fast = _mcap_messages(reader, conns, mine, corrupt)
             if fast is not None:
                 yield from fast
                 return
@@ -588,10 +592,13 @@ class BagSet:
 
 
 _MCAP_MESSAGE = struct.Struct('<HIQ')  # channel id, sequence, log time
+_CHUNK_CRC_OFFSET = 1 + 8 + 8 + 8 + 8
+"""Bytes from the start of a Chunk record to its uncompressed_crc (opcode, length, 3 fields)."""
 _U64 = struct.Struct('<Q')
 
 
-def _mcap_messages(reader: Any, conns: list, streams: dict[int, 'Stream']
+def _mcap_messages(reader: Any, conns: list, streams: dict[int, 'Stream'],
+                   corrupt: Optional[list] = None
                    ) -> Optional[Iterator[tuple['Stream', int, bytes]]]:
     """
     Return a fast message iterator over an indexed ROS 2 mcap bag, or None to use rosbags.
@@ -603,6 +610,11 @@ def _mcap_messages(reader: Any, conns: list, streams: dict[int, 'Stream']
     ``(streams[id(connection)], time_ns, raw)``. Bags it does not
     cover (per-message compression, unindexed files, chunks overlapping in time)
     return None.
+
+    A chunk that fails its CRC-32 (when the writer stored one), does not
+    decompress or whose records do not parse is skipped whole, never partly
+    used: it is described in ``corrupt`` (file, byte offset, time span, the
+    messages lost per topic, why) and reading goes on with the next chunk.
     """
     from rosbags.rosbag2.storage_mcap import decompress, McapReader
     if isinstance(reader, _BareMcap):
@@ -635,30 +647,50 @@ def _mcap_messages(reader: Any, conns: list, streams: dict[int, 'Stream']
         for sub, connmap, chunks in plans:
             bio = sub.bio
             for chunk in chunks:
-                bio.seek(chunk.chunk_start_offset + 9 + 24)
-                crc = _U32.unpack(bio.read(4))[0]
-                bio.seek(chunk.chunk_start_offset + 9 + 40 + len(chunk.compression))
-                data = bio.read(chunk.compressed_size)
-                if len(data) != chunk.compressed_size:
-                    raise BagError('mcap chunk is cut short')
-                buf = bytes(decompress(data, chunk.compression, chunk.uncompressed_size, crc))
-                out = []
-                pos, end = 0, len(buf)
-                while pos < end:
-                    length = unpack_u64(buf, pos + 1)[0]
-                    if buf[pos] == 0x05:
-                        cid, _, log_time = unpack_msg(buf, pos + 9)
-                        stream = connmap.get(cid)
-                        if stream is not None:
-                            out.append((stream, log_time, buf[pos + 31:pos + 9 + length]))
-                    pos += 9 + length
-                if pos != end:
-                    raise BagError('mcap chunk records overrun the chunk')
+                try:
+                    bio.seek(chunk.chunk_start_offset + _CHUNK_CRC_OFFSET)
+                    crc = _U32.unpack(bio.read(4))[0]
+                    bio.seek(chunk.chunk_start_offset + 9 + 40 + len(chunk.compression))
+                    data = bio.read(chunk.compressed_size)
+                    if len(data) != chunk.compressed_size:
+                        raise BagError('mcap chunk is cut short')
+                    buf = bytes(decompress(data, chunk.compression, chunk.uncompressed_size,
+                                           crc))
+                    out = []
+                    pos, end = 0, len(buf)
+                    while pos < end:
+                        length = unpack_u64(buf, pos + 1)[0]
+                        if buf[pos] == 0x05:
+                            cid, _, log_time = unpack_msg(buf, pos + 9)
+                            stream = connmap.get(cid)
+                            if stream is not None:
+                                out.append((stream, log_time, buf[pos + 31:pos + 9 + length]))
+                        pos += 9 + length
+                    if pos != end:
+                        raise BagError('mcap chunk records overrun the chunk')
+                except Exception as exc:  # noqa: B902 - any failure: the chunk is corrupt
+                    if corrupt is None:
+                        raise
+                    corrupt.append(_corrupt_chunk(sub, chunk, connmap, exc))
+                    continue
                 times = [m[1] for m in out]
                 if times != sorted(times):
                     out.sort(key=itemgetter(1))
                 yield from out
     return generate()
+
+
+def _corrupt_chunk(sub: Any, chunk: Any, connmap: dict, exc: BaseException) -> dict:
+    """Describe a skipped mcap chunk: file, byte offset, time span (s), lost messages, reason."""
+    lost: dict[str, int] = {}
+    for cid, n in chunk.channel_count.items():
+        stream = connmap.get(cid)
+        if stream is not None:
+            lost[stream.topic] = lost.get(stream.topic, 0) + n
+    return {'file': str(sub.path), 'offset': chunk.chunk_start_offset,
+            'start_time': chunk.message_start_time * 1e-9,
+            'end_time': chunk.message_end_time * 1e-9,
+            'messages': lost, 'reason': _one_line(exc)}
 
 
 def list_topics(paths: Iterable[os.PathLike | str]) -> dict[str, tuple[str, int]]:
@@ -673,8 +705,8 @@ def read_messages(paths: Iterable[os.PathLike | str],
     """
     Yield the supported messages of ``topics`` (all when None) in receive-time order.
 
-    Messages that fail to deserialize are counted in ``errors`` (by topic) and
-    skipped; messages of unsupported types are not read.
+    Messages that fail to deserialize, and those of mcap chunks skipped as corrupt,
+    are counted in ``errors`` (by topic); messages of unsupported types are not read.
     """
     wanted = None if topics is None else {normalize_topic(t) for t in topics}
     with BagSet(paths) as bags:
@@ -688,6 +720,10 @@ def read_messages(paths: Iterable[os.PathLike | str],
                     errors[stream.topic] = errors.get(stream.topic, 0) + 1
                 continue
             yield BagMessage(stream.topic, stream.msgtype, time_ns, samples)
+        if errors is not None:  # messages of corrupt chunks (skipped whole)
+            for chunk in bags.corrupt_chunks:
+                for topic, n in chunk['messages'].items():
+                    errors[topic] = errors.get(topic, 0) + n
 
 
 # ---------------------------------------------------------------------------------------
@@ -739,6 +775,7 @@ class BagWriter:
             if self._compress:
                 self._writer.set_compression(CompressionMode.STORAGE, CompressionFormat.ZSTD)
             self._writer.open()
+            _write_chunk_crcs(self._writer)
             self._mcap = _fast_mcap_storage(self._writer) if self.fast_mcap else None
         except OSError as exc:
             shutil.rmtree(self._tmpdir, ignore_errors=True)
@@ -847,6 +884,32 @@ def _fast_mcap_storage(writer: Any) -> Any:
             hasattr(writer, n) for n in ('counts', 'min_timestamp', 'max_timestamp')):
         return None
     return st
+
+
+def _write_chunk_crcs(writer: Any) -> None:
+    """
+    Make an open rosbags mcap writer store each chunk's CRC-32 (rosbags stores 0, "none").
+
+    Readers (this module, rosbag2, the mcap tools) then detect a corrupt chunk
+    instead of decoding garbage. The CRC of the uncompressed records is taken
+    before the chunk is written and patched into its record afterwards.
+    """
+    from rosbags.rosbag2.storage_mcap import McapWriter
+    st = getattr(writer, 'storage', None)
+    if type(st) is not McapWriter or not hasattr(st, 'chunk') or not hasattr(st, 'bio'):
+        return
+    close_chunk = st.close_chunk
+
+    def close_chunk_with_crc() -> None:
+        crc = zlib.crc32(st.chunk.bio.getvalue())
+        start = st.bio.tell()
+        close_chunk()
+        end = st.bio.tell()
+        st.bio.seek(start + _CHUNK_CRC_OFFSET)
+        st.bio.write(_U32.pack(crc))
+        st.bio.seek(end)
+
+    st.close_chunk = close_chunk_with_crc
 
 
 def _latched_qos() -> Any:
