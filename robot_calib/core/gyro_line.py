@@ -599,23 +599,18 @@ class GyroLineCalibrator:
                 return None, 'beam_count_changed'
             self._beam_count = r.size  # a reconfigured driver: accept after 10 scans
             self._prev_ranges = None
-        rmax = min(s.range_max, self.params.lines.max_range) if s.range_max > 0 \
-            else self.params.lines.max_range
-        with np.errstate(invalid='ignore'):
-            ok = np.isfinite(r) & (r >= max(s.range_min, 0.0)) & (r <= rmax)
-        if int(ok.sum()) < self.params.min_valid_beams:
+        idx, rv, a = s.beams(self.params.lines.max_range)
+        if idx.size < self.params.min_valid_beams:
             return None, 'too_few_valid_beams'
-        idx = np.flatnonzero(ok)
-        a = s.angle_min + s.angle_increment * idx
         lx, ly, lyaw = self.laser_pose
         c, sn = math.cos(lyaw), math.sin(lyaw)
-        px = r[ok] * np.cos(a)
-        py = r[ok] * np.sin(a)
+        px = rv * np.cos(a)
+        py = rv * np.sin(a)
         bx, by = lx + c * px - sn * py, ly + sn * px + c * py
-        if s.time_increment > 0.0 and math.isfinite(s.time_increment):
+        if s.time_increment != 0.0 and math.isfinite(s.time_increment):
             # de-skew a rotating lidar: beam i is measured at t + i * time_increment, when
             # the robot has turned by rate * dt_i and moved by v * dt_i (constant over a scan)
-            dti = idx * s.time_increment
+            dti = s.beam_times(idx)
             rate = self._last_imu_rate - self.x[3] if self._use_gyro(s.t) else self._odom_rate
             th = rate * dti
             ct, st = np.cos(th), np.sin(th)

@@ -16,6 +16,7 @@ Frames follow REP-103/105: x forward, y left, z up; planar yaw is wrapped to
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+import math
 from typing import Optional, Union
 
 import numpy as np
@@ -105,12 +106,40 @@ class ScanSample:
         """Return the angle of every beam (rad)."""
         return self.angle_min + self.angle_increment * np.arange(self.ranges.size)
 
+    def beams(self, max_range: float = math.inf) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """
+        Return the beams with a return: (indices, ranges m, angles rad), in beam order.
+
+        A return lies in ``[max(range_min, 0), min(range_max, max_range)]`` (a
+        ``range_max`` of 0 or less counts as unset). Beam ``i`` points at
+        ``angle_min + i * angle_increment``, whatever the sign of the increment
+        (a negative one: a lidar scanning clockwise, or mounted upside down).
+        """
+        r = np.asarray(self.ranges, dtype=float)
+        hi = min(self.range_max, max_range) if self.range_max > 0 else max_range
+        with np.errstate(invalid='ignore'):
+            idx = np.flatnonzero(np.isfinite(r) & (r >= max(self.range_min, 0.0)) & (r <= hi))
+        return idx, r[idx], self.angle_min + self.angle_increment * idx
+
+    def beam_times(self, idx: np.ndarray) -> np.ndarray:
+        """
+        Return when beams ``idx`` were measured, in s after the stamp (rotating lidar).
+
+        Beam ``i`` is measured at ``stamp + i * time_increment``; a negative
+        ``time_increment`` lists the beams in the reverse order of measurement
+        (the stamp is then the time of the last one measured).
+        """
+        return self.time_increment * np.asarray(idx, dtype=float)
+
+    def time_span(self) -> tuple[float, float]:
+        """Return the times (s) of the first and the last beam measured (stamp time if none)."""
+        end = self.t + self.time_increment * max(self.ranges.size - 1, 0)
+        return min(self.t, end), max(self.t, end)
+
     def points(self) -> np.ndarray:
         """Return the valid beams as an (N, 2) array of x, y (m) in the scan frame."""
-        r = self.ranges
-        ok = np.isfinite(r) & (r >= self.range_min) & (r <= self.range_max)
-        a = self.angles()[ok]
-        return np.column_stack((r[ok] * np.cos(a), r[ok] * np.sin(a)))
+        _, r, a = self.beams()
+        return np.column_stack((r * np.cos(a), r * np.sin(a)))
 
 
 @dataclass(frozen=True, slots=True)

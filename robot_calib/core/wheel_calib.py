@@ -903,9 +903,8 @@ def _interp_pose(times: list, poses: list, t: float) -> np.ndarray:
 
 
 def _scan_end(scan: Any) -> float:
-    """Return the time (s) of a scan's last beam."""
-    inc = scan.time_increment if scan.time_increment > 0 else 0.0
-    return scan.t + inc * max(len(scan.ranges) - 1, 0)
+    """Return the time (s) of the last beam a scan measured."""
+    return scan.time_span()[1]
 
 
 # ------------------------------------------------------------------------------------------
@@ -1177,18 +1176,16 @@ class WheelCalibrator:
         """
         pose_list = self._pose if pose_list is None else pose_list
         sensor_pose = self.sensor_pose if sensor_pose is None else sensor_pose
-        r = np.asarray(scan.ranges, dtype=float)
-        ok = np.isfinite(r) & (r >= scan.range_min) & (r <= min(scan.range_max, self.max_range))
-        idx = np.nonzero(ok)[0]
-        ang = scan.angle_min + scan.angle_increment * idx
-        pts = np.column_stack((r[idx] * np.cos(ang), r[idx] * np.sin(ang)))
-        if not scan.time_increment > 0 or len(self._t) < 2 or not len(idx):
+        idx, r, ang = scan.beams(self.max_range)
+        pts = np.column_stack((r * np.cos(ang), r * np.sin(ang)))
+        if scan.time_increment == 0 or len(self._t) < 2 or not len(idx):
             return pts
-        lo = max(bisect.bisect_left(self._t, scan.t) - 1, 0)
-        hi = bisect.bisect_right(self._t, _scan_end(scan)) + 1
+        first, last = scan.time_span()
+        lo = max(bisect.bisect_left(self._t, first) - 1, 0)
+        hi = bisect.bisect_right(self._t, last) + 1
         tt = np.asarray(self._t[lo:hi])
         poses = np.asarray(pose_list[lo:hi])
-        ti = scan.t + scan.time_increment * idx
+        ti = scan.t + scan.beam_times(idx)
         at = np.column_stack([np.interp(ti, tt, poses[:, j]) for j in range(3)])
         a0 = np.array([np.interp(scan.t, tt, poses[:, j]) for j in range(3)])
         rel = K.compose(np.broadcast_to(K.inverse(a0), at.shape), at)
@@ -1313,7 +1310,7 @@ class WheelCalibrator:
         of lidar yaw in simulation). Returns None when no scan needs deskewing.
         """
         segs = [s for s in self.segments if 'scans' in s.info]
-        if not segs or not any(s.info['scans'][1].time_increment > 0 for s in segs):
+        if not segs or not any(s.info['scans'][1].time_increment != 0 for s in segs):
             return None
         a, b = np.asarray(self._a), np.asarray(self._b)
         if self.drive == 'differential':

@@ -61,18 +61,15 @@ class LoopClosurePipeline(Pipeline):
 
     def _scan_points(self, scan: T.ScanSample) -> np.ndarray:
         """Return the valid beams in base_link (m), deskewed when beams have times."""
-        r = np.asarray(scan.ranges, dtype=float)
-        ok = np.isfinite(r) & (r >= scan.range_min) & (r <= scan.range_max)
-        idx = np.nonzero(ok)[0]
-        ang = scan.angle_min + scan.angle_increment * idx
-        pts = np.column_stack((r[idx] * np.cos(ang), r[idx] * np.sin(ang)))
+        idx, r, ang = scan.beams()
+        pts = np.column_stack((r * np.cos(ang), r * np.sin(ang)))
         tf = self._mount(scan.frame_id)
         if tf is not None and len(pts):
             pose = (float(tf.translation[0]), float(tf.translation[1]),
                     yaw_from_quat(tf.rotation))
             pts = se2_apply(pose, pts)
-        if scan.time_increment > 0 and len(pts):
-            pts = deskew(pts, idx * scan.time_increment, self._speed, self.core.rate)
+        if scan.time_increment != 0 and len(pts):
+            pts = deskew(pts, scan.beam_times(idx), self._speed, self.core.rate)
         return pts
 
     def _diagnostic(self, report: ClosureReport, stamp_ns: int) -> tuple[str, T.DiagnosticSample]:
