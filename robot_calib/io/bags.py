@@ -152,7 +152,7 @@ def _odom_sample(ns: int, frame: str, child: str, v: np.ndarray) -> T.OdomSample
     tcov = v[49:85].reshape(6, 6)[convert._POSE_IDX]
     return T.OdomSample(ns * 1e-9, float(v[0]), float(v[1]), yaw, float(v[43]), float(v[44]),
                         float(v[48]), frame, child, pcov, tcov, float(v[2]), roll, pitch, ns,
-                        math.sqrt(q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3]))
+                        math.hypot(*q))
 
 
 def odom_from_cdr(raw: bytes) -> T.OdomSample:

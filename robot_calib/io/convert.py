@@ -77,7 +77,7 @@ def odom_from_msg(msg: Any) -> T.OdomSample:
     tcov = np.asarray(msg.twist.covariance, dtype=float).reshape(6, 6)[_POSE_IDX]
     return T.OdomSample(ns * 1e-9, float(p.x), float(p.y), yaw, float(lin.x), float(lin.y),
                         float(ang.z), msg.header.frame_id, msg.child_frame_id, pcov, tcov,
-                        float(p.z), roll, pitch, ns, math.sqrt(sum(v * v for v in quat)))
+                        float(p.z), roll, pitch, ns, math.hypot(*quat))
 
 
 def scan_from_msg(msg: Any) -> T.ScanSample:

@@ -81,10 +81,10 @@ def _imu_problem(s: T.ImuSample) -> Optional[str]:
         return 'implausible' if finite else 'non_finite'
     q = s.orientation
     if q is not None:
-        n2 = float(q[0]) ** 2 + float(q[1]) ** 2 + float(q[2]) ** 2 + float(q[3]) ** 2
+        n = math.hypot(float(q[0]), float(q[1]), float(q[2]), float(q[3]))
         lo, hi = QUATERNION_NORM
-        if not lo * lo <= n2 <= hi * hi:
-            return 'implausible' if math.isfinite(n2) else 'non_finite'
+        if not lo <= n <= hi:
+            return 'implausible' if math.isfinite(n) else 'non_finite'
     return None
 
 
