@@ -256,8 +256,8 @@ def _markdown(rows, runs: int, load: list[float]) -> str:
               'faster than deserialize + convert. Big-endian CDR and every other type take '
               'the generic path.',
               '- For mcap, the per-record loop of rosbags (a BytesIO read per field) was a '
-              'third of the remaining time. `bags._mcap_messages` keeps its index parsing and '
-              'chunk decompression and only walks each decompressed chunk with '
+              'third of the remaining time. `robot_calib.io.mcap.messages` keeps its index '
+              'parsing and chunk decompression and only walks each decompressed chunk with '
               '`struct.unpack_from`, yielding the same messages in the same order (tested '
               'against rosbags, including out-of-order chunks; chunks that overlap in time '
               'fall back to rosbags).',

@@ -11,7 +11,7 @@ import pytest
 
 from robot_calib.core import types as T
 from robot_calib.core.geometry import quat_from_rpy, quat_to_matrix
-from robot_calib.io import bags, convert
+from robot_calib.io import bags, convert, mcap
 from robot_calib.io.convert_bag import convert_bag, main as convert_main, static_transform
 
 
@@ -354,8 +354,8 @@ def test_fast_mcap_reader_matches_rosbags(tmp_path, compress, shuffle):
         assert len(reader.storage.storages[0].chunks) > 1  # several chunks
         expected = [(c.topic, t, bytes(raw)) for c, t, raw in reader.messages()]
     with bags.BagSet([path]) as bs:
-        fast = bags._mcap_messages(bs._readers[0][0], [s.conn for s in bs.streams],
-                                   {id(s.conn): s for s in bs.streams})
+        fast = mcap.messages(bs._readers[0][0], [s.conn for s in bs.streams],
+                             {id(s.conn): s for s in bs.streams})
         assert (fast is None) == (shuffle == 'random')
         got = [(s.topic, t, bytes(raw)) for s, t, raw in bs.messages()]
         only_imu = [(s.topic, t) for s, t, _ in bs.messages([bs.streams[0]])]

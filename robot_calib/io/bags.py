@@ -9,11 +9,13 @@ every supported message into core samples with :mod:`robot_calib.io.convert`.
 serialized bytes (ROS 2 CDR or ROS 1) are decoded directly with
 :mod:`struct`/numpy into the same samples the generic path gives (the tests
 check that both agree), which is what lets replay read well above 50k
-messages/s. Everything else goes through rosbags' deserializer.
+messages/s. Everything else goes through rosbags' deserializer. mcap chunks
+are read by :mod:`robot_calib.io.mcap`: a chunk that fails its CRC is skipped
+whole and listed in :attr:`BagSet.corrupt_chunks`.
 
 Writing goes to a temporary folder that is renamed into place only when the
 bag is closed cleanly, so an interrupted run never leaves a bag that looks
-complete.
+complete; every mcap chunk written carries its CRC-32.
 """
 
 from __future__ import annotations
@@ -28,13 +30,12 @@ from pathlib import Path
 import shutil
 import struct
 from typing import Any, Callable, Iterable, Iterator, Optional
-import zlib
 
 import numpy as np
 
 from robot_calib.core import types as T
 from robot_calib.core.geometry import quat_from_rpy, quat_normalize, quat_to_rpy
-from robot_calib.io import convert
+from robot_calib.io import convert, mcap
 
 
 class BagError(RuntimeError):
@@ -374,39 +375,6 @@ class Stream:
             self.decode = _fast_cdr(fast, generic)
 
 
-class _BareMcap:
-    """A single ROS 2 ``.mcap`` file without metadata.yaml, read through rosbags' McapReader."""
-
-    def __init__(self, path: Path):
-        from rosbags.rosbag2.storage_mcap import McapReader
-        self.mcap = McapReader(path)
-
-    def open(self) -> None:  # noqa: A003 - the reader interface rosbags defines
-        self.mcap.open()
-
-    def close(self) -> None:
-        self.mcap.close()
-
-    @property
-    def connections(self) -> list:
-        return self.mcap.connections
-
-    @property
-    def message_count(self) -> int:
-        return self.mcap.metadata.message_count
-
-    @property
-    def start_time(self) -> int:
-        return self.mcap.metadata.start_time
-
-    @property
-    def end_time(self) -> int:
-        return self.mcap.metadata.end_time
-
-    def messages(self, connections: Iterable[Any] = ()) -> Iterator[tuple[Any, int, bytes]]:
-        return self.mcap.messages(list(connections) or self.mcap.connections)
-
-
 def _is_latched(conn: Any) -> bool:
     try:
         from rosbags.interfaces import QosDurability
@@ -431,7 +399,7 @@ class BagSet:
         self._readers: list[tuple[Any, bool]] = []
         self.streams: list[Stream] = []
         self.corrupt_chunks: list[dict] = []
-        """mcap chunks skipped while reading (see :func:`_mcap_messages`), in reading order."""
+        """mcap chunks skipped while reading (see :func:`mcap.messages`), in reading order."""
         try:
             for path in self.paths:
                 self._open(path)
@@ -446,7 +414,7 @@ class BagSet:
                 from rosbags.highlevel import AnyReader
                 reader = AnyReader([path], default_typestore=convert.typestore())
             elif path.is_file():
-                reader = _BareMcap(path)
+                reader = mcap.BareMcap(path)
             else:
                 from rosbags.rosbag2 import Reader
                 reader = Reader(path)
@@ -581,7 +549,7 @@ class BagSet:
               ) -> Iterator[tuple[Stream, int, bytes]]:
         conns = [s.conn for s in mine.values()]
         try:
-            fast = _mcap_messages(reader, conns, mine, corrupt)
+            fast = mcap.messages(reader, conns, mine, corrupt)
             if fast is not None:
                 yield from fast
                 return
@@ -589,108 +557,6 @@ class BagSet:
                 yield mine[id(conn)], time_ns, raw
         except Exception as exc:  # noqa: B902 - any failure here is a broken file
             raise BagError(f'bag is truncated or corrupt: {_one_line(exc)}') from None
-
-
-_MCAP_MESSAGE = struct.Struct('<HIQ')  # channel id, sequence, log time
-_CHUNK_CRC_OFFSET = 1 + 8 + 8 + 8 + 8
-"""Bytes from the start of a Chunk record to its uncompressed_crc (opcode, length, 3 fields)."""
-_U64 = struct.Struct('<Q')
-
-
-def _mcap_messages(reader: Any, conns: list, streams: dict[int, 'Stream'],
-                   corrupt: Optional[list] = None
-                   ) -> Optional[Iterator[tuple['Stream', int, bytes]]]:
-    """
-    Return a fast message iterator over an indexed ROS 2 mcap bag, or None to use rosbags.
-
-    rosbags parses the file and its chunk index; this only replaces its per-record
-    loop (BytesIO reads per field) with ``struct.unpack_from`` over each
-    decompressed chunk, in the same order rosbags yields: files one after the
-    other, chunks by start time, messages by log time (stable); it yields
-    ``(streams[id(connection)], time_ns, raw)``. Bags it does not
-    cover (per-message compression, unindexed files, chunks overlapping in time)
-    return None.
-
-    A chunk that fails its CRC-32 (when the writer stored one), does not
-    decompress or whose records do not parse is skipped whole, never partly
-    used: it is described in ``corrupt`` (file, byte offset, time span, the
-    messages lost per topic, why) and reading goes on with the next chunk.
-    """
-    from rosbags.rosbag2.storage_mcap import decompress, McapReader
-    if isinstance(reader, _BareMcap):
-        subs = [reader.mcap]
-    else:
-        storage = getattr(reader, 'storage', None)
-        subs = getattr(storage, 'storages', None)
-        if not subs or getattr(storage.metadata, 'compression_mode', None) == 'message':
-            return None
-    plans = []
-    for sub in subs:
-        if not isinstance(sub, McapReader) or not sub.chunks or sub.bio is None:
-            return None
-        connmap = {}
-        for x in sub.connections:
-            for y in conns:
-                if y.topic == x.topic and y.msgtype == x.msgtype and y.ext == x.ext:
-                    connmap[x.id] = streams[id(y)]
-                    break
-        chunks = sorted((c for c in sub.chunks
-                         if any(c.channel_count.get(cid, 0) for cid in connmap)),
-                        key=lambda c: c.message_start_time)
-        if any(b.message_start_time < a.message_end_time for a, b in zip(chunks, chunks[1:])):
-            return None
-        plans.append((sub, connmap, chunks))
-
-    def generate() -> Iterator[tuple[Stream, int, bytes]]:
-        unpack_msg = _MCAP_MESSAGE.unpack_from
-        unpack_u64 = _U64.unpack_from
-        for sub, connmap, chunks in plans:
-            bio = sub.bio
-            for chunk in chunks:
-                try:
-                    bio.seek(chunk.chunk_start_offset + _CHUNK_CRC_OFFSET)
-                    crc = _U32.unpack(bio.read(4))[0]
-                    bio.seek(chunk.chunk_start_offset + 9 + 40 + len(chunk.compression))
-                    data = bio.read(chunk.compressed_size)
-                    if len(data) != chunk.compressed_size:
-                        raise BagError('mcap chunk is cut short')
-                    buf = bytes(decompress(data, chunk.compression, chunk.uncompressed_size,
-                                           crc))
-                    out = []
-                    pos, end = 0, len(buf)
-                    while pos < end:
-                        length = unpack_u64(buf, pos + 1)[0]
-                        if buf[pos] == 0x05:
-                            cid, _, log_time = unpack_msg(buf, pos + 9)
-                            stream = connmap.get(cid)
-                            if stream is not None:
-                                out.append((stream, log_time, buf[pos + 31:pos + 9 + length]))
-                        pos += 9 + length
-                    if pos != end:
-                        raise BagError('mcap chunk records overrun the chunk')
-                except Exception as exc:  # noqa: B902 - any failure: the chunk is corrupt
-                    if corrupt is None:
-                        raise
-                    corrupt.append(_corrupt_chunk(sub, chunk, connmap, exc))
-                    continue
-                times = [m[1] for m in out]
-                if times != sorted(times):
-                    out.sort(key=itemgetter(1))
-                yield from out
-    return generate()
-
-
-def _corrupt_chunk(sub: Any, chunk: Any, connmap: dict, exc: BaseException) -> dict:
-    """Describe a skipped mcap chunk: file, byte offset, time span (s), lost messages, reason."""
-    lost: dict[str, int] = {}
-    for cid, n in chunk.channel_count.items():
-        stream = connmap.get(cid)
-        if stream is not None:
-            lost[stream.topic] = lost.get(stream.topic, 0) + n
-    return {'file': str(sub.path), 'offset': chunk.chunk_start_offset,
-            'start_time': chunk.message_start_time * 1e-9,
-            'end_time': chunk.message_end_time * 1e-9,
-            'messages': lost, 'reason': _one_line(exc)}
 
 
 def list_topics(paths: Iterable[os.PathLike | str]) -> dict[str, tuple[str, int]]:
@@ -775,8 +641,8 @@ class BagWriter:
             if self._compress:
                 self._writer.set_compression(CompressionMode.STORAGE, CompressionFormat.ZSTD)
             self._writer.open()
-            _write_chunk_crcs(self._writer)
-            self._mcap = _fast_mcap_storage(self._writer) if self.fast_mcap else None
+            mcap.write_chunk_crcs(self._writer)
+            self._mcap = mcap.fast_storage(self._writer) if self.fast_mcap else None
         except OSError as exc:
             shutil.rmtree(self._tmpdir, ignore_errors=True)
             raise BagError(f'cannot write bag {self.path}: {_one_line(exc)}') from None
@@ -846,7 +712,7 @@ class BagWriter:
             chunk.message_end_time = ts
         bio = chunk.bio
         chunk.msgs[cid].append((ts, bio.tell()))
-        bio.write(_MCAP_RECORD.pack(0x05, 22 + len(data), cid, 0, ts, ts))
+        bio.write(mcap.MESSAGE_HEADER.pack(0x05, 22 + len(data), cid, 0, ts, ts))
         bio.write(data)
         if bio.tell() > 2**20:
             st.close_chunk()
@@ -867,49 +733,6 @@ class BagWriter:
         if exc_type is None:
             os.replace(self._tmp, self.path)
         shutil.rmtree(self._tmpdir, ignore_errors=True)
-
-
-_MCAP_RECORD = struct.Struct('<BQHIQQ')
-
-
-def _fast_mcap_storage(writer: Any) -> Any:
-    """Return rosbags' McapWriter of an open Writer when records can be appended directly."""
-    from rosbags.rosbag2 import CompressionMode
-    from rosbags.rosbag2.storage_mcap import McapWriter
-    st = getattr(writer, 'storage', None)
-    if type(st) is not McapWriter or writer.compression_mode == CompressionMode.MESSAGE:
-        return None
-    needed = ('chunk', 'channel_stats', 'message_start_time', 'message_end_time', 'close_chunk')
-    if not all(hasattr(st, n) for n in needed) or not all(
-            hasattr(writer, n) for n in ('counts', 'min_timestamp', 'max_timestamp')):
-        return None
-    return st
-
-
-def _write_chunk_crcs(writer: Any) -> None:
-    """
-    Make an open rosbags mcap writer store each chunk's CRC-32 (rosbags stores 0, "none").
-
-    Readers (this module, rosbag2, the mcap tools) then detect a corrupt chunk
-    instead of decoding garbage. The CRC of the uncompressed records is taken
-    before the chunk is written and patched into its record afterwards.
-    """
-    from rosbags.rosbag2.storage_mcap import McapWriter
-    st = getattr(writer, 'storage', None)
-    if type(st) is not McapWriter or not hasattr(st, 'chunk') or not hasattr(st, 'bio'):
-        return
-    close_chunk = st.close_chunk
-
-    def close_chunk_with_crc() -> None:
-        crc = zlib.crc32(st.chunk.bio.getvalue())
-        start = st.bio.tell()
-        close_chunk()
-        end = st.bio.tell()
-        st.bio.seek(start + _CHUNK_CRC_OFFSET)
-        st.bio.write(_U32.pack(crc))
-        st.bio.seek(end)
-
-    st.close_chunk = close_chunk_with_crc
 
 
 def _latched_qos() -> Any:

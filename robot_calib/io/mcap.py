@@ -1,0 +1,210 @@
+# Copyright 2026 robot_calib contributors
+# SPDX-License-Identifier: Apache-2.0
+"""
+mcap details below rosbags: a fast chunk reader, corrupt chunks, chunk CRCs, direct appends.
+
+rosbags parses mcap files and writes them; :mod:`robot_calib.io.bags` uses it
+and adds here what replay needs from the format itself:
+
+- :func:`messages` reads the records of each chunk with ``struct`` instead of
+  rosbags' per-field loop, and skips a corrupt chunk whole (reported, never
+  partly used) instead of ending the run;
+- :func:`write_chunk_crcs` makes rosbags' writer store every chunk's CRC-32
+  (it stores 0, "not computed"), so that readers can tell a corrupt chunk;
+- :func:`fast_storage` and :data:`MESSAGE_HEADER` let the bag writer append
+  message records directly, byte for byte as rosbags would.
+
+Record layouts: the mcap specification (https://mcap.dev/spec), op codes
+0x05 (Message) and 0x06 (Chunk).
+"""
+
+from __future__ import annotations
+
+from operator import itemgetter
+from pathlib import Path
+import struct
+from typing import Any, Iterable, Iterator, Optional
+import zlib
+
+MESSAGE_HEADER = struct.Struct('<BQHIQQ')
+"""Op code, record length, channel id, sequence, log time, publish time of a Message record."""
+CHUNK_CRC_OFFSET = 1 + 8 + 8 + 8 + 8
+"""Bytes from the start of a Chunk record to its uncompressed_crc (op, length, 3 fields)."""
+_CHUNK_DATA_OFFSET = 1 + 8 + 8 + 8 + 8 + 4 + 4
+"""Bytes from the start of a Chunk record to its compression string (then its data)."""
+_MESSAGE = struct.Struct('<HIQ')  # channel id, sequence, log time
+_U32 = struct.Struct('<I')
+_U64 = struct.Struct('<Q')
+
+
+class BareMcap:
+    """A single ROS 2 ``.mcap`` file without metadata.yaml, read through rosbags' McapReader."""
+
+    def __init__(self, path: Path):
+        from rosbags.rosbag2.storage_mcap import McapReader
+        self.mcap = McapReader(path)
+
+    def open(self) -> None:  # noqa: A003 - the reader interface rosbags defines
+        self.mcap.open()
+
+    def close(self) -> None:
+        self.mcap.close()
+
+    @property
+    def connections(self) -> list:
+        return self.mcap.connections
+
+    @property
+    def message_count(self) -> int:
+        return self.mcap.metadata.message_count
+
+    @property
+    def start_time(self) -> int:
+        return self.mcap.metadata.start_time
+
+    @property
+    def end_time(self) -> int:
+        return self.mcap.metadata.end_time
+
+    def messages(self, connections: Iterable[Any] = ()) -> Iterator[tuple[Any, int, bytes]]:
+        return self.mcap.messages(list(connections) or self.mcap.connections)
+
+
+def messages(reader: Any, conns: list, streams: dict, corrupt: Optional[list] = None
+             ) -> Optional[Iterator[tuple[Any, int, bytes]]]:
+    """
+    Return a fast message iterator over an indexed ROS 2 mcap bag, or None to use rosbags.
+
+    rosbags parses the file and its chunk index; this only replaces its per-record
+    loop (BytesIO reads per field) with ``struct.unpack_from`` over each
+    decompressed chunk, in the same order rosbags yields: files one after the
+    other, chunks by start time, messages by log time (stable); it yields
+    ``(streams[id(connection)], time_ns, raw)``. Bags it does not
+    cover (per-message compression, unindexed files, chunks overlapping in time)
+    return None.
+
+    A chunk that fails its CRC-32 (when the writer stored one), does not
+    decompress or whose records do not parse is skipped whole, never partly
+    used: it is described in ``corrupt`` (file, byte offset, time span, the
+    messages lost per topic, why) and reading goes on with the next chunk.
+    Without ``corrupt`` the error is raised.
+    """
+    from rosbags.rosbag2.storage_mcap import McapReader
+    if isinstance(reader, BareMcap):
+        subs = [reader.mcap]
+    else:
+        storage = getattr(reader, 'storage', None)
+        subs = getattr(storage, 'storages', None)
+        if not subs or getattr(storage.metadata, 'compression_mode', None) == 'message':
+            return None
+    plans = []
+    for sub in subs:
+        if not isinstance(sub, McapReader) or not sub.chunks or sub.bio is None:
+            return None
+        connmap = {}
+        for x in sub.connections:
+            for y in conns:
+                if y.topic == x.topic and y.msgtype == x.msgtype and y.ext == x.ext:
+                    connmap[x.id] = streams[id(y)]
+                    break
+        chunks = sorted((c for c in sub.chunks
+                         if any(c.channel_count.get(cid, 0) for cid in connmap)),
+                        key=lambda c: c.message_start_time)
+        if any(b.message_start_time < a.message_end_time for a, b in zip(chunks, chunks[1:])):
+            return None
+        plans.append((sub, connmap, chunks))
+
+    def generate() -> Iterator[tuple[Any, int, bytes]]:
+        for sub, connmap, chunks in plans:
+            for chunk in chunks:
+                try:
+                    out = _chunk_messages(sub.bio, chunk, connmap)
+                except Exception as exc:  # noqa: B902 - any failure: the chunk is corrupt
+                    if corrupt is None:
+                        raise
+                    corrupt.append(_corrupt_chunk(sub, chunk, connmap, exc))
+                    continue
+                yield from out
+    return generate()
+
+
+def _chunk_messages(bio: Any, chunk: Any, connmap: dict) -> list[tuple[Any, int, bytes]]:
+    """Return the wanted messages of one chunk in log-time order; raise when it is corrupt."""
+    from rosbags.rosbag2.storage_mcap import decompress
+    bio.seek(chunk.chunk_start_offset + CHUNK_CRC_OFFSET)
+    crc = _U32.unpack(bio.read(4))[0]
+    bio.seek(chunk.chunk_start_offset + _CHUNK_DATA_OFFSET + len(chunk.compression) + 8)
+    data = bio.read(chunk.compressed_size)
+    if len(data) != chunk.compressed_size:
+        raise ValueError('mcap chunk is cut short')
+    buf = bytes(decompress(data, chunk.compression, chunk.uncompressed_size, crc))
+    unpack_msg, unpack_u64 = _MESSAGE.unpack_from, _U64.unpack_from
+    out = []
+    pos, end = 0, len(buf)
+    while pos < end:
+        length = unpack_u64(buf, pos + 1)[0]
+        if buf[pos] == 0x05:
+            cid, _, log_time = unpack_msg(buf, pos + 9)
+            stream = connmap.get(cid)
+            if stream is not None:
+                out.append((stream, log_time, buf[pos + 31:pos + 9 + length]))
+        pos += 9 + length
+    if pos != end:
+        raise ValueError('mcap chunk records overrun the chunk')
+    times = [m[1] for m in out]
+    if times != sorted(times):
+        out.sort(key=itemgetter(1))
+    return out
+
+
+def _corrupt_chunk(sub: Any, chunk: Any, connmap: dict, exc: BaseException) -> dict:
+    """Describe a skipped chunk: file, byte offset, time span (s), lost messages, reason."""
+    lost: dict[str, int] = {}
+    for cid, n in chunk.channel_count.items():
+        stream = connmap.get(cid)
+        if stream is not None:
+            lost[stream.topic] = lost.get(stream.topic, 0) + n
+    return {'file': str(sub.path), 'offset': chunk.chunk_start_offset,
+            'start_time': chunk.message_start_time * 1e-9,
+            'end_time': chunk.message_end_time * 1e-9,
+            'messages': lost, 'reason': ' '.join(str(exc).split()) or type(exc).__name__}
+
+
+def fast_storage(writer: Any) -> Any:
+    """Return rosbags' McapWriter of an open Writer when records can be appended directly."""
+    from rosbags.rosbag2 import CompressionMode
+    from rosbags.rosbag2.storage_mcap import McapWriter
+    st = getattr(writer, 'storage', None)
+    if type(st) is not McapWriter or writer.compression_mode == CompressionMode.MESSAGE:
+        return None
+    needed = ('chunk', 'channel_stats', 'message_start_time', 'message_end_time', 'close_chunk')
+    if not all(hasattr(st, n) for n in needed) or not all(
+            hasattr(writer, n) for n in ('counts', 'min_timestamp', 'max_timestamp')):
+        return None
+    return st
+
+
+def write_chunk_crcs(writer: Any) -> None:
+    """
+    Make an open rosbags mcap writer store each chunk's CRC-32 (rosbags stores 0, "none").
+
+    Readers (this module, rosbag2, the mcap tools) then detect a corrupt chunk
+    instead of decoding garbage. The CRC of the uncompressed records is taken
+    before the chunk is written and patched into its record afterwards.
+    """
+    from rosbags.rosbag2.storage_mcap import McapWriter
+    st = getattr(writer, 'storage', None)
+    if type(st) is not McapWriter or not hasattr(st, 'chunk') or not hasattr(st, 'bio'):
+        return
+    close_chunk = st.close_chunk
+
+    def close_chunk_with_crc() -> None:
+        crc = zlib.crc32(st.chunk.bio.getvalue())
+        start = st.bio.tell()
+        close_chunk()
+        end = st.bio.tell()
+        st.bio.seek(start + CHUNK_CRC_OFFSET)
+        st.bio.write(_U32.pack(crc))
+        st.bio.seek(end)
+
+    st.close_chunk = close_chunk_with_crc
