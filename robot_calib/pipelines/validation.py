@@ -122,7 +122,8 @@ def _scan_problem(s: T.ScanSample) -> Optional[str]:
     if abs(s.angle_min) > MAX_SCAN_FOV or abs(s.angle_increment) * span > MAX_SCAN_FOV \
             or abs(s.time_increment) * span > MAX_SCAN_DURATION:
         return 'implausible'
-    if not 0.0 <= s.range_min < s.range_max <= MAX_SCAN_RANGE:
+    # (a range_max of 0 is a driver leaving it unset: the methods then use their own limit)
+    if not 0.0 <= s.range_max <= MAX_SCAN_RANGE or abs(s.range_min) > MAX_SCAN_RANGE:
         return 'implausible'
     return None
 
