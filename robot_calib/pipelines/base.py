@@ -22,8 +22,7 @@ from __future__ import annotations
 
 import abc
 from collections import defaultdict
-import dataclasses
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any, Callable, ClassVar, Optional
 
 from robot_calib.core import types as T
@@ -143,7 +142,7 @@ class Pipeline(abc.ABC):
             return self.reject(key, problem)
         shift = self._shift.get(key)
         if shift is not None:
-            sample = dataclasses.replace(sample, t=sample.t + shift)
+            sample = replace(sample, t=sample.t + shift)
         last = self._last_t.get(key)
         if last is not None:
             step = sample.t - last
@@ -225,7 +224,7 @@ class Pipeline(abc.ABC):
         self.log('warn', f'{key}: clock jumped {"ahead" if jump > 0 else "back"} by '
                  f'{abs(jump):.3f} s: taken as a gap of {jump + change:.1f} s (nothing '
                  'integrated across it)')
-        return [dataclasses.replace(s, t=s.t + change) for s in samples]
+        return [replace(s, t=s.t + change) for s in samples]
 
     # -- hooks -----------------------------------------------------------------------------
     @abc.abstractmethod

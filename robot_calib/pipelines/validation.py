@@ -61,6 +61,7 @@ to 100 Hz. Kinds absent here are not rate-checked.
 RATE_BURST = 0.01
 """Seconds' worth of samples (at :data:`MAX_RATE`) a stream may deliver at once (s)."""
 _MIN_BURST = 5.0
+"""Samples any stream may deliver at once, however slow its kind."""
 
 
 def _imu_problem(s: T.ImuSample) -> Optional[str]:
@@ -198,8 +199,3 @@ class RateGuard:
             return False
         self.tokens -= 1.0
         return True
-
-    def restart(self) -> None:
-        """Forget the history (after a clock jump: the time line starts again)."""
-        self.tokens = self.capacity
-        self.last_t = None
