@@ -92,11 +92,12 @@ def test_a_clock_jump_is_never_integrated_and_loses_nothing(drive, tmp_path, dir
         return [(topic, sample, time_ns)]
 
     rewrite(bag, tmp_path / 'bag', jump)
-    nodes = ['odometry_fusion', 'tilt_detection', 'gyro_line_calibration']
+    nodes = ['odometry_fusion', 'tilt_detection', 'gyro_line_calibration',
+             'loop_closure_correction', 'wheel_odometry_calibration']
     summary = run(tmp_path / 'bag', tmp_path / 'out', nodes)
     for name in nodes:
         for key, counts in summary['nodes'][name]['inputs'].items():
-            if key in ('imu', 'odom', 'scan'):
+            if key in ('imu', 'odom', 'scan', 'joint_states'):
                 assert counts['clock_jumps'] == 1, (name, key, counts)
                 assert counts['accepted'] == counts['read'], (name, key, counts)
     fused = odom_outputs(tmp_path / 'out', '/odometry/fused')
@@ -104,8 +105,12 @@ def test_a_clock_jump_is_never_integrated_and_loses_nothing(drive, tmp_path, dir
     end, end_clean = (s['nodes']['odometry_fusion']['final_pose'] for s in (summary, clean))
     assert math.hypot(end['x'] - end_clean['x'], end['y'] - end_clean['y']) < 0.2
     assert summary['nodes']['tilt_detection']['alerts'] == 0
-    gyro_line = odom_outputs(tmp_path / 'out', '/gyro_line/odom')
-    assert len(gyro_line) == summary['topics']['/odom']['count']
+    for topic in ('/gyro_line/odom', '/loop_closure/odom'):
+        poses = odom_outputs(tmp_path / 'out', topic)
+        assert len(poses) == summary['topics']['/odom']['count']
+        assert np.abs(poses[:, 1:3]).max() < 50.0, topic
+    result = summary['nodes']['wheel_odometry_calibration']['result']
+    assert all(math.isfinite(v) for v in result.values() if isinstance(v, float))
 
 
 def test_one_stray_stamp_years_ahead_is_rejected_alone(drive, tmp_path):
