@@ -6,13 +6,18 @@ A thin rclpy node around a :class:`robot_calib.pipelines.base.Pipeline`.
 Subscriptions receive serialized messages (``raw=True``), converted by the same
 code replay uses; outputs are serialized the same way and published as bytes.
 A callback never raises: a message that cannot be decoded or processed is
-counted and logged (throttled), and the node goes on.
+counted and logged (throttled), and the node goes on. Once a second the node
+publishes the health of its inputs on ``/diagnostics`` (waiting, stale, every
+message rejected and why), and warns when its input is all rejected. A node
+that writes files checks its ``output_dir`` before it starts.
 """
 
 from __future__ import annotations
 
+import difflib
 from functools import partial
 import importlib
+import os
 from pathlib import Path
 import sys
 import time
@@ -25,10 +30,17 @@ from rclpy.node import Node
 from rclpy.qos import (DurabilityPolicy, HistoryPolicy, qos_profile_sensor_data, QoSProfile,
                        ReliabilityPolicy)
 
+from robot_calib.core import types as T
 from robot_calib.core.params import ParamError
 from robot_calib.io import bags, convert
+from robot_calib.nodes.health import input_health, NodeLog
 from robot_calib.nodes.ros_params import declare_params
 from robot_calib.pipelines.base import KINDS, Pipeline
+
+HEALTH_PERIOD = 1.0
+"""Seconds between two input-health statuses on /diagnostics."""
+STALE_AFTER = 5.0
+"""Seconds of silence after which an input that was arriving is reported stale."""
 
 LATCHED_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1,
                          reliability=ReliabilityPolicy.RELIABLE,
@@ -59,8 +71,12 @@ class PipelineNode(Node):
     def __init__(self, pipeline_cls: type[Pipeline], **kwargs: Any):
         """Declare parameters, build the pipeline, and create subscriptions and publishers."""
         super().__init__(pipeline_cls.name, **kwargs)
+        self.log = NodeLog(self.get_logger())
         params = declare_params(self, pipeline_cls.params_type)
         self.declare_parameter('output_dir', '.')
+        self._warn_unknown_parameters()
+        if pipeline_cls.artifact_names:
+            check_output_dir(self.get_parameter('output_dir').value)
         self.pipeline = pipeline_cls(params, log=self._log)
         self.callback_seconds: list[float] = []
         self.undecodable = 0
@@ -75,24 +91,64 @@ class PipelineNode(Node):
             msgtype = KINDS[spec.kind][0]
             cls = message_class(msgtype)
             if cls is None:
-                self.get_logger().warn(f'{msgtype} is not installed: not subscribing to '
-                                       f'{spec.topic} (set the matching parameter instead)')
+                self.log('warn', f'{msgtype} is not installed: not subscribing to '
+                         f'{spec.topic} (set the matching parameter instead)')
                 continue
             qos = LATCHED_QOS if spec.kind == 'tf_static' else qos_profile_sensor_data
             self._subs.append(self.create_subscription(
                 cls, spec.topic, partial(self._on_message, spec.key, msgtype), qos, raw=True))
-        self.get_logger().info(
-            f'{pipeline_cls.name} ready (mode {getattr(params, "mode", "n/a")}): '
-            f'inputs {[s.topic for s in pipeline_cls.inputs]}, '
-            f'outputs {[s.topic for s in pipeline_cls.outputs]}')
+        self._health_pub = self.create_publisher(message_class(KINDS['diagnostics'][0]),
+                                                 '/diagnostics', DEFAULT_QOS)
+        self._health_prev: dict = {}
+        self._last_input: dict[str, float] = {}
+        self._required = [s.key for s in pipeline_cls.inputs
+                          if not s.optional and s.kind != 'tf_static']
+        self.create_timer(HEALTH_PERIOD, self._publish_health)
+        self.log('info', f'{pipeline_cls.name} ready (mode {getattr(params, "mode", "n/a")}): '
+                 f'inputs {[s.topic for s in pipeline_cls.inputs]}, '
+                 f'outputs {[s.topic for s in pipeline_cls.outputs]}')
 
     def _log(self, level: str, message: str) -> None:
-        logger = self.get_logger()
-        {'debug': logger.debug, 'info': logger.info, 'warn': logger.warn,
-         'error': logger.error}.get(level, logger.info)(message)
+        """Log for the pipeline: each distinct message at most once every 5 s."""
+        self.log(level, message, throttle_s=5.0)
+
+    def _warn_unknown_parameters(self) -> None:
+        """Warn (one line) about ``-p`` overrides that name no parameter of this node."""
+        given = set(getattr(self, '_parameter_overrides', {}) or {})
+        known = set(self._parameters)
+        unknown = sorted(given - known)
+        if unknown:
+            hints = []
+            for name in unknown:
+                close = difflib.get_close_matches(name, sorted(known), n=2)
+                hints.append(f'{name}' + (f' (did you mean {" or ".join(close)}?)'
+                                          if close else ''))
+            self.log('warn', f'unknown parameter(s) ignored: {", ".join(hints)}')
+
+    def _publish_health(self) -> None:
+        """Publish the health of the inputs on /diagnostics; warn when all input is rejected."""
+        now = time.monotonic()
+        counts = {k: dict(v) for k, v in self.pipeline.counts.items()}
+        idle = {k: now - t for k, t in self._last_input.items()}
+        level, message, values = input_health(counts, self._health_prev, idle,
+                                              self._required, STALE_AFTER)
+        self._health_prev = counts
+        if level == 2:
+            self.log('warn', f'{message}: no output until valid input arrives',
+                     throttle_s=10.0, key='all_rejected')
+        stamp = self.get_clock().now().nanoseconds
+        status = T.DiagnosticStatus(f'{self.get_fully_qualified_name()}: inputs', level, message,
+                                    '', tuple(values))
+        try:
+            _, raw = bags.serialize(T.DiagnosticSample(stamp * 1e-9, (status,), stamp))
+            self._health_pub.publish(raw)
+        except Exception as exc:  # noqa: B902 - health reporting must never stop the node
+            self.log('error', f'cannot publish input health: {exc}', throttle_s=30.0,
+                     key='health')
 
     def _on_message(self, key: str, msgtype: str, data: bytes) -> None:
         start = time.perf_counter()
+        self._last_input[key] = time.monotonic()
         try:
             fast = bags.FAST_DECODERS.get(msgtype)
             if fast is not None and len(data) > 1 and data[1] == 1:  # little-endian CDR
@@ -102,8 +158,8 @@ class PipelineNode(Node):
         except Exception as exc:  # noqa: B902 - a bad message must never stop the node
             self.undecodable += 1
             self.pipeline.reject(key, 'undecodable')
-            self.get_logger().warn(f'cannot decode a {msgtype} on {key}: {exc}',
-                                   throttle_duration_sec=5.0)
+            self.log('warn', f'cannot decode a {msgtype} on {key}: {exc}', throttle_s=5.0,
+                     key=f'decode:{key}')
             return
         for sample in samples:
             try:
@@ -111,8 +167,8 @@ class PipelineNode(Node):
             except Exception as exc:  # noqa: B902 - count, log and keep running
                 self._errors += 1
                 self.pipeline.reject(key, 'processing_error')
-                self.get_logger().error(f'{key}: {type(exc).__name__}: {exc}',
-                                        throttle_duration_sec=5.0)
+                self.log('error', f'{key}: {type(exc).__name__}: {exc}', throttle_s=5.0,
+                         key=f'error:{key}')
         self.callback_seconds.append(time.perf_counter() - start)
         if len(self.callback_seconds) > 100000:
             del self.callback_seconds[:50000]
@@ -130,20 +186,52 @@ class PipelineNode(Node):
         return float(np.percentile(self.callback_seconds, 99))
 
     def finish(self) -> None:
-        """Flush the pipeline and write its artifacts into ``output_dir``."""
+        """
+        Flush the pipeline and write its artifacts into ``output_dir``.
+
+        The final outputs are published only while the ROS context is still up
+        (after Ctrl-C or SIGTERM it is not: they are then only logged); the
+        artifacts are written in any case, each atomically.
+        """
         try:
-            self.publish(self.pipeline.finish())
+            final = self.pipeline.finish()
         except Exception as exc:  # noqa: B902 - shutting down; report and go on
-            self.get_logger().error(f'finish failed: {exc}')
-        artifacts = self.pipeline.artifacts()
+            self.log('error', f'finish failed: {type(exc).__name__}: {exc}')
+            final = []
+        if final and self.context.ok():
+            try:
+                self.publish(final)
+            except Exception as exc:  # noqa: B902 - the context may close under us
+                self.log('warn', f'final outputs not published: {exc}')
+        try:
+            artifacts = self.pipeline.artifacts()
+        except Exception as exc:  # noqa: B902 - report and go on
+            self.log('error', f'artifacts failed: {type(exc).__name__}: {exc}')
+            artifacts = {}
         if artifacts:
             out_dir = Path(self.get_parameter('output_dir').value)
-            out_dir.mkdir(parents=True, exist_ok=True)
-            for name, text in artifacts.items():
-                tmp = out_dir / f'.{name}.partial'
-                tmp.write_text(text)
-                tmp.replace(out_dir / name)
-                self.get_logger().info(f'wrote {out_dir / name}')
+            try:
+                out_dir.mkdir(parents=True, exist_ok=True)
+                for name, text in artifacts.items():
+                    tmp = out_dir / f'.{name}.partial'
+                    tmp.write_text(text)
+                    tmp.replace(out_dir / name)
+                    self.log('info', f'wrote {out_dir / name}')
+            except OSError as exc:
+                self.log('error', f'cannot write into {out_dir}: {exc.strerror or exc}')
+
+
+def check_output_dir(path: str) -> None:
+    """Raise ParamError (one line) when ``path`` is not a folder this process can write into."""
+    out = Path(path)
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise ParamError(f'output_dir {path} cannot be created ({exc.strerror or exc}); '
+                         'expected a writable folder') from None
+    if not out.is_dir() or not os.access(out, os.W_OK | os.X_OK):
+        raise ParamError(f'output_dir {path} is not a writable folder; expected a writable '
+                         'folder')
 
 
 def run(pipeline_cls: type[Pipeline], args: Optional[list[str]] = None) -> int:
@@ -157,11 +245,14 @@ def run(pipeline_cls: type[Pipeline], args: Optional[list[str]] = None) -> int:
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     except ParamError as exc:
-        print(f'{pipeline_cls.name}: {exc}', file=sys.stderr)
+        print(f'{pipeline_cls.name}: error: {exc}', file=sys.stderr)
         code = 2
     finally:
         if node is not None:
             node.finish()
             node.destroy_node()
-        rclpy.try_shutdown()
+        try:
+            rclpy.try_shutdown()
+        except Exception:  # noqa: B902 - the signal handler may have shut the context down
+            pass
     return code

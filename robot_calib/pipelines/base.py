@@ -91,6 +91,8 @@ class Pipeline(abc.ABC):
     outputs: ClassVar[tuple[OutputSpec, ...]] = ()
     max_gap: ClassVar[float] = 1.0
     """Seconds between samples of one input above which a gap is counted (s)."""
+    artifact_names: ClassVar[tuple[str, ...]] = ()
+    """Files :meth:`artifacts` writes (a node checks its ``output_dir`` when there are any)."""
     clock_jump: ClassVar[float] = 60.0
     """A step ahead between samples of one input longer than this is a clock jump (s)."""
 

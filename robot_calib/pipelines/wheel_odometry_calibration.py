@@ -39,6 +39,7 @@ class WheelCalibrationPipeline(Pipeline):
               InputSpec('tf_static', '/tf_static', 'tf_static', optional=True))
     outputs = (OutputSpec('status', 'wheel_calibration/status', 'diagnostics'),)
     max_gap = 1.0
+    artifact_names = ('wheel_calibration.yaml',)
 
     def __init__(self, params: Optional[WheelCalibParams] = None, log: Any = None,
                  matcher: Any = None, prepare: Any = None):
