@@ -54,6 +54,7 @@ import math
 from typing import Any, Callable, Iterable, Optional
 
 import numpy as np
+from robot_calib.core import drive_detect
 from robot_calib.core import kinematics as K
 from robot_calib.core.geometry import wrap_angle
 from robot_calib.core.params import param
@@ -150,8 +151,10 @@ class WheelCalibParams:
     mode: str = param('improved', '', 'improved (joint ML estimate) or seed (seed 003 stages; '
                       'differential drive: the Censi et al. closed form)',
                       choices=('improved', 'seed'))
-    drive_type: str = param('differential', '', 'Drive type of the robot',
-                            choices=('differential', 'steered_wheel'))
+    drive_type: str = param('auto', '', 'Drive type of the robot; auto: told by the joints in '
+                            'joint_states (steering + traction joint: steered_wheel; left + '
+                            'right wheel joint: differential), never guessed from odometry',
+                            choices=('auto', 'differential', 'steered_wheel'))
     wheel_radius: float = param(0.05, 'm', 'Nominal wheel radius (steered wheel: traction '
                                 'wheel; differential: both wheels unless set below)',
                                 minimum=1e-6)
@@ -965,31 +968,45 @@ class WheelCalibrator:
         """Create an empty calibrator (``matcher``/``prepare`` replace the scan registration)."""
         self.params = params or WheelCalibParams()
         p = self.params
-        self.drive = p.drive_type
         self.nominal = p.nominal()
         self.sensor_pose = np.array([p.lidar_x, p.lidar_y, p.lidar_yaw], dtype=float)
         self.matcher = matcher or default_matcher
         self.prepare = prepare or prepare_target
         self.max_range = max_range
-        self.x_nom = np.array([self.nominal[k] for k in keys_of(self.drive)], dtype=float)
+        self.joint_names = drive_detect.JointNames(p.left_wheel_joint, p.right_wheel_joint,
+                                                   p.traction_joint, p.steering_joint)
+        self._joints: Optional[tuple[str, str]] = None
+        self._seen_names: tuple = ()
+        self.drive_problem = ''
+        """Why the drive type is not known, or contradicts the joints ('' when fine)."""
+        self.configured_drive = p.drive_type
+        self.drive_source = 'configured' if p.drive_type != 'auto' else 'undecided'
         self._t: list[float] = []
         self._a: list[float] = []
         self._b: list[float] = []
         self._pose: list[np.ndarray] = []
         self._last_raw: Optional[tuple] = None
-        self._odom_prev: Optional[Any] = None
-        self._use_joints = False
         self._pending: list[Any] = []
         self._kf: Optional[_KeyFrame] = None
-        self.segments: list[Segment] = []
-        self.seed = SeedSteeredCalibrator(p) if self.drive == 'steered_wheel' else None
-        self._stage: list[Segment] = []
-        self._stage_start: Optional[_KeyFrame] = None
-        self._warm: Optional[np.ndarray] = None
         self.counts = {'wheel_samples': 0, 'scans': 0, 'match_attempts': 0, 'match_failed': 0,
                        'wheel_gaps': 0, 'encoder_unwraps': 0, 'stages': 0,
                        'stage_match_failed': 0, 'scans_without_wheel_data': 0,
                        'missing_joints': 0}
+        self._set_drive(p.drive_type if p.drive_type != 'auto' else drive_detect.DIFFERENTIAL)
+
+    def _set_drive(self, drive: str) -> None:
+        """(Re)start the calibration for ``drive``: wheel data and segments so far are dropped."""
+        self.drive = drive
+        self.params = dataclasses.replace(self.params, drive_type=drive)
+        self.x_nom = np.array([self.nominal[k] for k in keys_of(drive)], dtype=float)
+        self.segments: list[Segment] = []
+        self.seed = SeedSteeredCalibrator(self.params) if drive == 'steered_wheel' else None
+        self._stage: list[Segment] = []
+        self._stage_start: Optional[_KeyFrame] = None
+        self._warm: Optional[np.ndarray] = None
+        self._reset_wheels()
+        self._use_joints = False
+        self._odom_prev: Optional[Any] = None
 
     # -- wheel input ----------------------------------------------------------------------
     def set_sensor_pose(self, x: float, y: float, yaw: float) -> None:
@@ -1057,11 +1074,13 @@ class WheelCalibrator:
         return d - k * two_pi
 
     def add_joint_state(self, js: Any) -> bool:
-        """Add a ``JointStateSample``; return False when the named joints are absent."""
-        p = self.params
-        names = (p.left_wheel_joint, p.right_wheel_joint) if self.drive == 'differential' \
-            else (p.traction_joint, p.steering_joint)
-        (a, va), (b, vb) = js.get(names[0]), js.get(names[1])
+        """Add a ``JointStateSample``; return False when the drive's joints are absent."""
+        if tuple(js.names) != self._seen_names:
+            self._on_joint_names(tuple(js.names))
+        if self._joints is None:
+            self.counts['missing_joints'] += 1
+            return False
+        (a, va), (b, vb) = js.get(self._joints[0]), js.get(self._joints[1])
         if not (math.isfinite(a) and math.isfinite(b)):
             self.counts['missing_joints'] += 1
             return False
@@ -1070,6 +1089,42 @@ class WheelCalibrator:
             self._reset_wheels()
         self.add_wheel(js.t, a, b, va, vb)
         return True
+
+    @property
+    def drive_joints(self) -> tuple[str, ...]:
+        """Return the two joints in use: (left, right) or (traction, steering); () for none."""
+        return self._joints or ()
+
+    def _on_joint_names(self, names: tuple) -> None:
+        """
+        Tell the drive (``auto``) or check it (configured) from a new set of joint names.
+
+        ``auto`` decides once, at the first names that tell exactly one drive
+        (odometry integrated before under the assumed drive is dropped). A
+        configured drive whose joints are absent while the joints of the other
+        drive are present is recorded in :attr:`drive_problem`: the result is
+        then never ``converged``.
+        """
+        self._seen_names = names
+        found, why = drive_detect.detect(names, self.joint_names)
+        if self._joints is not None:
+            return
+        if self.configured_drive == 'auto':
+            if found is None:
+                self.drive_problem = (f'drive type not told by joint_states ({why}): set '
+                                      'drive_type and the joint names')
+                return
+            if found.drive_type != self.drive or self.counts['wheel_samples']:
+                self._set_drive(found.drive_type)
+            self._joints, self.drive_source, self.drive_problem = found.joints, found.how, ''
+            return
+        joints = self.joint_names.configured(self.drive)
+        if all(j in names for j in joints):
+            self._joints, self.drive_problem = joints, ''
+        elif found is not None and found.drive_type != self.drive:
+            self.drive_problem = (f'joint_states carry {found.joints[0]} and {found.joints[1]}: '
+                                  f'the robot looks {found.drive_type}, but drive_type is '
+                                  f'{self.drive} (set drive_type: {found.drive_type}, or auto)')
 
     def _reset_wheels(self) -> None:
         self._t, self._a, self._b, self._pose = [], [], [], []
@@ -1290,7 +1345,11 @@ class WheelCalibrator:
     def problems(self) -> list[str]:
         """Return what the input lacked so far (no wheel data, failed matches...)."""
         c = self.counts
-        out = []
+        out = [self.drive_problem] if self.drive_problem else []
+        if self.configured_drive == 'auto' and self._joints is None and not out:
+            out.append("drive type unknown: no joint_states named a drive's joints, and "
+                       'odometry alone cannot tell a steered wheel from a differential drive '
+                       '(set drive_type)')
         if c['wheel_samples'] < 2:
             out.append('no wheel data (need odom or joint_states with the named joints)')
         if c['scans'] == 0:

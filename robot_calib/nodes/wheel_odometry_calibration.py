@@ -22,7 +22,7 @@ on a grippy floor:
      ways, then medium angles) - track width, wheel base, steering scale and lidar pose.
   3. Repeat 1-2 two or three times (5-10 minutes in total is plenty).
 
-Parameters: drive_type (differential | steered_wheel), nominal wheel_radius, wheel_base,
+Parameters: drive_type (auto | differential | steered_wheel), nominal wheel_radius, wheel_base,
 track_width (left/right_wheel_radius), joint names steering_joint / traction_joint /
 left_wheel_joint / right_wheel_joint, output_dir.
 Progress and estimates: wheel_calibration/status (diagnostic_msgs/DiagnosticArray);

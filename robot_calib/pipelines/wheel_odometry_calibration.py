@@ -52,6 +52,7 @@ class WheelCalibrationPipeline(Pipeline):
         self._latest_stamp = -1
         self._sensor_frame: Optional[str] = None
         self._n_solved = 0
+        self._told_problem = ''
 
     def on_static_transform(self, transform: T.StaticTransform) -> None:
         """Use a base_frame -> scan frame transform as the nominal lidar pose."""
@@ -70,7 +71,15 @@ class WheelCalibrationPipeline(Pipeline):
     def handle(self, key: str, sample: Any) -> list[Output]:
         """Feed wheel data and scans; publish the status every update_period (data time)."""
         if key == 'joint_states':
-            if not self.calib.add_joint_state(sample):
+            decided = self.calib.drive_source
+            used = self.calib.add_joint_state(sample)
+            if self.calib.drive_source != decided:
+                self.log('info', f'drive type {self.calib.drive} told by the '
+                         f'{self.calib.drive_source} ({", ".join(self.calib.drive_joints)})')
+            if self.calib.drive_problem and self.calib.drive_problem != self._told_problem:
+                self._told_problem = self.calib.drive_problem
+                self.log('warn', self.calib.drive_problem)
+            if not used:
                 return self.reject(key, 'missing_joints')
         elif key == 'odom':
             if not self.calib.add_odom(sample):
@@ -124,7 +133,8 @@ class WheelCalibrationPipeline(Pipeline):
     def method_summary(self) -> dict[str, Any]:
         """Return the result, the drive content and the front end's counters."""
         res = self.result or self.calib.solve()
-        out = {'result': res.to_dict(), 'counts': dict(self.calib.counts)}
+        out = {'result': res.to_dict(), 'counts': dict(self.calib.counts),
+               'drive_type_source': self.calib.drive_source}
         for k in ('content', 'outliers', 'sigma', 'seed_stages_needed'):
             if k in res.details:
                 out[k] = res.details[k]
