@@ -12,9 +12,12 @@ expected, and exit status 2; nothing half-written is left behind.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import importlib
+import signal
 import sys
-from typing import Optional, Sequence
+import threading
+from typing import Any, Iterator, Optional, Sequence
 
 _EXIT_BAD_INPUT = 2
 
@@ -171,6 +174,26 @@ def _bad_input_types() -> tuple:
     return tuple(types)
 
 
+class Terminated(KeyboardInterrupt):
+    """SIGTERM: unwinds like Ctrl-C, so that every half-written output is removed."""
+
+
+@contextlib.contextmanager
+def _sigterm_as_interrupt() -> Iterator[None]:
+    """Raise :class:`Terminated` on SIGTERM while inside (main thread only)."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+
+    def _raise(signum: int, frame: Any) -> None:
+        raise Terminated()
+    previous = signal.signal(signal.SIGTERM, _raise)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, previous)
+
+
 def main(argv: Optional[Sequence[str]] = None) -> int:
     """Run ``robot-calib`` with ``argv`` (default: sys.argv); return the exit status."""
     parser = build_parser()
@@ -180,7 +203,11 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
         return int(exc.code or 0) if not isinstance(exc.code, str) else _EXIT_BAD_INPUT
     verbs = {'simulate': _simulate, 'replay': _replay, 'mismatch': _mismatch}
     try:
-        return verbs[args.verb](args)
+        with _sigterm_as_interrupt():
+            return verbs[args.verb](args)
+    except Terminated:
+        print('robot-calib: terminated', file=sys.stderr)
+        return 143
     except KeyboardInterrupt:
         print('robot-calib: interrupted', file=sys.stderr)
         return 130
