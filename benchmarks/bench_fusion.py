@@ -375,7 +375,7 @@ def sim_seed(seed: int, duration: float) -> dict:
     out['improved'] = score(**tr, ref=gt)
     out['nis'] = f.nis_in_band / max(f.nis_checked, 1)
     out['nis_window'] = f.nis_window_in_band / max(f.nis_window_checked, 1)
-    out['nis_mean'] = float(np.mean(f.nis_hist)) if f.nis_hist else float('nan')
+    out['nis_mean'] = f.nis_sum / f.nis_hist.count if f.nis_hist.count else float('nan')
     out['rate'] = len(seq) / el
     out['cov_pos'], out['cov_yaw'] = covariance_coverage(tr, f.bench_covs, gt)
     out['bias_err'] = abs(f.x[F.IBG] - _true_bias(r.truth, gt[-1, 0]))

@@ -49,6 +49,7 @@ from robot_calib import pipelines
 from robot_calib.core import types as T
 from robot_calib.core.jsonable import jsonable
 from robot_calib.core.params import describe, flatten_nested, from_flat, ParamError
+from robot_calib.core.series import Reservoir, Thinned
 from robot_calib.io import convert
 from robot_calib.io.bags import BagError, BagSet, BagWriter, normalize_topic, serialize
 from robot_calib.pipelines.base import KINDS, Pipeline
@@ -209,7 +210,8 @@ class _Node:
         self.inputs: dict[str, str] = {}  # key -> topic
         self.outputs: dict[str, tuple[str, str, bool]] = {}  # key -> (topic, msgtype, latched)
         self.notes: list[str] = []
-        self.times: list[float] = []
+        self.times = Reservoir()
+        """Seconds per input message: count, sum and a sample for percentiles."""
         self.errors: dict[str, int] = defaultdict(int)
         self.first_errors: list[str] = []
         self.tf_key = 'tf_static'
@@ -272,10 +274,6 @@ def _params_for(name: str, cls: type, file_params: dict[str, dict[str, Any]],
         return from_flat(params_type, flat)
     except ParamError as exc:
         raise ParamError(f'node {name}: {exc}') from None
-
-
-def _p(values: Sequence[float], q: float) -> Optional[float]:
-    return float(np.percentile(values, q)) if len(values) else None
 
 
 def _check_out_dir(out_dir: Path) -> None:
@@ -486,7 +484,7 @@ def _run(bagset: BagSet, bag_list: list, runs: list[_Node], skipped: dict[str, s
               and s.msgtype == 'tf2_msgs/msg/TFMessage']
     read: dict[str, int] = defaultdict(int)
     undecodable: dict[str, int] = defaultdict(int)
-    trajectories: dict[str, list] = defaultdict(list)
+    trajectories: dict[str, Thinned] = defaultdict(Thinned)
     n_static = 0
 
     # -- static transforms first -------------------------------------------------------------
@@ -517,7 +515,7 @@ def _run(bagset: BagSet, bag_list: list, runs: list[_Node], skipped: dict[str, s
     stream_info = {id(s): (topic_of_stream[id(s)], routes.get(topic_of_stream[id(s)], ()),
                            topic_of_stream[id(s)] if topic_of_stream[id(s)] in traj_topics
                            else None) for s in streams}
-    out_traj: dict[str, list] = defaultdict(list)
+    out_traj: dict[str, Thinned] = defaultdict(Thinned)
     out_counts: dict[str, int] = defaultdict(int)
     n_msgs = 0
     bag_dir = tmp / Path(OUTPUT_BAG).stem  # a ROS 2 bag folder, flattened below
@@ -629,8 +627,8 @@ def _run(bagset: BagSet, bag_list: list, runs: list[_Node], skipped: dict[str, s
             run.error('summary', exc)
             base = {'inputs': {k: dict(v) for k, v in run.pipeline.counts.items()},
                     'outputs': dict(run.pipeline.n_outputs)}
-        proc = float(sum(run.times))
-        n_in = len(run.times)
+        proc = run.times.total
+        n_in = run.times.count
         if 'timing' in base:  # the method's own timing figures, kept under another key
             base['method_timing'] = base.pop('timing')
         extras = {
@@ -640,8 +638,8 @@ def _run(bagset: BagSet, bag_list: list, runs: list[_Node], skipped: dict[str, s
                 'finish_seconds': finish_times.get(run.name, 0.0),
                 'input_messages': n_in,
                 'input_messages_per_second': n_in / proc if proc > 0 else None,
-                'per_message_ms_p50': None if not n_in else _p(run.times, 50) * 1e3,
-                'per_message_ms_p99': None if not n_in else _p(run.times, 99) * 1e3,
+                'per_message_ms_p50': None if not n_in else run.times.percentile(50) * 1e3,
+                'per_message_ms_p99': None if not n_in else run.times.percentile(99) * 1e3,
             },
             'input_topics': dict(run.inputs),
             'output_topics': {k: v[0] for k, v in run.outputs.items()},
@@ -694,8 +692,8 @@ def _run(bagset: BagSet, bag_list: list, runs: list[_Node], skipped: dict[str, s
                 f'{type(exc).__name__}: {" ".join(str(exc).split())}'
         if not any(pdir.iterdir()):
             pdir.rmdir()
-    inputs = {t: np.asarray(v, dtype=float) for t, v in trajectories.items() if v}
-    outputs = {t: np.asarray(v, dtype=float) for t, v in out_traj.items() if v}
+    inputs = {t: np.asarray(list(v), dtype=float) for t, v in trajectories.items() if v}
+    outputs = {t: np.asarray(list(v), dtype=float) for t, v in out_traj.items() if v}
     try:
         generic = report.generic_plots(tmp / 'plots', inputs, outputs, start * 1e-9)
     except Exception as exc:  # noqa: B902 - a plot must not fail the run

@@ -13,3 +13,11 @@ def spin_until(executor, condition: Callable[[], object], steps: int = 100,
         if condition():
             return True
     return False
+
+
+def without_input_health(append: Callable[[object], None]) -> Callable[[object], None]:
+    """Wrap a /diagnostics callback so that it skips the nodes' input-health statuses."""
+    def callback(msg) -> None:
+        if not any(s.name.endswith(': inputs') for s in msg.status):
+            append(msg)
+    return callback

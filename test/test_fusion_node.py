@@ -14,7 +14,7 @@ from rclpy.executors import SingleThreadedExecutor  # noqa: E402
 from rclpy.qos import qos_profile_sensor_data  # noqa: E402
 from robot_calib.nodes.base import PipelineNode  # noqa: E402
 from robot_calib.pipelines.odometry_fusion import FusionPipeline  # noqa: E402
-from ros_helpers import spin_until  # noqa: E402
+from ros_helpers import spin_until, without_input_health  # noqa: E402
 from sensor_msgs.msg import Imu  # noqa: E402
 
 
@@ -30,7 +30,8 @@ def test_node_fuses_imu_and_odom_and_publishes_diagnostics(ros):
     peer = rclpy.create_node('fusion_peer')
     fused, diags = [], []
     peer.create_subscription(Odometry, 'odometry/fused', fused.append, 50)
-    peer.create_subscription(DiagnosticArray, '/diagnostics', diags.append, 50)
+    peer.create_subscription(DiagnosticArray, '/diagnostics', without_input_health(diags.append),
+                             50)
     imu_pub = peer.create_publisher(Imu, 'imu', qos_profile_sensor_data)
     odom_pub = peer.create_publisher(Odometry, 'odom', qos_profile_sensor_data)
     ex = SingleThreadedExecutor()

@@ -17,7 +17,7 @@ from rclpy.executors import SingleThreadedExecutor  # noqa: E402
 from rclpy.qos import qos_profile_sensor_data  # noqa: E402
 from robot_calib.nodes.base import PipelineNode  # noqa: E402
 from robot_calib.pipelines.loop_closure_correction import LoopClosurePipeline  # noqa: E402
-from ros_helpers import spin_until  # noqa: E402
+from ros_helpers import spin_until, without_input_health  # noqa: E402
 from sensor_msgs.msg import Imu, LaserScan  # noqa: E402
 
 
@@ -45,7 +45,8 @@ def test_node_publishes_corrected_odometry_and_diagnostics(ros):
     peer = rclpy.create_node('loop_closure_peer')
     got, diags = [], []
     peer.create_subscription(Odometry, 'loop_closure/odom', got.append, 50)
-    peer.create_subscription(DiagnosticArray, '/diagnostics', diags.append, 50)
+    peer.create_subscription(DiagnosticArray, '/diagnostics', without_input_health(diags.append),
+                             50)
     imu_pub = peer.create_publisher(Imu, 'imu', qos_profile_sensor_data)
     odom_pub = peer.create_publisher(Odometry, 'odom', qos_profile_sensor_data)
     scan_pub = peer.create_publisher(LaserScan, 'scan', qos_profile_sensor_data)

@@ -75,6 +75,7 @@ import numpy as np
 from robot_calib.core import types as T
 from robot_calib.core.geometry import quat_from_rpy, quat_to_matrix, wrap_angle
 from robot_calib.core.params import param
+from robot_calib.core.series import Thinned
 from scipy.special import chdtri
 
 G = 9.80665
@@ -567,8 +568,9 @@ class ImprovedFusion(_Base):
         self.use_acc = False
         self.lam = np.ones(2)
         self._c2 = None
-        self.nis_hist: list[float] = []
-        self.nis_dof_hist: list[int] = []
+        self.nis_hist = Thinned()
+        """NIS of every update, thinned to a bounded size (plots); ``nis_sum`` is exact."""
+        self.nis_sum = 0.0
         self._nis_win: list[float] = []
         self._nis_dof_win: list[int] = []
         self.nis_avg = float('nan')
@@ -907,7 +909,7 @@ class ImprovedFusion(_Base):
     def _record_nis(self, nis: float, dof: int) -> None:
         """Record one update's NIS; count it inside or outside its two-sided 95 % band."""
         self.nis_hist.append(nis)
-        self.nis_dof_hist.append(dof)
+        self.nis_sum += nis
         band1 = self._band.get((dof, 1))
         if band1 is None:
             band1 = self._band[(dof, 1)] = nis_band(dof, 1)

@@ -27,6 +27,7 @@ import numpy as np
 
 from robot_calib.core import types as T
 from robot_calib.core.gyro_line import GyroLineCalibrator, GyroLineParams
+from robot_calib.core.series import Thinned
 from robot_calib.pipelines.base import InputSpec, Output, OutputSpec, Pipeline
 
 
@@ -52,7 +53,7 @@ class GyroLinePipeline(Pipeline):
         super().__init__(params, log)
         self.core = GyroLineCalibrator(self.params)
         self._next_diag = None
-        self._trace: list[tuple[float, float, float, float]] = []
+        self._trace = Thinned()  # (t, x, y, yaw) for the plot
 
     def on_static_transform(self, transform: T.StaticTransform) -> None:
         """Take the IMU and laser mountings from /tf_static."""
@@ -165,7 +166,7 @@ class GyroLinePipeline(Pipeline):
         except ImportError:
             return []
         from pathlib import Path
-        tr = np.array(self._trace)
+        tr = np.array(list(self._trace))
         fig, ax = plt.subplots(1, 2, figsize=(11, 4.5))
         ax[0].plot(tr[:, 1], tr[:, 2], lw=0.7)
         for ref in self.core.references:

@@ -22,6 +22,7 @@ from robot_calib.core import types as T
 from robot_calib.core.geometry import quat_to_matrix, se2_apply, yaw_from_quat
 from robot_calib.core.loop_closure import (ClosureReport, deskew, LoopClosureCorrector,
                                            LoopClosureParams)
+from robot_calib.core.series import Thinned
 from robot_calib.pipelines.base import InputSpec, OutputSpec, Pipeline
 
 NAME = 'loop_closure_correction'
@@ -49,7 +50,7 @@ class LoopClosurePipeline(Pipeline):
         self.core = LoopClosureCorrector(self.params)
         self._n_reports = 0
         self._speed = 0.0
-        self._track: list[tuple[float, float, float, float, float, float]] = []
+        self._track = Thinned()  # (t, x, y, yaw, raw x, raw y) for the plot
 
     # -- helpers --------------------------------------------------------------------------
     def _mount(self, frame: str):
@@ -164,7 +165,7 @@ class LoopClosurePipeline(Pipeline):
         import matplotlib
         matplotlib.use('Agg')
         import matplotlib.pyplot as plt
-        tr = np.array(self._track)
+        tr = np.array(list(self._track))
         fig, ax = plt.subplots(figsize=(7, 6))
         ax.plot(tr[:, 4], tr[:, 5], color='0.6', lw=1, label='dead reckoning (raw)')
         ax.plot(tr[:, 1], tr[:, 2], color='C0', lw=1.2, label='corrected')

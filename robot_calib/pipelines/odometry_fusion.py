@@ -23,6 +23,7 @@ import numpy as np
 
 from robot_calib.core import fusion as F
 from robot_calib.core import types as T
+from robot_calib.core.series import Thinned
 from robot_calib.pipelines.base import InputSpec, Output, OutputSpec, Pipeline
 
 
@@ -51,7 +52,7 @@ class FusionPipeline(Pipeline):
         self._imu_frame = None
         self._next_diag = None
         self._events_seen = 0
-        self._trajectory: list[tuple[float, float, float, float]] = []
+        self._trajectory = Thinned()  # (t, x, y, yaw) for the plot
         self._ignored_cov = 0
 
     # -- inputs ----------------------------------------------------------------------------
@@ -139,8 +140,7 @@ class FusionPipeline(Pipeline):
         w = o.w if math.isfinite(o.w) else 0.0
         out = T.OdomSample(sample.t, o.x, o.y, o.yaw, o.v, 0.0, w, p.odom_frame, p.base_frame,
                            pc, tw, stamp_ns=sample.stamp_ns)
-        if len(self._trajectory) < 2_000_000:
-            self._trajectory.append((sample.t, o.x, o.y, o.yaw))
+        self._trajectory.append((sample.t, o.x, o.y, o.yaw))
         return [('odom', out)]
 
     def _flush_events(self) -> None:
@@ -219,8 +219,8 @@ class FusionPipeline(Pipeline):
         if isinstance(f, F.ImprovedFusion):
             out['estimates'] = f.state_summary()
             out['nis'] = {
-                'updates': len(f.nis_hist),
-                'mean': float(np.mean(f.nis_hist)) if f.nis_hist else None,
+                'updates': f.nis_hist.count,
+                'mean': f.nis_sum / f.nis_hist.count if f.nis_hist.count else None,
                 'window': self.params.nis_window,
                 'in_band_fraction': f.nis_in_band / f.nis_checked if f.nis_checked else None,
                 'window_in_band_fraction': f.nis_window_in_band / f.nis_window_checked
@@ -243,7 +243,7 @@ class FusionPipeline(Pipeline):
         matplotlib.use('Agg')
         import matplotlib.pyplot as plt
         from pathlib import Path
-        tr = np.array(self._trajectory)
+        tr = np.array(list(self._trajectory))
         names = []
         fig, ax = plt.subplots(figsize=(6, 6))
         ax.plot(tr[:, 1], tr[:, 2], lw=1)
@@ -257,7 +257,8 @@ class FusionPipeline(Pipeline):
         f = self.filter
         if isinstance(f, F.ImprovedFusion) and f.nis_hist:
             fig, ax = plt.subplots(figsize=(7, 3))
-            ax.semilogy(f.nis_hist, lw=0.5)
+            ax.semilogy(np.arange(0, f.nis_hist.count, f.nis_hist.stride)[:len(f.nis_hist.items)],
+                        f.nis_hist.items, lw=0.5)
             ax.set_xlabel('odometry update')
             ax.set_ylabel('NIS')
             fig.savefig(Path(out_dir) / 'odometry_fusion_nis.png', dpi=100)

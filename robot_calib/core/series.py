@@ -1,0 +1,89 @@
+# Copyright 2026 robot_calib contributors
+# SPDX-License-Identifier: Apache-2.0
+"""
+Histories of bounded size for recordings of any length.
+
+A live node or a replay may run for hours; what it keeps for plots and
+statistics must not grow with the recording. :class:`Thinned` keeps an evenly
+thinned copy of a series (every 2^k-th item, k growing as needed) plus its
+latest item; :class:`Reservoir` keeps a uniform random sample of values (fixed
+seed) with their exact count and sum, for percentiles.
+"""
+
+from __future__ import annotations
+
+import random
+from typing import Any, Iterator, Optional
+
+import numpy as np
+
+
+class Thinned:
+    """A list-like history of at most ``capacity`` items (+ the latest), evenly thinned."""
+
+    def __init__(self, capacity: int = 20000):
+        """Keep at most ``capacity`` items (an even number, at least 2)."""
+        self.capacity = max(2, int(capacity) // 2 * 2)
+        self.items: list = []
+        self.stride = 1
+        self.count = 0
+        """How many items were appended in all."""
+        self._tail: Optional[Any] = None
+
+    def append(self, item: Any) -> None:
+        """Add ``item``: kept when its index is a multiple of the current stride."""
+        if self.count % self.stride == 0:
+            self.items.append(item)
+            self._tail = None
+            if len(self.items) >= self.capacity:
+                del self.items[1::2]
+                self.stride *= 2
+        else:
+            self._tail = item
+        self.count += 1
+
+    def __len__(self) -> int:
+        """Return the number of items kept."""
+        return len(self.items) + (self._tail is not None)
+
+    def __iter__(self) -> Iterator[Any]:
+        """Iterate over the kept items in order, the latest last."""
+        yield from self.items
+        if self._tail is not None:
+            yield self._tail
+
+    def __getitem__(self, index: int) -> Any:
+        """Return a kept item (``[-1]`` is always the latest appended)."""
+        if self._tail is not None:
+            if index == -1 or index == len(self.items):
+                return self._tail
+            if index < 0:
+                index += 1
+        return self.items[index]
+
+
+class Reservoir:
+    """Count, sum and a uniform sample (at most ``capacity`` values) of a stream of numbers."""
+
+    def __init__(self, capacity: int = 100000, seed: int = 0):
+        """Keep at most ``capacity`` values; ``seed`` fixes which ones."""
+        self.capacity = int(capacity)
+        self.values: list[float] = []
+        self.count = 0
+        self.total = 0.0
+        self._rng = random.Random(seed)
+
+    def append(self, value: float) -> None:
+        """Add one value (Vitter's algorithm R)."""
+        self.count += 1
+        self.total += value
+        if len(self.values) < self.capacity:
+            self.values.append(value)
+        else:
+            j = self._rng.randrange(self.count)
+            if j < self.capacity:
+                self.values[j] = value
+
+    def percentile(self, q: float) -> float:
+        """Return the ``q``-th percentile (exact until ``capacity`` values, then estimated)."""
+        return float(np.percentile(self.values, q)) if self.values else float('nan')

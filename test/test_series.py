@@ -1,0 +1,37 @@
+# Copyright 2026 robot_calib contributors
+# SPDX-License-Identifier: Apache-2.0
+"""Bounded histories: evenly thinned series and a reservoir for percentiles."""
+
+import numpy as np
+from robot_calib.core.series import Reservoir, Thinned
+
+
+def test_thinned_stays_bounded_even_and_ends_at_the_latest():
+    s = Thinned(capacity=100)
+    for i in range(100003):
+        s.append(i)
+    kept = list(s)
+    assert len(kept) <= 101 and len(s) == len(kept)
+    assert kept[0] == 0 and kept[-1] == 100002 and s[-1] == 100002
+    steps = np.diff(kept[:-1])
+    assert np.all(steps == steps[0])  # evenly thinned
+    assert s.count == 100003
+
+
+def test_thinned_is_a_plain_list_while_small():
+    s = Thinned(capacity=10)
+    for i in range(5):
+        s.append((i, i * 2))
+    assert list(s) == [(i, i * 2) for i in range(5)] and s[-1] == (4, 8) and s[0] == (0, 0)
+    assert not Thinned()
+
+
+def test_reservoir_keeps_exact_count_and_sum_and_close_percentiles():
+    r = Reservoir(capacity=5000, seed=1)
+    values = np.random.default_rng(2).exponential(1.0, 200000)
+    for v in values:
+        r.append(float(v))
+    assert r.count == values.size and abs(r.total - values.sum()) < 1e-6 * values.sum()
+    assert len(r.values) == 5000
+    assert abs(r.percentile(50) - np.percentile(values, 50)) < 0.05
+    assert abs(r.percentile(99) - np.percentile(values, 99)) < 0.5
