@@ -1,8 +1,10 @@
 # Copyright 2026 robot_calib contributors
 # SPDX-License-Identifier: Apache-2.0
 """
-Live nodes that must not stop or lie: logging at every severity, gaps, all-rejected input,
-unknown parameters, an unwritable output folder and the shutdown path.
+Live nodes that must not stop or lie.
+
+Logging at every severity, gaps, all-rejected input, unknown parameters, an
+unwritable output folder and the shutdown path.
 """
 
 import dataclasses

@@ -85,5 +85,5 @@ class Reservoir:
                 self.values[j] = value
 
     def percentile(self, q: float) -> float:
-        """Return the ``q``-th percentile (exact until ``capacity`` values, then estimated)."""
+        """Return a percentile, ``q`` in 0..100 (exact until ``capacity`` values, then estimated)."""
         return float(np.percentile(self.values, q)) if self.values else float('nan')
