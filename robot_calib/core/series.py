@@ -85,5 +85,5 @@ class Reservoir:
                 self.values[j] = value
 
     def percentile(self, q: float) -> float:
-        """Return a percentile, ``q`` in 0..100 (exact until ``capacity`` values, then estimated)."""
+        """Return the percentile ``q`` (0..100): exact up to ``capacity`` values, then sampled."""
         return float(np.percentile(self.values, q)) if self.values else float('nan')
