@@ -6,31 +6,48 @@ The mismatch analysis: align, locate, name, model and show, or abstain.
 :func:`analyse_recordings` takes two :class:`~robot_calib.mismatch.channels.Recording`
 objects (the simulated and the real run) and returns the findings dict of
 the contract (architecture.md, "Mismatch findings") plus additive keys:
-``time_alignment`` (per topic, the cross-correlation lag), ``channels``
-(per channel the residual RMS, the noise level and the windows where the
-residual is beyond noise), ``not_judged`` (what cannot be judged and why)
-and ``notes``.
+``time_alignment`` (per topic, the cross-correlation lag and the delay
+judged per sensor), ``channels`` (per channel the residual RMS, the noise
+level and the windows where the residual is beyond noise), ``not_judged``
+(what cannot be judged and why) and ``notes``.
+
+Per sensor (topic) the analysis runs in three stages:
+
+1. time: one delay per clock (the IMU's gyro and accelerometer may differ),
+   from the phase of the cross-spectrum, kept when its jackknife error makes
+   it significant; a drive (odometry, joint states) also tries a first-order
+   lag (:mod:`.latency`). The simulation is then shifted by it.
+2. amplitude: forward selection of the library's effects on the aligned
+   residual (:mod:`.select`), kept only when they pass a block-robust test
+   (:mod:`.robust`) and improve held-out time.
+3. what is left: structure beyond noise that no effect explains becomes one
+   ``unexplained`` finding (where, how large, what it follows), never a
+   forced wrong name (:mod:`.residual`).
 
 Held-out evaluation: the common time line is cut into ``heldout_chunks``
-equal chunks; every third chunk is held out. The selected effects (with
-their windows and nonlinear parameters from the whole recording) are
+equal chunks; every third chunk is held out. The selected effects are
 re-fitted on the other chunks only and the RMSE of ``real - sim`` before and
 after applying them is reported on both parts, inside the finding's window.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Optional
 
 import numpy as np
 
 from robot_calib.core.params import param
 from robot_calib.mismatch import effects as E
+from robot_calib.mismatch import latency as L
+from robot_calib.mismatch import residual as U
+from robot_calib.mismatch import robust as R
 from robot_calib.mismatch import select as S
 from robot_calib.mismatch.channels import (ChannelError, IMU_TYPE, ODOM_TYPE, pair_topics,
                                            PairedTopic, Recording, TWIST_TYPES)
-from robot_calib.mismatch.locate import active_windows, moving_average, noise_level
+from robot_calib.mismatch.explain import explain
+from robot_calib.mismatch.locate import (active_windows, local_weights, moving_average,
+                                         noise_level)
 
 
 @dataclass
@@ -40,7 +57,8 @@ class MismatchParams:
     mode: str = param('improved', '', "'improved' (windows, alternatives, exact refinement) "
                       "or 'seed' (global effects only, no windows)",
                       choices=('improved', 'seed'))
-    margin: float = param(12.0, '', 'BIC gain an effect must bring to be reported', minimum=0.0)
+    margin: float = param(12.0, '', 'BIC gain an effect must bring to be considered',
+                          minimum=0.0)
     alt_margin: float = param(10.0, '', 'BIC distance within which another effect is listed '
                               'as an alternative', minimum=0.0)
     max_lag: float = param(0.5, 's', 'largest time offset searched by cross-correlation',
@@ -53,6 +71,15 @@ class MismatchParams:
     heldout_chunks: int = param(60, '', 'chunks of the time line; every third is held out',
                                 minimum=3)
     max_terms: int = param(14, '', 'most effects selected per topic', minimum=1)
+    alpha: float = param(1e-6, '', 'false-alarm probability of the block-robust test an '
+                         'effect must pass', minimum=1e-15, maximum=0.5)
+    blocks: int = param(40, '', 'contiguous blocks of the time line for the block-robust '
+                        'tests', minimum=4)
+    min_block_s: float = param(1.0, 's', 'shortest block of the block-robust tests',
+                               minimum=0.0)
+    min_confidence: float = param(0.5, '', 'least confidence of a reported finding; weaker '
+                                  'ones are listed apart as weak_findings', minimum=0.0,
+                                  maximum=1.0)
 
 
 def _t_abs_interp(t_src: np.ndarray, x: np.ndarray, t_dst: np.ndarray) -> np.ndarray:
@@ -97,18 +124,20 @@ def _floor(res: np.ndarray, m: np.ndarray, a: np.ndarray, b: np.ndarray) -> floa
     return max(1e-3 * float(np.sqrt(np.mean(res[m] ** 2))), 1e-9 * scale, 1e-12)
 
 
-def _problem(pt: PairedTopic, smooth: float, not_judged: list) -> Optional[S.Problem]:
+def _problem(pt: PairedTopic, smooth: float, not_judged: Optional[list]) -> Optional[S.Problem]:
     fields, r, mask, sigma, phi = [], {}, {}, {}, {}
     for f in pt.sim:
         a, b = pt.sim[f], pt.real[f]
         m = np.isfinite(a) & np.isfinite(b)
         ch = f'{pt.name}.{f}'
         if m.sum() < 20:
-            not_judged.append({'channel': ch, 'reason': 'empty: no overlapping samples'})
+            if not_judged is not None:
+                not_judged.append({'channel': ch, 'reason': 'empty: no overlapping samples'})
             continue
         if np.ptp(b[m]) == 0 and np.ptp(a[m]) > 0:
-            not_judged.append({'channel': ch, 'reason': 'the real channel is constant while the '
-                               'simulated one varies (a stuck or unfilled field)'})
+            if not_judged is not None:
+                not_judged.append({'channel': ch, 'reason': 'the real channel is constant while '
+                                   'the simulated one varies (a stuck or unfilled field)'})
             continue
         res = np.where(m, b - a, 0.0)
         s, ph = noise_level(res, m, pt.dt, smooth)
@@ -120,26 +149,134 @@ def _problem(pt: PairedTopic, smooth: float, not_judged: list) -> Optional[S.Pro
     return S.Problem(pt, fields, r, mask, sigma, phi, pt.t.size)
 
 
-def _implausible(prob: S.Problem, sel: list, not_judged: list) -> list:
+def _rmse(x: np.ndarray, m: np.ndarray) -> Optional[float]:
+    return float(np.sqrt(np.mean(x[m] ** 2))) if m.any() else None
+
+
+def _held_mask(n: int, chunks: int) -> np.ndarray:
+    chunk = max(1, n // chunks)
+    return ((np.arange(n) // chunk) % 3) == 2
+
+
+# -- stage 1: time ------------------------------------------------------------------------
+def _moving_fields(pt: PairedTopic, prob: S.Problem) -> list:
+    """Return the fields whose simulated signal moves well beyond the channel noise."""
+    out = []
+    for f in prob.fields:
+        x = pt.sim_reg[f][prob.mask[f]]
+        x = x[np.isfinite(x)]
+        if x.size > 20 and float(np.std(x)) > 3.0 * prob.sigma[f]:
+            out.append(f)
+    return out
+
+
+def _group_data(pt: PairedTopic, prob: S.Problem, fields: list, keep: np.ndarray) -> dict:
+    data = {}
+    for i, group in enumerate(L.field_groups(pt.msgtype, fields)):
+        sims, reals, oks = [], [], []
+        for f in group:
+            # the raw simulated channel: independent noise does not bias the cross-spectral
+            # phase, while a smoothed copy would bend it
+            ok = prob.mask[f] & keep
+            sims.append(np.where(ok, pt.sim[f], 0.0))
+            reals.append(np.where(ok, pt.real[f], 0.0))
+            oks.append(ok)
+        data[f'g{i}'] = (group, sims, reals, oks)
+    return data
+
+
+def aligned(pt: PairedTopic, taus: dict) -> PairedTopic:
+    """Return ``pt`` with the simulated fields delayed by ``taus[field]`` s (others unchanged)."""
+    if not taus:
+        return pt
+    sim = {f: (E.shifted(pt, f, taus[f]) if f in taus else x) for f, x in pt.sim.items()}
+    return replace(pt, sim=sim, sim_reg={}, sim_noisy={})
+
+
+def _time_stage(pt: PairedTopic, prob: S.Problem, prm: MismatchParams,
+                edges: np.ndarray) -> list:
+    """Return the significant time effects of a topic: [(kind, TimeEffect, lag info)]."""
+    fields = _moving_fields(pt, prob)
+    if not fields:
+        return []
+    keep = np.ones(prob.n, bool)
+    effects = L.delays_of(_group_data(pt, prob, fields, keep), pt.dt, edges, prm.alpha,
+                          prm.max_lag)
+    out = []
+    for te in effects:
+        kind, info = 'time_offset', {}
+        if pt.msgtype != IMU_TYPE and te.delay.tau > 0:
+            kind, info = _lag_or_delay(pt, prob, te, prm)
+        out.append((kind, te, info))
+    return out
+
+
+def _whitened_chi2(prob: S.Problem, fields: list, pred: dict) -> float:
+    """Return the chi2 of ``real - pred`` after a per-field offset and scale are fitted."""
+    total = 0.0
+    for f in fields:
+        m = prob.mask[f] & np.isfinite(pred[f])
+        y = prob.pt.real[f][m] - pred[f][m]
+        X = np.column_stack((np.ones(m.sum()), pred[f][m]))
+        beta, *_ = np.linalg.lstsq(X, y, rcond=None)
+        e = y - X @ beta
+        total += float(e @ e) * prob.w[f]
+    return total
+
+
+def _lag_or_delay(pt: PairedTopic, prob: S.Problem, te: L.TimeEffect,
+                  prm: MismatchParams) -> tuple[str, dict]:
+    """Compare a pure delay with a first-order lag of the drive; return (effect name, info)."""
+    sims = {}
+    for f in te.fields:
+        x = pt.sim[f]
+        ok = np.isfinite(x)
+        sims[f] = np.interp(np.arange(x.size), np.flatnonzero(ok), x[ok]) if ok.sum() > 1 \
+            else np.zeros_like(x)
+    delayed = {f: E.shifted(pt, f, te.delay.tau) for f in te.fields}
+    chi_delay = _whitened_chi2(prob, te.fields, delayed)
+
+    def chi_lag(tau: float) -> float:
+        return _whitened_chi2(prob, te.fields,
+                              {f: L.lag_response(sims[f], pt.dt, tau) for f in te.fields})
+    lo, hi = np.log(max(pt.dt, 0.2 * te.delay.tau)), np.log(max(5.0 * te.delay.tau, 3 * pt.dt))
+    g = (np.sqrt(5.0) - 1.0) / 2.0
+    a, b = lo, hi
+    for _ in range(40):  # golden-section search on log(tau)
+        c, d = b - g * (b - a), a + g * (b - a)
+        if chi_lag(np.exp(c)) < chi_lag(np.exp(d)):
+            b = d
+        else:
+            a = c
+    tau_lag = float(np.exp(0.5 * (a + b)))
+    chi_l = chi_lag(tau_lag)
+    info = {'delay_chi2': chi_delay, 'lag_chi2': chi_l, 'lag_tau': tau_lag}
+    return ('drive_lag' if chi_l < chi_delay else 'time_offset'), info
+
+
+# -- stage 2: amplitude effects -------------------------------------------------------------
+def _implausible(prob: S.Problem, sel: list, not_judged: list) -> tuple[list, list]:
     """
-    Move effects fitted far beyond their plausible range into ``not_judged``.
+    Move effects fitted far beyond their plausible range out of the findings.
 
     A parameter beyond twice the plausible magnitude (e.g. a gyro scale of
     -1: the real channel does not follow the simulation at all) is not a
     physical effect of that name; it is reported as a stretch the tool
-    cannot explain.
+    cannot explain. Returns (kept terms, [(term, parameters)] dropped).
     """
     if not sel:
-        return sel
+        return sel, []
     f = S.fit(prob, sel)
-    keep = []
+    keep, dropped = [], []
     for i, t in enumerate(sel):
         params, _ = E.to_params(t, f.betas[i], f.covs[i])
         spec = E.SPECS[t.effect]
-        bad = [k for k, lim in zip(spec.params, spec.plausible) if abs(params[k]) > 2 * lim]
+        bad = [k for k, lim in zip(spec.params, spec.plausible)
+               if np.isfinite(params[k]) and abs(params[k]) > 2 * lim]
         if not bad:
             keep.append(t)
             continue
+        dropped.append((t, params))
         pt = prob.pt
         where = 'the whole recording' if t.window is None else \
             f'{pt.t[t.window[0]]:.1f}-{pt.t[min(t.window[1], prob.n) - 1]:.1f} s'
@@ -149,7 +286,55 @@ def _implausible(prob: S.Problem, sel: list, not_judged: list) -> list:
                            'beyond a physical value; is the simulated signal noise there?)'})
     if len(keep) < len(sel):
         keep = S.refine_nonlinear(prob, keep)
-    return keep
+    return keep, dropped
+
+
+def _min_len(prob: S.Problem, prm: MismatchParams) -> int:
+    """Return the shortest effect window (samples); longer than the recording in seed mode."""
+    if prm.mode == 'seed':  # global effects only
+        return prob.n + 1
+    return max(20, int(prm.min_window * prob.n), int(prm.min_window_s / max(prob.pt.dt, 1e-9)))
+
+
+def _select(prob: S.Problem, cands: list, prm: MismatchParams, edges: np.ndarray,
+            notes: list, not_judged: list) -> tuple[list, S.Problem, list]:
+    pt = prob.pt
+    min_len = _min_len(prob, prm)
+    sel, _ = S.forward_select(prob, cands, prm.margin, min_len, prm.max_terms)
+    # second pass with the noise level, and its changes along the recording, measured on
+    # the first model's residual
+    cur = S.fit(prob, sel, contributions=True)
+    sig2, phi2, sw2 = {}, {}, {}
+    for f in prob.fields:
+        e = prob.r[f] - cur.contrib.get(f, 0.0)
+        s, ph = noise_level(e, prob.mask[f], pt.dt, prm.noise_smooth)
+        sig2[f] = max(s, _floor(prob.r[f], prob.mask[f], pt.sim[f], pt.real[f]))
+        phi2[f] = ph
+        sw2[f] = np.sqrt(local_weights(e, prob.mask[f], pt.dt, prm.noise_smooth,
+                                       prm.noise_smooth))
+    prob = S.Problem(pt, prob.fields, prob.r, prob.mask, sig2, phi2, prob.n, sw=sw2)
+    sel, _ = S.forward_select(prob, cands, prm.margin, min_len, prm.max_terms)
+    if sel and prm.mode != 'seed':
+        sel = S.refine_windows(prob, sel, min_len)
+        sel = S.unexcited_windows(prob, sel)
+    sel = S.refine_nonlinear(prob, sel)
+    sel = S.backward_eliminate(prob, sel, prm.margin)
+    sel, dropped = R.robust_prune(prob, sel, edges, prm.alpha,
+                                  refine=lambda ts: S.refine_nonlinear(prob, ts))
+    for t, (w, thr, kb) in dropped:
+        notes.append(f'{t.channel}: a candidate {t.effect} fits, but not consistently across '
+                     f'the recording (robust test {w:.3g} < {thr:.3g} over {kb} blocks); '
+                     'not reported')
+    sel, implausible = _implausible(prob, sel, not_judged)
+    held = _heldout(prob, sel, prm.heldout_chunks) if sel else {}
+    bad = {i for i, h in held.items() if h['heldout_rmse_before'] is not None and
+           h['heldout_rmse_after'] is not None and
+           h['heldout_rmse_after'] > h['heldout_rmse_before']}
+    for i in sorted(bad):
+        notes.append(f'{sel[i].channel}: a candidate {sel[i].effect} did not improve the '
+                     'held-out part and is not reported')
+    sel = [t for i, t in enumerate(sel) if i not in bad]
+    return sel, prob, implausible
 
 
 def _predict(prob: S.Problem, terms: list, betas: list, f: str) -> np.ndarray:
@@ -157,8 +342,7 @@ def _predict(prob: S.Problem, terms: list, betas: list, f: str) -> np.ndarray:
     for t, b in zip(terms, betas):
         if f not in t.cols:
             continue
-        X = t.cols[f]
-        c = S.mdot(X, b)
+        c = S.mdot(t.cols[f], b)
         off = t.meta.get('offset')
         if off is not None and f in off:
             c = c + off[f]
@@ -170,17 +354,13 @@ def _predict(prob: S.Problem, terms: list, betas: list, f: str) -> np.ndarray:
     return out
 
 
-def _rmse(x: np.ndarray, m: np.ndarray) -> Optional[float]:
-    return float(np.sqrt(np.mean(x[m] ** 2))) if m.any() else None
-
-
 def _heldout(prob: S.Problem, sel: list, chunks: int) -> dict:
     """Re-fit the selected terms on the fitting chunks; RMSE before/after per selected term."""
     n = prob.n
-    chunk = max(1, n // chunks)
-    held = ((np.arange(n) // chunk) % 3) == 2
+    held = _held_mask(n, chunks)
     fit_mask = {f: prob.mask[f] & ~held for f in prob.fields}
-    pf = S.Problem(prob.pt, prob.fields, prob.r, fit_mask, prob.sigma, prob.phi, n)
+    pf = S.Problem(prob.pt, prob.fields, prob.r, fit_mask, prob.sigma, prob.phi, n,
+                   sw=dict(prob.sw))
     fr = S.fit(pf, sel)
     out = {}
     for i, t in enumerate(sel):
@@ -200,160 +380,193 @@ def _heldout(prob: S.Problem, sel: list, chunks: int) -> dict:
     return out
 
 
-def _fmt(v: float, unit: str) -> str:
-    return f'{v:.4g} {unit}'.strip()
+# -- findings -------------------------------------------------------------------------------
+def _confidence(strength: float, alt_deltas: list, fitd: dict) -> float:
+    """
+    Return a confidence (0..1) from the evidence of one finding.
 
-
-def explain(term: E.Term, params: dict, window: Optional[list], fitd: dict) -> str:
-    """Return one or two plain sentences on a finding."""
-    e = term.effect
-    spec = E.SPECS[e]
-    where = f' between {window[0]:.1f} s and {window[1]:.1f} s' if window else ''
-    if e == 'gyro_bias':
-        s = f'The real gyro reads {_fmt(params["bias"], "rad/s")} more than the simulation{where}.'
-    elif e == 'gyro_bias_drift':
-        s = (f'The real gyro has an offset of {_fmt(params["bias"], "rad/s")} at the start that '
-             f'changes by {_fmt(params["drift"], "rad/s^2")} (a warm-up drift){where}.')
-    elif e in ('gyro_scale', 'accel_scale', 'wheel_radius_scale', 'track_width_scale'):
-        k = params['scale']
-        what = {'gyro_scale': 'the real gyro rate', 'accel_scale': 'the real acceleration',
-                'wheel_radius_scale': 'the real odometry speed (wheel radius)',
-                'track_width_scale': 'the effective track width (odometry yaw rate / (1+k))'}[e]
-        s = f'{what[0].upper() + what[1:]} is {abs(k) * 100:.2f}% ' \
-            f'{"larger" if k > 0 else "smaller"} than simulated{where}.'
-    elif e == 'time_offset':
-        tau = params['tau']
-        s = f'The real recording {"lags" if tau > 0 else "leads"} the simulation by ' \
-            f'{abs(tau) * 1000:.1f} ms (a latency).'
-    elif e == 'accel_bias':
-        s = f'The real accelerometer reads {_fmt(params["bias"], "m/s^2")} more than the ' \
-            f'simulation{where}.'
-    elif e == 'centripetal_acceleration':
-        s = f'The real lateral acceleration contains v*omega with gain {params["gain"]:.3f}: ' \
-            'the simulation leaves out the centripetal acceleration in turns.'
-    elif e == 'imu_mounting_tilt':
-        s = f'The IMU is mounted tilted by roll {np.degrees(params["roll"]):.2f} deg and pitch ' \
-            f'{np.degrees(params["pitch"]):.2f} deg, so gravity leaks into a_x and a_y.'
-    elif e == 'wheel_slip':
-        s = f'The real odometry speed changes with the commanded acceleration (coefficient ' \
-            f'{_fmt(params["coefficient"], "s^2/m")}): the wheels slip{where}.'
-    elif e == 'gyro_cross_axis':
-        src = term.meta.get('source', 'another axis')
-        s = f'Rotation about {src} leaks into this axis with ' \
-            f'coefficient {params["coefficient"]:.4f} (an axis misalignment of ' \
-            f'{np.degrees(np.arcsin(np.clip(params["coefficient"], -1, 1))):.2f} deg).'
-    else:
-        s = f'{spec.what}.'
+    The product of: how far the robust statistic clears its bar
+    (``1 - bar / statistic``); the share of the finding among the
+    explanations that fit about as well (BIC weights ``exp(-delta / 2)`` of the
+    alternatives, Schwarz 1978); and whether held-out time confirms at least
+    half of the in-sample improvement (full credit), less (partial) or none.
+    """
+    s = float(np.clip(strength, 0.0, 1.0))
+    alt = 1.0 / (1.0 + sum(float(np.exp(-max(d, 0.0) / 2.0)) for d in alt_deltas))
     hb, ha = fitd.get('heldout_rmse_before'), fitd.get('heldout_rmse_after')
-    if hb and ha is not None and hb > 0:
-        s += f' Modelling it cuts the held-out residual from {hb:.3g} to {ha:.3g}.'
-    for name, lim in zip(spec.params, spec.plausible):
-        if abs(params.get(name, 0.0)) > lim:
-            s += f' The {name} is beyond the plausible {lim:g}: check units and the pairing.'
-    return s
+    ib, ia = fitd.get('rmse_before'), fitd.get('rmse_after')
+    gen = 1.0
+    if None not in (hb, ha, ib, ia) and ib ** 2 - ia ** 2 > 0:
+        gen = float(np.clip(2.0 * (hb ** 2 - ha ** 2) / (ib ** 2 - ia ** 2), 0.0, 1.0))
+    return round(s * alt * gen, 3)
+
+
+def _field_taus(te: L.TimeEffect) -> dict:
+    """Return the delay applied to each field: the pooled one, or its group's when they differ."""
+    out = {}
+    for group, d in te.groups.items():
+        out.update({f: (te.delay.tau if te.consistent else d.tau) for f in group})
+    return out
+
+
+def _time_fit(pt: PairedTopic, prob: S.Problem, te: L.TimeEffect, prm: MismatchParams,
+              edges: np.ndarray) -> tuple[str, dict]:
+    """Return (best channel, fit dict): the delay re-estimated without the held-out chunks."""
+    held = _held_mask(prob.n, prm.heldout_chunks)
+    refit = L.delays_of(_group_data(pt, prob, te.fields, ~held), pt.dt, edges, 1.0, prm.max_lag)
+    moved = aligned(pt, _field_taus(refit[0] if refit else te))
+    best, fitd, channel = None, {}, f'{pt.name}.{te.fields[0]}'
+    for f in te.fields:
+        r0 = prob.r[f]
+        r1 = np.where(prob.mask[f], pt.real[f] - moved.sim[f], np.nan)
+        m = prob.mask[f] & np.isfinite(r1)
+        fd = {'rmse_before': _rmse(r0, m & ~held), 'rmse_after': _rmse(r1, m & ~held),
+              'heldout_rmse_before': _rmse(r0, m & held),
+              'heldout_rmse_after': _rmse(r1, m & held)}
+        gain = (fd['heldout_rmse_before'] or 0.0) - (fd['heldout_rmse_after'] or 0.0)
+        if best is None or gain > best:
+            best, fitd, channel = gain, fd, f'{pt.name}.{f}'
+    return channel, fitd
+
+
+def _time_findings(pt: PairedTopic, prob: S.Problem, found: list, prm: MismatchParams,
+                   edges: np.ndarray) -> list:
+    """Return the findings of the time stage, with held-out fit (delay re-estimated without)."""
+    out = []
+    for kind, te, info in found:
+        d = te.delay
+        channel, fitd = _time_fit(pt, prob, te, prm, edges)
+        tau = d.tau if kind == 'time_offset' else info['lag_tau']
+        params, sds = {'tau': float(tau)}, {'tau': float(d.std)}
+        z_thr = L.t_quantile(prm.alpha, d.blocks - 1)
+        alt = []
+        if info:
+            other = 'drive_lag' if kind == 'time_offset' else 'time_offset'
+            gap = abs(info['lag_chi2'] - info['delay_chi2'])
+            if gap < prm.alt_margin:
+                alt.append({'effect': other, 'channel': channel, 'delta_bic': float(gap),
+                            'parameters': {'tau': float(d.tau if other == 'time_offset'
+                                                        else info['lag_tau'])},
+                            'separating_motion': E.separating_motion(kind, other)})
+        text = explain(kind, params, None, fitd)
+        per_group = {g[0].rsplit('.', 1)[0]: gd.tau for g, gd in te.groups.items()}
+        if not te.consistent:
+            text += ' Its channels do not share one delay: ' + ', '.join(
+                f'{k} {v * 1000:.1f} ms' for k, v in per_group.items()) + \
+                ' (filters of different delay inside the sensor, or in the reference).'
+        fd = {'channel': channel, 'effect': kind, 'parameters': params, 'window': None,
+              'fit': fitd, 'explanation': text,
+              'std': sds, 'ci95': {'tau': [tau - 1.96 * d.std, tau + 1.96 * d.std]},
+              'units': {'tau': 's'}, 'channels': [f'{pt.name}.{f}' for f in te.fields],
+              'per_group': per_group,
+              'evidence': {'z': float(d.z), 'z_threshold': z_thr, 'blocks': d.blocks,
+                           'band_hz': list(d.band_hz), 'coherence': d.coherence},
+              'confidence': _confidence(1.0 - (z_thr / max(d.z, 1e-12)) ** 2,
+                                        [a['delta_bic'] for a in alt], fitd)}
+        if alt:
+            fd['alternatives'] = alt
+        out.append(fd)
+    return out
+
+
+def _term_finding(prob: S.Problem, final: S.Fit, sel: list, i: int, fitd: dict,
+                  test: tuple, alts: list) -> dict:
+    pt = prob.pt
+    t = sel[i]
+    params, sds = E.to_params(t, final.betas[i], final.covs[i])
+    window = None
+    if t.window is not None:
+        i0, i1 = t.window
+        window = [round(float(pt.t[i0]), 4), round(float(pt.t[min(i1, prob.n) - 1]), 4)]
+    base = S.score(prob, final)
+    without = S.score(prob, S.fit(prob, sel[:i] + sel[i + 1:]))
+    w, thr, kb = test
+    fd = {'channel': t.channel, 'effect': t.effect,
+          'parameters': {k: float(v) for k, v in params.items()},
+          'window': window, 'fit': fitd,
+          'explanation': explain(t.effect, params, window, fitd, t.meta),
+          'std': sds,
+          'ci95': {k: [params[k] - 1.96 * sds[k], params[k] + 1.96 * sds[k]] for k in params},
+          'units': dict(zip(E.SPECS[t.effect].params, E.SPECS[t.effect].units)),
+          'evidence': {'delta_bic': float(without - base), 'robust_wald': w,
+                       'robust_threshold': thr, 'blocks': kb}}
+    if len(t.cols) > 1:
+        fd['channels'] = [f'{pt.name}.{f}' for f in t.cols]
+    if 'source' in t.meta:
+        fd['source_channel'] = t.meta['source']
+    deltas = []
+    if alts:
+        fd['alternatives'] = []
+        for c, cf, d in alts:
+            j = len(cf.terms) - 1
+            cp, _ = E.to_params(c, cf.betas[j], cf.covs[j])
+            fd['alternatives'].append({
+                'effect': c.effect, 'channel': c.channel,
+                'parameters': {k: float(v) for k, v in cp.items()}, 'delta_bic': d,
+                'separating_motion': E.separating_motion(t.effect, c.effect)})
+            deltas.append(d)
+        names = ', '.join(sorted({a['effect'] for a in fd['alternatives']}))
+        fd['explanation'] += f' This recording cannot clearly tell it from {names}; ' \
+            f'{fd["alternatives"][0]["separating_motion"]}.'
+    fd['confidence'] = _confidence(1.0 - thr / max(w, 1e-12), deltas, fitd)
+    return fd
 
 
 def _analyse_topic(pt: PairedTopic, sim: Recording, real: Recording, t0: float,
                    prm: MismatchParams, notes: list, not_judged: list,
-                   channel_info: dict) -> tuple[list, Optional[S.Problem], list]:
-    prob = _problem(pt, prm.noise_smooth, not_judged)
+                   channel_info: dict) -> tuple[list, Optional[S.Problem], list, dict]:
+    prob0 = _problem(pt, prm.noise_smooth, not_judged)
+    if prob0 is None:
+        return [], None, [], {}
+    edges = R.block_edges(prob0.n, pt.dt, prm.blocks, prm.min_block_s)
+    timing = _time_stage(pt, prob0, prm, edges)
+    findings = _time_findings(pt, prob0, timing, prm, edges)
+    taus = {}
+    for kind, te, _ in timing:
+        if kind == 'time_offset':
+            taus.update(_field_taus(te))
+    pta = aligned(pt, taus)
+    lags = [(te, info) for kind, te, info in timing if kind == 'drive_lag']
+    if lags:
+        sim_l = dict(pta.sim)
+        for te, info in lags:
+            sim_l.update({f: _lagged(pt, f, info['lag_tau']) for f in te.fields})
+        pta = replace(pta, sim=sim_l, sim_reg={}, sim_noisy={})
+    prob = _problem(pta, prm.noise_smooth, None) if (taus or lags) else prob0
     if prob is None:
-        return [], None, []
-    aux = _aux(sim, real, pt, t0, notes)
-    cands, cannot = E.candidates(pt, prob.sigma, aux)
-    for c in cannot:
-        if c not in notes:
-            notes.append(c)
-    min_len = max(20, int(prm.min_window * prob.n),
-                  int(prm.min_window_s / max(pt.dt, 1e-9)))
-    if prm.mode == 'seed':  # global effects only: no window can be as long as this
-        min_len = prob.n + 1
-    sel, _ = S.forward_select(prob, cands, prm.margin, min_len, prm.max_terms)
-    if sel:
-        # second pass with the noise level measured on the model's residual
-        cur = S.fit(prob, sel, contributions=True)
-        sig2, phi2 = {}, {}
-        changed = False
-        for f in prob.fields:
-            s, ph = noise_level(prob.r[f] - cur.contrib.get(f, 0.0), prob.mask[f], pt.dt,
-                                prm.noise_smooth)
-            s = max(s, _floor(prob.r[f], prob.mask[f], pt.sim[f], pt.real[f]))
-            sig2[f], phi2[f] = s, ph
-            changed |= s < 0.9 * prob.sigma[f]
-        if changed:
-            prob = S.Problem(pt, prob.fields, prob.r, prob.mask, sig2, phi2, prob.n)
-            sel, _ = S.forward_select(prob, cands, prm.margin, min_len, prm.max_terms)
-    if sel and prm.mode != 'seed':
-        sel = S.refine_windows(prob, sel, min_len)
-        sel = S.unexcited_windows(prob, sel)
-    sel = S.refine_nonlinear(prob, sel)
-    sel = S.backward_eliminate(prob, sel, prm.margin)
-    sel = _implausible(prob, sel, not_judged)
+        return findings, None, [], {}
+    aux = _aux(sim, real, pta, t0, notes)
+    cands, cannot = E.candidates(pta, prob.sigma, aux)
+    notes.extend(c for c in cannot if c not in notes)
+    sel, prob, implausible = _select(prob, cands, prm, edges, notes, not_judged)
     held = _heldout(prob, sel, prm.heldout_chunks) if sel else {}
-    # cross-validation guard: an effect that makes the held-out part worse is dropped
-    bad = {i for i, h in held.items() if h['heldout_rmse_before'] is not None and
-           h['heldout_rmse_after'] is not None and
-           h['heldout_rmse_after'] > h['heldout_rmse_before']}
-    if bad:
-        for i in sorted(bad):
-            notes.append(f'{sel[i].channel}: a candidate {sel[i].effect} did not improve the '
-                         'held-out part and is not reported')
-        sel = [t for i, t in enumerate(sel) if i not in bad]
-        held = _heldout(prob, sel, prm.heldout_chunks) if sel else {}
     final = S.fit(prob, sel, contributions=True)
-    for f in prob.fields:
-        ch = f'{pt.name}.{f}'
-        r = prob.r[f]
-        m = prob.mask[f]
-        channel_info[ch] = {
-            'rmse': _rmse(r, m), 'noise': prob.sigma[f], 'noise_inflation': prob.phi[f],
-            'rmse_after': _rmse(r - final.contrib.get(f, 0.0), m),
-            'beyond_noise': active_windows(pt.t, r, m, prob.sigma[f], prob.phi[f])}
-    for f in prob.fields:
-        ci = channel_info[f'{pt.name}.{f}']
-        left = ci['rmse_after'] or 0.0
-        if left > 3.0 * prob.sigma[f] * np.sqrt(prob.phi[f]) and left > 0:
-            not_judged.append({'channel': f'{pt.name}.{f}', 'reason': (
-                f'after the effects found the residual is still {left / prob.sigma[f]:.1f} '
-                'times the noise: the runs may not follow the same motion, or an effect '
-                'outside the library acts; findings on this channel are uncertain')})
-    alts = S.alternatives(prob, sel, cands, min_len, prm.alt_margin) \
+    tests = R.wald(prob, sel, final, edges, prm.alpha) if sel else []
+    alts = S.alternatives(prob, sel, cands, _min_len(prob, prm), prm.alt_margin) \
         if sel and prm.mode != 'seed' else {}
-    base = S.score(prob, final)
-    findings = []
-    for i, t in enumerate(sel):
-        params, sds = E.to_params(t, final.betas[i], final.covs[i])
-        window = None
-        if t.window is not None:
-            i0, i1 = t.window
-            window = [round(float(pt.t[i0]), 4), round(float(pt.t[min(i1, prob.n) - 1]), 4)]
-        fitd = held.get(i, {})
-        without = S.score(prob, S.fit(prob, sel[:i] + sel[i + 1:]))
-        fd = {'channel': t.channel, 'effect': t.effect,
-              'parameters': {k: float(v) for k, v in params.items()},
-              'window': window, 'fit': fitd,
-              'explanation': explain(t, params, window, fitd),
-              'std': sds,
-              'ci95': {k: [params[k] - 1.96 * sds[k], params[k] + 1.96 * sds[k]] for k in params},
-              'units': dict(zip(E.SPECS[t.effect].params, E.SPECS[t.effect].units)),
-              'evidence': {'delta_bic': float(without - base)}}
-        if 'source' in t.meta:
-            fd['source_channel'] = t.meta['source']
-        if i in alts:
-            fd['alternatives'] = []
-            for c, cf, d in alts[i]:
-                j = len(cf.terms) - 1
-                cp, _ = E.to_params(c, cf.betas[j], cf.covs[j])
-                fd['alternatives'].append({
-                    'effect': c.effect, 'channel': c.channel,
-                    'parameters': {k: float(v) for k, v in cp.items()},
-                    'delta_bic': d,
-                    'separating_motion': E.separating_motion(t.effect, c.effect)})
-            names = ', '.join(sorted({a['effect'] for a in fd['alternatives']}))
-            fd['explanation'] += f' This recording cannot clearly tell it from {names}; ' \
-                f'{fd["alternatives"][0]["separating_motion"]}.'
-        findings.append(fd)
-    return findings, prob, sel
+    term_findings = [_term_finding(prob, final, sel, i, held.get(i, {}), tests[i],
+                                   alts.get(i, [])) for i in range(len(sel))]
+    findings.extend(term_findings)
+    for f in prob.fields:
+        r, m = prob0.r[f], prob0.mask[f]
+        left = prob.r[f] - final.contrib.get(f, 0.0)
+        channel_info[f'{pt.name}.{f}'] = {
+            'rmse': _rmse(r, m), 'noise': prob.sigma[f], 'noise_inflation': prob.phi[f],
+            'rmse_after': _rmse(left, prob.mask[f]),
+            'beyond_noise': active_windows(pt.t, r, m, prob0.sigma[f], prob0.phi[f])}
+    extra = U.unexplained(prob, final, aux, edges, implausible)
+    if extra is not None:
+        findings.append(extra)
+    return findings, prob, sel, {'delays': timing, 'term_findings': term_findings}
+
+
+def _lagged(pt: PairedTopic, f: str, tau: float) -> np.ndarray:
+    x = pt.sim[f]
+    ok = np.isfinite(x)
+    if ok.sum() < 2:
+        return x
+    filled = np.interp(np.arange(x.size), np.flatnonzero(ok), x[ok])
+    return np.where(ok, L.lag_response(filled, pt.dt, tau), np.nan)
 
 
 def analyse_recordings(sim: Recording, real: Recording,
@@ -375,16 +588,23 @@ def analyse_recordings(sim: Recording, real: Recording,
     timing: dict = {}
     for pt in paired:
         notes.extend(pt.notes)
-        timing[pt.name] = {'xcorr_lag': pt.tau_xcorr, 'xcorr_gain': pt.xcorr_gain}
-        fs, prob, sel = _analyse_topic(pt, sim, real, t0, prm, notes, not_judged, channel_info)
+        fs, prob, sel, info = _analyse_topic(pt, sim, real, t0, prm, notes, not_judged,
+                                             channel_info)
+        timing[pt.name] = {'xcorr_lag': pt.tau_xcorr, 'xcorr_gain': pt.xcorr_gain,
+                           'delays': [{'fields': te.fields, 'effect': kind,
+                                       'tau': te.delay.tau, 'std': te.delay.std}
+                                      for kind, te, _ in info.get('delays', [])]}
         findings.extend(fs)
         if prob is not None:
-            details.append((pt, prob, sel, fs))
+            details.append((pt, prob, sel, info['term_findings']))
     if not channel_info:
         raise ChannelError('no channel can be compared (' + '; '.join(
             f'{d["channel"]}: {d["reason"]}' for d in not_judged) + ')')
-    findings.sort(key=lambda f: -f['evidence']['delta_bic'])
-    out = {'verdict': 'mismatch' if findings else 'consistent', 'findings': findings,
-           'time_alignment': timing, 'channels': channel_info, 'not_judged': not_judged,
-           'notes': notes, 'bag_start': t0}
+    findings.sort(key=lambda f: (f['effect'] == 'unexplained', -f.get('confidence', 0.0)))
+    weak = [f for f in findings if f['confidence'] < prm.min_confidence]
+    findings = [f for f in findings if f['confidence'] >= prm.min_confidence]
+    out = {'verdict': 'mismatch' if findings else 'consistent',
+           'findings': findings, 'weak_findings': weak, 'time_alignment': timing,
+           'channels': channel_info,
+           'not_judged': not_judged, 'notes': notes, 'bag_start': t0}
     return out, details
