@@ -77,9 +77,13 @@ class MismatchParams:
                         'tests', minimum=4)
     min_block_s: float = param(1.0, 's', 'shortest block of the block-robust tests',
                                minimum=0.0)
-    min_confidence: float = param(0.5, '', 'least confidence of a reported finding; weaker '
-                                  'ones are listed apart as weak_findings', minimum=0.0,
-                                  maximum=1.0)
+    min_confidence: float = param(0.5, '', 'least evidence (0..1) of a reported finding; '
+                                  'weaker ones are listed apart as weak_findings',
+                                  minimum=0.0, maximum=1.0)
+    floor_scale: float = param(1.0, '', 'multiplies each effect\'s reporting floor (the '
+                               'smallest size worth naming); smaller effects are listed as '
+                               'minor_findings; 0 reports every significant effect',
+                               minimum=0.0)
 
 
 def _t_abs_interp(t_src: np.ndarray, x: np.ndarray, t_dst: np.ndarray) -> np.ndarray:
@@ -185,11 +189,41 @@ def _group_data(pt: PairedTopic, prob: S.Problem, fields: list, keep: np.ndarray
     return data
 
 
+def _filled(x: np.ndarray) -> np.ndarray:
+    """Return ``x`` with NaN replaced by linear interpolation (held at the ends)."""
+    ok = np.isfinite(x)
+    if ok.all() or ok.sum() < 2:
+        return np.nan_to_num(x)
+    return np.interp(np.arange(x.size), np.flatnonzero(ok), x[ok])
+
+
+def delayed(x: np.ndarray, tau: float, dt: float) -> np.ndarray:
+    """
+    Return ``x`` (on a grid of period ``dt``) delayed by ``tau`` s, NaN where unknown.
+
+    An exact fractional delay (FFT phase ramp): linear interpolation would damp
+    fast motion and noise and so pass for a scale error.
+    """
+    k = tau / dt
+    y = L.shift_frac(_filled(x), k)
+    bad = ~np.isfinite(x)
+    lo, hi = int(np.floor(k)), int(np.ceil(k))
+    unknown = np.zeros(x.size, bool)
+    for s in {lo, hi}:
+        sh = np.ones(x.size, bool)
+        if 0 <= s < x.size:
+            sh[s:] = bad[:x.size - s]
+        elif -x.size < s < 0:
+            sh[:s] = bad[-s:]
+        unknown |= sh
+    return np.where(unknown, np.nan, y)
+
+
 def aligned(pt: PairedTopic, taus: dict) -> PairedTopic:
     """Return ``pt`` with the simulated fields delayed by ``taus[field]`` s (others unchanged)."""
     if not taus:
         return pt
-    sim = {f: (E.shifted(pt, f, taus[f]) if f in taus else x) for f, x in pt.sim.items()}
+    sim = {f: (delayed(x, taus[f], pt.dt) if f in taus else x) for f, x in pt.sim.items()}
     return replace(pt, sim=sim, sim_reg={}, sim_noisy={})
 
 
@@ -224,34 +258,45 @@ def _whitened_chi2(prob: S.Problem, fields: list, pred: dict) -> float:
     return total
 
 
-def _lag_or_delay(pt: PairedTopic, prob: S.Problem, te: L.TimeEffect,
-                  prm: MismatchParams) -> tuple[str, dict]:
-    """Compare a pure delay with a first-order lag of the drive; return (effect name, info)."""
-    sims = {}
-    for f in te.fields:
-        x = pt.sim[f]
-        ok = np.isfinite(x)
-        sims[f] = np.interp(np.arange(x.size), np.flatnonzero(ok), x[ok]) if ok.sum() > 1 \
-            else np.zeros_like(x)
-    delayed = {f: E.shifted(pt, f, te.delay.tau) for f in te.fields}
-    chi_delay = _whitened_chi2(prob, te.fields, delayed)
-
-    def chi_lag(tau: float) -> float:
-        return _whitened_chi2(prob, te.fields,
-                              {f: L.lag_response(sims[f], pt.dt, tau) for f in te.fields})
-    lo, hi = np.log(max(pt.dt, 0.2 * te.delay.tau)), np.log(max(5.0 * te.delay.tau, 3 * pt.dt))
+def _golden(fun, lo: float, hi: float, iters: int = 30) -> float:
+    """Return the minimiser of a unimodal ``fun`` on [lo, hi] by golden-section search."""
     g = (np.sqrt(5.0) - 1.0) / 2.0
     a, b = lo, hi
-    for _ in range(40):  # golden-section search on log(tau)
+    for _ in range(iters):
         c, d = b - g * (b - a), a + g * (b - a)
-        if chi_lag(np.exp(c)) < chi_lag(np.exp(d)):
+        if fun(c) < fun(d):
             b = d
         else:
             a = c
-    tau_lag = float(np.exp(0.5 * (a + b)))
-    chi_l = chi_lag(tau_lag)
-    info = {'delay_chi2': chi_delay, 'lag_chi2': chi_l, 'lag_tau': tau_lag}
-    return ('drive_lag' if chi_l < chi_delay else 'time_offset'), info
+    return 0.5 * (a + b)
+
+
+def _lag_or_delay(pt: PairedTopic, prob: S.Problem, te: L.TimeEffect,
+                  prm: MismatchParams) -> tuple[str, dict]:
+    """
+    Compare a pure delay with a first-order lag of the drive; return (effect name, info).
+
+    Both are fitted by least squares in time (each with its own time
+    constant, after a per-field offset and scale), so neither is favoured by
+    the estimator; the lag must fit better by ``alt_margin`` to be named.
+    """
+    sims = {f: _filled(pt.sim[f]) for f in te.fields}
+    tau0 = te.delay.tau
+
+    def chi_delay(tau: float) -> float:
+        return _whitened_chi2(prob, te.fields,
+                              {f: delayed(pt.sim[f], tau, pt.dt) for f in te.fields})
+
+    def chi_lag(log_tau: float) -> float:
+        return _whitened_chi2(prob, te.fields, {f: L.lag_response(sims[f], pt.dt,
+                                                                  np.exp(log_tau))
+                                                for f in te.fields})
+    tau_d = _golden(chi_delay, tau0 - 0.5 * abs(tau0) - pt.dt, tau0 + 0.5 * abs(tau0) + pt.dt)
+    log_l = _golden(chi_lag, np.log(max(pt.dt, 0.2 * tau0)), np.log(max(5.0 * tau0, 3 * pt.dt)))
+    info = {'delay_chi2': chi_delay(tau_d), 'lag_chi2': chi_lag(log_l),
+            'lag_tau': float(np.exp(log_l)), 'delay_tau_ls': float(tau_d)}
+    better = info['lag_chi2'] < info['delay_chi2'] - prm.alt_margin
+    return ('drive_lag' if better else 'time_offset'), info
 
 
 # -- stage 2: amplitude effects -------------------------------------------------------------
@@ -259,9 +304,9 @@ def _implausible(prob: S.Problem, sel: list, not_judged: list) -> tuple[list, li
     """
     Move effects fitted far beyond their plausible range out of the findings.
 
-    A parameter beyond twice the plausible magnitude (e.g. a gyro scale of
-    -1: the real channel does not follow the simulation at all) is not a
-    physical effect of that name; it is reported as a stretch the tool
+    A parameter beyond the plausible magnitude of a working sensor (e.g. a
+    gyro scale of -1: the real channel does not follow the simulation at all)
+    is not a physical effect of that name; it is reported as a stretch the tool
     cannot explain. Returns (kept terms, [(term, parameters)] dropped).
     """
     if not sel:
@@ -272,7 +317,7 @@ def _implausible(prob: S.Problem, sel: list, not_judged: list) -> tuple[list, li
         params, _ = E.to_params(t, f.betas[i], f.covs[i])
         spec = E.SPECS[t.effect]
         bad = [k for k, lim in zip(spec.params, spec.plausible)
-               if np.isfinite(params[k]) and abs(params[k]) > 2 * lim]
+               if np.isfinite(params[k]) and abs(params[k]) > lim]
         if not bad:
             keep.append(t)
             continue
@@ -287,6 +332,26 @@ def _implausible(prob: S.Problem, sel: list, not_judged: list) -> tuple[list, li
     if len(keep) < len(sel):
         keep = S.refine_nonlinear(prob, keep)
     return keep, dropped
+
+
+def _plain_offsets(prob: S.Problem, sel: list, prm: MismatchParams) -> list:
+    """
+    Return ``sel`` with drifting offsets whose drift is immaterial replaced by plain offsets.
+
+    A drift that moves the offset by less than the offset's reporting floor
+    over the recording is not worth naming; the plain offset is the simpler
+    claim (its terms are made from the drift term's first column).
+    """
+    out = list(sel)
+    f = S.fit(prob, out)
+    span = float(prob.pt.t[-1] - prob.pt.t[0]) if prob.n else 0.0
+    floor = prm.floor_scale * E.SPECS['gyro_bias'].floor
+    for i, t in enumerate(out):
+        if t.effect != 'gyro_bias_drift' or abs(f.betas[i][1]) * span >= floor:
+            continue
+        out[i] = E.Term('gyro_bias', t.topic, {k: c[:, :1] for k, c in t.cols.items()}, t.group,
+                        t.channel, t.windowable, t.window, dict(t.meta))
+    return out
 
 
 def _min_len(prob: S.Problem, prm: MismatchParams) -> int:
@@ -325,6 +390,7 @@ def _select(prob: S.Problem, cands: list, prm: MismatchParams, edges: np.ndarray
         notes.append(f'{t.channel}: a candidate {t.effect} fits, but not consistently across '
                      f'the recording (robust test {w:.3g} < {thr:.3g} over {kb} blocks); '
                      'not reported')
+    sel = _plain_offsets(prob, sel, prm)
     sel, implausible = _implausible(prob, sel, not_judged)
     held = _heldout(prob, sel, prm.heldout_chunks) if sel else {}
     bad = {i for i, h in held.items() if h['heldout_rmse_before'] is not None and
@@ -381,24 +447,32 @@ def _heldout(prob: S.Problem, sel: list, chunks: int) -> dict:
 
 
 # -- findings -------------------------------------------------------------------------------
-def _confidence(strength: float, alt_deltas: list, fitd: dict) -> float:
+def _evidence(strength: float, fitd: dict) -> float:
     """
-    Return a confidence (0..1) from the evidence of one finding.
+    Return the evidence (0..1) that a finding is real, whatever its name.
 
-    The product of: how far the robust statistic clears its bar
-    (``1 - bar / statistic``); the share of the finding among the
-    explanations that fit about as well (BIC weights ``exp(-delta / 2)`` of the
-    alternatives, Schwarz 1978); and whether held-out time confirms at least
-    half of the in-sample improvement (full credit), less (partial) or none.
+    The product of how far the robust statistic clears its bar
+    (``1 - bar / statistic``) and whether held-out time confirms at least half
+    of the in-sample improvement (full credit), less (partial) or none.
     """
     s = float(np.clip(strength, 0.0, 1.0))
-    alt = 1.0 / (1.0 + sum(float(np.exp(-max(d, 0.0) / 2.0)) for d in alt_deltas))
     hb, ha = fitd.get('heldout_rmse_before'), fitd.get('heldout_rmse_after')
     ib, ia = fitd.get('rmse_before'), fitd.get('rmse_after')
     gen = 1.0
     if None not in (hb, ha, ib, ia) and ib ** 2 - ia ** 2 > 0:
         gen = float(np.clip(2.0 * (hb ** 2 - ha ** 2) / (ib ** 2 - ia ** 2), 0.0, 1.0))
-    return round(s * alt * gen, 3)
+    return round(s * gen, 3)
+
+
+def _confidence(evidence: float, alt_deltas: list) -> float:
+    """
+    Return the confidence (0..1) in the finding's name: its evidence times its share.
+
+    The share among the explanations that fit about as well is a BIC weight,
+    ``1 / (1 + sum exp(-delta / 2))`` over the alternatives (Schwarz 1978).
+    """
+    alt = 1.0 / (1.0 + sum(float(np.exp(-max(d, 0.0) / 2.0)) for d in alt_deltas))
+    return round(evidence * alt, 3)
 
 
 def _field_taus(te: L.TimeEffect) -> dict:
@@ -461,8 +535,8 @@ def _time_findings(pt: PairedTopic, prob: S.Problem, found: list, prm: MismatchP
               'per_group': per_group,
               'evidence': {'z': float(d.z), 'z_threshold': z_thr, 'blocks': d.blocks,
                            'band_hz': list(d.band_hz), 'coherence': d.coherence},
-              'confidence': _confidence(1.0 - (z_thr / max(d.z, 1e-12)) ** 2,
-                                        [a['delta_bic'] for a in alt], fitd)}
+              'evidence_strength': _evidence(1.0 - (z_thr / max(d.z, 1e-12)) ** 2, fitd)}
+        fd['confidence'] = _confidence(fd['evidence_strength'], [a['delta_bic'] for a in alt])
         if alt:
             fd['alternatives'] = alt
         out.append(fd)
@@ -508,7 +582,8 @@ def _term_finding(prob: S.Problem, final: S.Fit, sel: list, i: int, fitd: dict,
         names = ', '.join(sorted({a['effect'] for a in fd['alternatives']}))
         fd['explanation'] += f' This recording cannot clearly tell it from {names}; ' \
             f'{fd["alternatives"][0]["separating_motion"]}.'
-    fd['confidence'] = _confidence(1.0 - thr / max(w, 1e-12), deltas, fitd)
+    fd['evidence_strength'] = _evidence(1.0 - thr / max(w, 1e-12), fitd)
+    fd['confidence'] = _confidence(fd['evidence_strength'], deltas)
     return fd
 
 
@@ -562,11 +637,7 @@ def _analyse_topic(pt: PairedTopic, sim: Recording, real: Recording, t0: float,
 
 def _lagged(pt: PairedTopic, f: str, tau: float) -> np.ndarray:
     x = pt.sim[f]
-    ok = np.isfinite(x)
-    if ok.sum() < 2:
-        return x
-    filled = np.interp(np.arange(x.size), np.flatnonzero(ok), x[ok])
-    return np.where(ok, L.lag_response(filled, pt.dt, tau), np.nan)
+    return np.where(np.isfinite(x), L.lag_response(_filled(x), pt.dt, tau), np.nan)
 
 
 def analyse_recordings(sim: Recording, real: Recording,
@@ -601,10 +672,20 @@ def analyse_recordings(sim: Recording, real: Recording,
         raise ChannelError('no channel can be compared (' + '; '.join(
             f'{d["channel"]}: {d["reason"]}' for d in not_judged) + ')')
     findings.sort(key=lambda f: (f['effect'] == 'unexplained', -f.get('confidence', 0.0)))
-    weak = [f for f in findings if f['confidence'] < prm.min_confidence]
-    findings = [f for f in findings if f['confidence'] >= prm.min_confidence]
+    duration = max((float(pt.t[-1] - pt.t[0]) for pt in paired if pt.t.size), default=0.0)
+    weak = [f for f in findings if f.get('evidence_strength', f['confidence']) <
+            prm.min_confidence]
+    minor = [f for f in findings if f not in weak and f['effect'] != 'unexplained' and
+             E.effect_size(f['effect'], f['parameters'], duration) <
+             prm.floor_scale * E.SPECS[f['effect']].floor]
+    findings = [f for f in findings if f not in weak and f not in minor]
+    for f in minor:
+        f['explanation'] += ' It is smaller than the ' \
+            f'{E.SPECS[f["effect"]].floor:g} worth naming for a ground robot, so it is listed ' \
+            'as minor.'
     out = {'verdict': 'mismatch' if findings else 'consistent',
-           'findings': findings, 'weak_findings': weak, 'time_alignment': timing,
+           'findings': findings, 'minor_findings': minor, 'weak_findings': weak,
+           'time_alignment': timing,
            'channels': channel_info,
            'not_judged': not_judged, 'notes': notes, 'bag_start': t0}
     return out, details

@@ -54,7 +54,16 @@ _UID = itertools.count(1)
 
 @dataclass(frozen=True)
 class EffectSpec:
-    """An effect of the library: parameter names, units, plausible magnitude and a sentence."""
+    """
+    An effect of the library: parameters, units, plausible range, reporting floor, a sentence.
+
+    ``plausible`` is the largest magnitude per parameter that a working
+    low-cost sensor or robot shows; a fit beyond it is not reported as that
+    effect (the real channel does not follow the simulation). ``floor`` is the
+    smallest size (see :func:`effect_size`) worth naming: below it a
+    simulation that leaves the effect out behaves the same for a ground
+    robot, so a significant but smaller effect is listed as minor.
+    """
 
     name: str
     params: tuple
@@ -62,45 +71,78 @@ class EffectSpec:
     plausible: tuple
     windowable: bool
     what: str
+    floor: float = 0.0
 
 
 SPECS = {s.name: s for s in (
+    # zero-rate offsets of MEMS gyros stay within a few deg/s; 0.06 deg/s drifts 3.4 deg/min
     EffectSpec('gyro_bias', ('bias',), ('rad/s',), (0.2,), True,
-               'a constant offset of the gyro'),
-    EffectSpec('gyro_scale', ('scale',), ('',), (0.2,), True,
-               'a gyro scale-factor error (the rate reads too large or too small)'),
+               'a constant offset of the gyro', 0.001),
+    # sensitivity tolerances of MEMS gyros are a few percent
+    EffectSpec('gyro_scale', ('scale',), ('',), (0.1,), True,
+               'a gyro scale-factor error (the rate reads too large or too small)', 0.01),
     EffectSpec('gyro_bias_drift', ('bias', 'drift'), ('rad/s', 'rad/s^2'), (0.2, 1e-3), True,
-               'a gyro offset that changes linearly with time (warm-up)'),
+               'a gyro offset that changes linearly with time (warm-up)', 0.001),
+    # below a millisecond a latency is timestamp jitter
     EffectSpec('time_offset', ('tau',), ('s',), (0.5,), False,
-               'a latency between the two recordings'),
+               'a latency between the two recordings', 0.001),
+    # 5 mg; MEMS accelerometer offsets reach tens of mg
     EffectSpec('accel_bias', ('bias',), ('m/s^2',), (1.5,), True,
-               'a constant offset of the accelerometer'),
+               'a constant offset of the accelerometer', 0.05),
     EffectSpec('centripetal_acceleration', ('gain',), ('',), (1.5,), False,
-               'the centripetal acceleration v*omega in turns, missing from the simulation'),
+               'the centripetal acceleration v*omega in turns, missing from the simulation',
+               0.1),
+    # half a degree: the tolerance of a screwed-on sensor board
     EffectSpec('imu_mounting_tilt', ('roll', 'pitch'), ('rad', 'rad'), (0.35, 0.35), False,
-               'the IMU is mounted tilted, so gravity leaks into a_x and a_y'),
+               'the IMU is mounted tilted, so gravity leaks into a_x and a_y', 0.0087),
+    # tyres differ by percent; 0.5 % is 5 mm per metre driven
     EffectSpec('wheel_radius_scale', ('scale',), ('',), (0.2,), True,
-               'the wheels are larger or smaller than modelled, so odometry speed is scaled'),
-    EffectSpec('track_width_scale', ('scale',), ('',), (0.5,), True,
-               'the effective track width differs, so the odometry yaw rate is scaled'),
+               'the wheels are larger or smaller than modelled, so odometry speed is scaled',
+               0.005),
+    # a skid-steer robot turns as if its track were up to twice the geometric one
+    EffectSpec('track_width_scale', ('scale',), ('',), (1.0,), True,
+               'the effective track width differs, so the odometry yaw rate is scaled', 0.01),
     EffectSpec('wheel_slip', ('coefficient',), ('s^2/m',), (2.0,), True,
-               'the wheels slip when accelerating, so odometry speed depends on acceleration'),
-    EffectSpec('gyro_cross_axis', ('coefficient',), ('',), (0.2,), False,
-               'an axis misalignment: rotation about another axis leaks into this gyro axis'),
-    EffectSpec('accel_scale', ('scale',), ('',), (0.2,), True,
-               'an accelerometer scale-factor error'),
+               'the wheels slip when accelerating, so odometry speed depends on acceleration',
+               0.02),
+    # cross-axis sensitivities of MEMS gyros are about a percent
+    EffectSpec('gyro_cross_axis', ('coefficient',), ('',), (0.1,), False,
+               'an axis misalignment: rotation about another axis leaks into this gyro axis',
+               0.01),
+    # a scale factor is a property of the sensing element: it does not switch on and off
+    EffectSpec('accel_scale', ('scale',), ('',), (0.1,), False,
+               'an accelerometer scale-factor error', 0.01),
     EffectSpec('imu_mounting_rotation', ('roll', 'pitch', 'yaw'), ('rad', 'rad', 'rad'),
                (0.35, 0.35, 0.35), False,
                'the real IMU frame is rotated from the simulated one, so rates and '
-               'accelerations leak between axes alike'),
+               'accelerations leak between axes alike', 0.0087),
+    # 2 cm at 1 rad/s adds 0.02 m/s^2, the noise of a low-cost accelerometer
     EffectSpec('lever_arm', ('x', 'y', 'z'), ('m', 'm', 'm'), (0.5, 0.5, 0.5), False,
                'the IMU is away from the point the simulation measured, so it feels '
-               'centripetal and tangential acceleration when turning'),
+               'centripetal and tangential acceleration when turning', 0.02),
     EffectSpec('drive_lag', ('tau',), ('s',), (1.0,), False,
-               'the real drive follows its command with a first-order lag'),
+               'the real drive follows its command with a first-order lag', 0.005),
     EffectSpec('steering_offset', ('offset',), ('rad',), (0.2,), True,
-               'the steering encoder reads with a zero offset'),
+               'the steering encoder reads with a zero offset', 0.002),
 )}
+
+
+def effect_size(effect: str, params: dict, duration: float) -> float:
+    """
+    Return the size of a fitted effect in the units of its floor.
+
+    The largest parameter magnitude; a lever arm's length; for a drifting
+    bias the largest offset it reaches over the recording (``duration``, s).
+    """
+    vals = {k: v for k, v in params.items() if isinstance(v, float) and np.isfinite(v)}
+    if effect == 'gyro_bias_drift':
+        b, d = vals.get('bias', 0.0), vals.get('drift', 0.0)
+        return max(abs(b), abs(b + d * duration))
+    if effect == 'lever_arm':
+        return float(np.sqrt(sum(v * v for v in vals.values())))
+    return max((abs(v) for v in vals.values()), default=0.0)
+
+
 JOINT_STATE_TYPE = 'sensor_msgs/msg/JointState'
 
 # Motion that separates two effects that one recording cannot tell apart.
@@ -347,7 +389,8 @@ def _imu_terms(pt: PairedTopic, fields: list, sigma: dict, aux: dict, terms: lis
         ch = f'{pt.name}.{f}'
         terms.append(Term('accel_bias', pt.name, {f: ones}, f'offset:{f}', ch))
         if _informative(sim[f], sigma[f]):
-            terms.append(Term('accel_scale', pt.name, {f: _col(sim[f])}, f'scale:{f}', ch))
+            terms.append(Term('accel_scale', pt.name, {f: _col(sim[f])}, f'scale:{f}', ch,
+                              windowable=False))
     fy = 'linear_acceleration.y'
     if fy in acc:
         v, om = aux.get('v'), aux.get('omega')

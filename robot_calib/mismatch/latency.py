@@ -30,9 +30,19 @@ from typing import Optional
 import numpy as np
 
 
+MIN_BLOCKS = 3
+"""Fewest informative blocks behind a delay estimate (a delay seen in one manoeuvre is not)."""
+
+
 @dataclass
 class Delay:
-    """A delay estimate (s, positive: real lags sim), its jackknife error and the evidence."""
+    """
+    A delay estimate (s, positive: real lags sim), its jackknife error and the evidence.
+
+    ``blocks`` is the effective number of blocks that carry the estimate
+    (``(sum w)^2 / sum w^2`` of their coherent information): the degrees of
+    freedom of its error.
+    """
 
     tau: float
     std: float
@@ -131,10 +141,51 @@ def _phase_slope(c: np.ndarray, ps: np.ndarray, pr: np.ndarray, freq: np.ndarray
     return tau, float(np.mean(coh[use])), (float(f_used.min()), float(f_used.max()))
 
 
+def shift_frac(x: np.ndarray, k: float) -> np.ndarray:
+    """Return ``x`` delayed by ``k`` samples (fractional: an exact FFT phase ramp, zero-padded)."""
+    n = x.size
+    nfft = 1 << int(math.ceil(math.log2(n + 2 * abs(k) + 16)))
+    f = np.fft.rfftfreq(nfft)
+    return np.fft.irfft(np.fft.rfft(x, nfft) * np.exp(-2j * math.pi * f * k), nfft)[:n]
+
+
+def _spectra(sims: list, reals: list, oks: list, k: float, edges: np.ndarray,
+             nseg: int) -> tuple:
+    """
+    Return per-block cross- and auto-spectra of the channels, the real advanced by ``k`` samples.
+
+    Each channel's spectra are divided by its total power so that channels in
+    other units (a speed beside a yaw rate) count alike.
+    """
+    nblk, nf = edges.size - 1, nseg // 2 + 1
+    C = np.zeros((nblk, nf), complex)
+    PS, PR = np.zeros((nblk, nf)), np.zeros((nblk, nf))
+    ki = int(round(k))
+    for s, r, ok in zip(sims, reals, oks):
+        # first differences whiten the red spectrum of driving signals (steps, ramps), whose
+        # leakage through the segment window would otherwise bend the low-frequency phase;
+        # a delay survives any linear filter applied to both sides
+        sa = np.diff(_prep(s, ok), prepend=0.0)
+        ra = np.diff(shift_frac(_prep(r, ok), -k), prepend=0.0)
+        both = ok & _shift_int(ok, -ki) & _shift_int(ok, -ki - int(np.sign(k - ki)))
+        both &= np.concatenate(([False], both[:-1]))
+        c, ps, pr = _block_spectra(sa, ra, both, edges, nseg)
+        norm = math.sqrt(max(float(ps.sum()) * float(pr.sum()), 1e-300))
+        C += c / norm
+        PS += ps / norm
+        PR += pr / norm
+    return C, PS, PR
+
+
 def estimate_delay(sims: list, reals: list, oks: list, dt: float, edges: np.ndarray,
                    max_lag_s: float = 0.5, min_coh: float = 0.5) -> Optional[Delay]:
     """
     Return the delay of ``reals`` against ``sims`` shared by all channels, or None.
+
+    The real channels are first advanced by the whole-sample lag, the phase
+    slope gives the remainder; a second pass advances them by that estimate
+    (an exact fractional shift) and measures what is left, so the windowing
+    of the spectral segments cannot shrink the estimate.
 
     :param sims: simulated channels on a common grid (NaN-free where ``oks``)
     :param reals: real channels on the same grid
@@ -146,35 +197,31 @@ def estimate_delay(sims: list, reals: list, oks: list, dt: float, edges: np.ndar
     """
     if not sims:
         return None
-    k0 = whole_sample_lag(sims, reals, oks, int(max_lag_s / dt))
     nblk = edges.size - 1
     shortest = int(np.min(np.diff(edges)))
     nseg = 1 << int(math.floor(math.log2(max(8, min(shortest, int(4.0 / dt))))))
     if shortest < nseg or nblk < 3:
         return None
     freq = np.fft.rfftfreq(nseg, dt)
-    C = np.zeros((nblk, freq.size), complex)
-    PS = np.zeros((nblk, freq.size))
-    PR = np.zeros((nblk, freq.size))
-    for s, r, ok in zip(sims, reals, oks):
-        sa = _prep(s, ok)
-        ra = _shift_int(_prep(r, ok), -k0)  # take out the whole-sample lag first
-        both = ok & _shift_int(ok, -k0)
-        c, ps, pr = _block_spectra(sa, ra, both, edges, nseg)
-        C += c
-        PS += ps
-        PR += pr
-    tot = (C.sum(0), PS.sum(0), PR.sum(0))
-    frac, coh, band = _phase_slope(*tot, freq, min_coh)
-    if not math.isfinite(frac):
-        return None
+    k = float(whole_sample_lag(sims, reals, oks, int(max_lag_s / dt)))
+    for _ in range(2):
+        C, PS, PR = _spectra(sims, reals, oks, k, edges, nseg)
+        tot = (C.sum(0), PS.sum(0), PR.sum(0))
+        frac, coh, band = _phase_slope(*tot, freq, min_coh)
+        if not math.isfinite(frac):
+            return None
+        k += frac / dt
     loo = []
     for b in range(nblk):
         t_b, _, _ = _phase_slope(tot[0] - C[b], tot[1] - PS[b], tot[2] - PR[b], freq, min_coh)
         loo.append(t_b if math.isfinite(t_b) else frac)
     loo = np.asarray(loo)
     std = float(np.sqrt((nblk - 1) / nblk * np.sum((loo - loo.mean()) ** 2)))
-    return Delay(k0 * dt + frac, std, nblk, band, loo + k0 * dt, coh)
+    # how many blocks carry the evidence: a delay seen in one manoeuvre is one observation
+    inband = (freq >= band[0]) & (freq <= band[1])
+    info = np.sum(np.abs(C[:, inband]) * freq[inband] ** 2, axis=1)
+    k_eff = float(info.sum() ** 2 / max(float(np.sum(info ** 2)), 1e-300))
+    return Delay(k * dt, std, int(max(1, math.floor(k_eff))), band, loo + (k * dt - frac), coh)
 
 
 def lag_response(x: np.ndarray, dt: float, tau: float) -> np.ndarray:
@@ -238,7 +285,7 @@ def pool(delays: list) -> Delay:
     tau = float(np.sum(w * [d.tau for d in delays]) / np.sum(w))
     std = float(1.0 / np.sqrt(np.sum(w)))
     band = (min(d.band_hz[0] for d in delays), max(d.band_hz[1] for d in delays))
-    return Delay(tau, std, min(d.blocks for d in delays), band,
+    return Delay(tau, std, sum(d.blocks for d in delays), band,
                  coherence=float(np.mean([d.coherence for d in delays])))
 
 
@@ -262,7 +309,8 @@ def delays_of(group_data: dict, dt: float, edges: np.ndarray, alpha: float,
     groups = {}
     for fields, sims, reals, oks in group_data.values():
         d = estimate_delay(sims, reals, oks, dt, edges, max_lag_s)
-        if d is not None and d.std > 0 and math.isfinite(d.std):
+        # a jackknife over fewer than MIN_BLOCKS informative blocks says nothing of the error
+        if d is not None and d.std > 0 and math.isfinite(d.std) and d.blocks >= MIN_BLOCKS:
             groups[tuple(fields)] = d
     if not groups:
         return []

@@ -276,11 +276,34 @@ def _screen(prob: Problem, cand: E.Term, res: dict, min_len: int,
         sw = scan_window(xs, es, ws, min_len)
         if sw is not None:
             i0, i1, d = sw
-            if (i1 - i0) < 0.9 * prob.n:
+            if (i1 - i0) < 0.9 * prob.n and excited(cand, (i0, i1)):
                 g = d - (p + 2) * logn
                 if g > best[0]:
                     best = (g, (i0, i1))
     return best
+
+
+def excited(term: E.Term, window: tuple, rel: float = 0.1) -> bool:
+    """
+    Return True when the term's regressors vary inside ``window`` (sample indices).
+
+    A scale acting in a stretch where its regressor stays nearly constant (a
+    gravity component at rest) cannot be told from an offset there, so it is
+    not offered in that window: the regressor's spread, less what its own
+    sample-to-sample noise explains (``var(diff x) / 2``), must reach ``rel``
+    of its RMS. Constant regressors (offsets) always pass.
+    """
+    i0, i1 = window
+    for X in term.cols.values():
+        seg = np.nan_to_num(X[i0:i1])
+        for j in range(seg.shape[1]):
+            x = seg[:, j]
+            if np.ptp(x) == 0 or x.size < 3:
+                continue
+            spread = float(np.var(x)) - 0.5 * float(np.var(np.diff(x)))
+            if spread < (rel ** 2) * float(np.mean(x * x)):
+                return False
+    return True
 
 
 def _model_with(sel: list, cand: E.Term) -> list:
@@ -370,7 +393,7 @@ def refine_windows(prob: Problem, sel: list, min_len: int) -> list:
         glob = t.with_window(None)
         sw = scan_window([term_cols(glob, f, prob) for f in fs],
                          [res[f] * prob.sw[f] for f in fs], [prob.w[f] for f in fs], min_len)
-        if sw is not None and sw[1] - sw[0] < 0.9 * prob.n:
+        if sw is not None and sw[1] - sw[0] < 0.9 * prob.n and excited(t, sw[:2]):
             cand = out[:i] + [t.with_window((sw[0], sw[1]))] + out[i + 1:]
             if score(prob, fit(prob, cand)) <= score(prob, fit(prob, out)):
                 out = cand
