@@ -86,6 +86,28 @@ class MismatchParams:
                                minimum=0.0)
 
 
+@dataclass
+class TopicDetail:
+    """
+    What the report needs of one analysed topic.
+
+    ``pt`` is the paired topic as recorded, ``prob0`` its residual before any
+    effect, ``prob`` the residual after the time stage (the simulation
+    delayed), ``sel`` and ``final`` the amplitude effects and their fit,
+    ``held`` the held-out samples.
+    """
+
+    pt: PairedTopic
+    prob0: S.Problem
+    prob: S.Problem
+    sel: list
+    final: S.Fit
+    term_findings: list
+    time_findings: list
+    unexplained: Optional[dict]
+    held: np.ndarray
+
+
 def _t_abs_interp(t_src: np.ndarray, x: np.ndarray, t_dst: np.ndarray) -> np.ndarray:
     ok = np.isfinite(x)
     if ok.sum() < 2:
@@ -621,6 +643,7 @@ def _analyse_topic(pt: PairedTopic, sim: Recording, real: Recording, t0: float,
         if sel and prm.mode != 'seed' else {}
     term_findings = [_term_finding(prob, final, sel, i, held.get(i, {}), tests[i],
                                    alts.get(i, [])) for i in range(len(sel))]
+    time_findings = list(findings)
     findings.extend(term_findings)
     for f in prob.fields:
         r, m = prob0.r[f], prob0.mask[f]
@@ -632,7 +655,9 @@ def _analyse_topic(pt: PairedTopic, sim: Recording, real: Recording, t0: float,
     extra = U.unexplained(prob, final, aux, edges, implausible)
     if extra is not None:
         findings.append(extra)
-    return findings, prob, sel, {'delays': timing, 'term_findings': term_findings}
+    detail = TopicDetail(pt, prob0, prob, sel, final, term_findings, time_findings, extra,
+                         _held_mask(prob.n, prm.heldout_chunks))
+    return findings, prob, sel, {'delays': timing, 'detail': detail}
 
 
 def _lagged(pt: PairedTopic, f: str, tau: float) -> np.ndarray:
@@ -643,7 +668,7 @@ def _lagged(pt: PairedTopic, f: str, tau: float) -> np.ndarray:
 def analyse_recordings(sim: Recording, real: Recording,
                        params: Optional[MismatchParams] = None) -> tuple[dict, list]:
     """
-    Compare two recordings; return (findings dict, per-topic details for the report).
+    Compare two recordings; return (findings dict, per-topic :class:`TopicDetail` list).
 
     :raises ChannelError: when nothing can be compared
     """
@@ -666,8 +691,8 @@ def analyse_recordings(sim: Recording, real: Recording,
                                        'tau': te.delay.tau, 'std': te.delay.std}
                                       for kind, te, _ in info.get('delays', [])]}
         findings.extend(fs)
-        if prob is not None:
-            details.append((pt, prob, sel, info['term_findings']))
+        if 'detail' in info:
+            details.append(info['detail'])
     if not channel_info:
         raise ChannelError('no channel can be compared (' + '; '.join(
             f'{d["channel"]}: {d["reason"]}' for d in not_judged) + ')')

@@ -4,20 +4,18 @@
 The time relation of one sensor pair: a pure delay or a first-order lag, with a robust error.
 
 Every channel of a sensor shares one clock, so the delay is estimated once
-per sensor from all its moving channels. A regression on the derivative of a
-noisy simulation (a ground truth differentiated) is biased by that noise
-(errors in variables); the phase of the cross-spectrum is not: for
-``real(t) = sim(t - tau)`` the cross-spectrum ``C(f) = R(f) S*(f)`` has the
-phase ``-2 pi f tau`` whatever the (independent) noise of either side
-(Carter 1987, "Coherence and time delay estimation"). The whole-sample part
-of the delay comes from the cross-correlation peak; the fraction from a
-weighted straight-line fit of the phase through the origin over the band
-where the two sides are coherent. Its standard error is a block jackknife
-(every block left out in turn), so coloured noise and unmodelled structure
-widen it honestly.
+per clock group (an IMU's gyro and accelerometer may sit behind different
+filters) from all its moving channels, by least squares in time: the
+simulated channels are delayed exactly (an FFT phase ramp) by trial delays,
+so neither side's noise pulls the estimate, as a regression on the
+derivative of a noisy simulation would (errors in variables). Its standard
+error is a block jackknife (every block left out in turn), so coloured noise
+and unmodelled structure widen it honestly, and the number of blocks that
+carry the estimate sets its degrees of freedom: a delay seen in a single
+manoeuvre is one observation, not forty.
 
 A first-order lag ``real = sim filtered by 1 / (1 + s tau)`` has the same
-low-frequency phase slope as a delay but also damps fast motion;
+low-frequency phase as a delay but also damps fast motion;
 :func:`lag_response` gives its exact output so the two can be compared.
 """
 
@@ -64,6 +62,13 @@ def _prep(x: np.ndarray, ok: np.ndarray) -> np.ndarray:
     return np.where(ok, x - float(np.mean(x[ok])), 0.0)
 
 
+def _gap_filled(x: np.ndarray, ok: np.ndarray) -> np.ndarray:
+    """Return ``x`` with the samples outside ``ok`` interpolated linearly (held at the ends)."""
+    if ok.all() or ok.sum() < 2:
+        return x
+    return np.interp(np.arange(x.size), np.flatnonzero(ok), x[ok])
+
+
 def whole_sample_lag(sims: list, reals: list, oks: list, max_lag: int) -> int:
     """Return the lag (samples, positive: real lags) of the summed normalised cross-correlation."""
     n = sims[0].size
@@ -93,54 +98,6 @@ def _shift_int(x: np.ndarray, k: int) -> np.ndarray:
     return y
 
 
-def _block_spectra(s: np.ndarray, r: np.ndarray, ok: np.ndarray, edges: np.ndarray,
-                   nseg: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """
-    Return per-block cross-spectrum and the two auto-spectra on a common frequency grid.
-
-    Welch segments (half overlap, Hann window) that hold an invalid sample are
-    skipped: a gap filled alike on both sides would look like shared motion.
-    """
-    win = np.hanning(nseg)
-    bad = np.concatenate(([0], np.cumsum(~ok)))
-    out_c, out_s, out_r = [], [], []
-    for a, b in zip(edges[:-1], edges[1:]):
-        cs = np.zeros(nseg // 2 + 1, complex)
-        ps = np.zeros(nseg // 2 + 1)
-        pr = np.zeros(nseg // 2 + 1)
-        for i0 in range(a, max(a + 1, b - nseg + 1), max(1, nseg // 2)):
-            i1 = i0 + nseg
-            if i1 > b:
-                break
-            if bad[i1] - bad[i0]:
-                continue
-            xs = s[i0:i1] - s[i0:i1].mean()
-            xr = r[i0:i1] - r[i0:i1].mean()
-            fs, fr = np.fft.rfft(xs * win), np.fft.rfft(xr * win)
-            cs += fr * np.conj(fs)
-            ps += (fs * np.conj(fs)).real
-            pr += (fr * np.conj(fr)).real
-        out_c.append(cs)
-        out_s.append(ps)
-        out_r.append(pr)
-    return np.array(out_c), np.array(out_s), np.array(out_r)
-
-
-def _phase_slope(c: np.ndarray, ps: np.ndarray, pr: np.ndarray, freq: np.ndarray,
-                 min_coh: float) -> tuple[float, float, tuple]:
-    """Return (tau s, mean coherence, band) of a weighted phase fit through the origin."""
-    coh = np.abs(c) ** 2 / np.maximum(ps * pr, 1e-300)
-    use = (coh >= min_coh) & (freq > 0)
-    if use.sum() < 3:
-        return math.nan, float(np.mean(coh[1:])) if coh.size > 1 else 0.0, (0.0, 0.0)
-    # weight: inverse phase variance of a coherent cross-spectrum, ~ coh / (1 - coh)
-    w = np.where(use, coh / np.maximum(1.0 - coh, 1e-6), 0.0)
-    phi = np.angle(c)
-    tau = -float(np.sum(w * freq * phi) / (2.0 * math.pi * np.sum(w * freq ** 2)))
-    f_used = freq[use]
-    return tau, float(np.mean(coh[use])), (float(f_used.min()), float(f_used.max()))
-
-
 def shift_frac(x: np.ndarray, k: float) -> np.ndarray:
     """Return ``x`` delayed by ``k`` samples (fractional: an exact FFT phase ramp, zero-padded)."""
     n = x.size
@@ -149,43 +106,65 @@ def shift_frac(x: np.ndarray, k: float) -> np.ndarray:
     return np.fft.irfft(np.fft.rfft(x, nfft) * np.exp(-2j * math.pi * f * k), nfft)[:n]
 
 
-def _spectra(sims: list, reals: list, oks: list, k: float, edges: np.ndarray,
-             nseg: int) -> tuple:
+class _Shifter:
     """
-    Return per-block cross- and auto-spectra of the channels, the real advanced by ``k`` samples.
+    Exact fractional delays of one channel (its FFT computed once).
 
-    Each channel's spectra are divided by its total power so that channels in
-    other units (a speed beside a yaw rate) count alike.
+    The channel is extended by its mirror image, so its periodic extension
+    has no jump at the ends that would ring into the samples near them.
     """
-    nblk, nf = edges.size - 1, nseg // 2 + 1
-    C = np.zeros((nblk, nf), complex)
-    PS, PR = np.zeros((nblk, nf)), np.zeros((nblk, nf))
-    ki = int(round(k))
-    for s, r, ok in zip(sims, reals, oks):
-        # first differences whiten the red spectrum of driving signals (steps, ramps), whose
-        # leakage through the segment window would otherwise bend the low-frequency phase;
-        # a delay survives any linear filter applied to both sides
-        sa = np.diff(_prep(s, ok), prepend=0.0)
-        ra = np.diff(shift_frac(_prep(r, ok), -k), prepend=0.0)
-        both = ok & _shift_int(ok, -ki) & _shift_int(ok, -ki - int(np.sign(k - ki)))
-        both &= np.concatenate(([False], both[:-1]))
-        c, ps, pr = _block_spectra(sa, ra, both, edges, nseg)
-        norm = math.sqrt(max(float(ps.sum()) * float(pr.sum()), 1e-300))
-        C += c / norm
-        PS += ps / norm
-        PR += pr / norm
-    return C, PS, PR
+
+    def __init__(self, x: np.ndarray):
+        """Take the FFT of ``x`` and its mirror image once."""
+        self.n = x.size
+        ext = np.concatenate((x, x[::-1]))
+        self.nfft = ext.size
+        self.spec = np.fft.rfft(ext)
+        self.f = np.fft.rfftfreq(self.nfft)
+
+    def delayed(self, k: float) -> np.ndarray:
+        """Return the channel delayed by ``k`` samples."""
+        return np.fft.irfft(self.spec * np.exp(-2j * math.pi * self.f * k), self.nfft)[:self.n]
+
+
+def _block_chi2(shifters: list, reals: list, oks: list, ks: np.ndarray,
+                edges: np.ndarray) -> np.ndarray:
+    """Return the (len(ks), blocks) weighted squared residual of ``real - sim delayed by k``."""
+    out = np.zeros((ks.size, edges.size - 1))
+    margin = int(math.ceil(float(np.max(np.abs(ks))))) + 4
+    for sh, r, ok in zip(shifters, reals, oks):
+        valid = ok.copy()
+        valid[:margin] = False  # no sample the padding of the shift reaches
+        valid[sh.n - margin:] = False
+        base = np.where(valid, r - sh.delayed(float(np.round(np.median(ks)))), 0.0)
+        w = 1.0 / max(float(np.mean(base[valid] ** 2)) if valid.any() else 0.0, 1e-300)
+        for i, k in enumerate(ks):
+            e = np.where(valid, r - sh.delayed(float(k)), 0.0)
+            out[i] += w * np.add.reduceat(e[:edges[-1]] ** 2, edges[:-1])
+    return out
+
+
+def _parabola_min(ks: np.ndarray, chi: np.ndarray) -> float:
+    """Return the minimiser of a parabola through the lowest point of ``chi`` and its neighbours."""
+    i = int(np.clip(np.argmin(chi), 1, ks.size - 2))
+    y0, y1, y2 = chi[i - 1], chi[i], chi[i + 1]
+    den = y0 - 2.0 * y1 + y2
+    h = ks[i + 1] - ks[i]
+    frac = 0.5 * (y0 - y2) / den if den > 0 else 0.0
+    return float(ks[i] + np.clip(frac, -1.0, 1.0) * h)
 
 
 def estimate_delay(sims: list, reals: list, oks: list, dt: float, edges: np.ndarray,
-                   max_lag_s: float = 0.5, min_coh: float = 0.5) -> Optional[Delay]:
+                   max_lag_s: float = 0.5) -> Optional[Delay]:
     """
     Return the delay of ``reals`` against ``sims`` shared by all channels, or None.
 
-    The real channels are first advanced by the whole-sample lag, the phase
-    slope gives the remainder; a second pass advances them by that estimate
-    (an exact fractional shift) and measures what is left, so the windowing
-    of the spectral segments cannot shrink the estimate.
+    Least squares in time: the simulated channels are delayed exactly (an
+    FFT phase ramp, which keeps their noise as it is, so the noise of neither
+    side can pull the estimate) by trial delays around the cross-correlation
+    peak, and the sum of squared differences (each channel weighted by its
+    residual level) is minimised, coarse then fine, with a parabola through
+    the best three. Every block is left out in turn for the jackknife error.
 
     :param sims: simulated channels on a common grid (NaN-free where ``oks``)
     :param reals: real channels on the same grid
@@ -193,35 +172,31 @@ def estimate_delay(sims: list, reals: list, oks: list, dt: float, edges: np.ndar
     :param dt: grid period (s)
     :param edges: block boundaries (sample indices) for the jackknife
     :param max_lag_s: largest delay searched (s)
-    :param min_coh: least magnitude-squared coherence of a frequency used in the fit
     """
-    if not sims:
+    if not sims or edges.size < 4:
         return None
+    k0 = whole_sample_lag(sims, reals, oks, int(max_lag_s / dt))
+    # first differences of both sides (a delay survives any filter applied to both): the
+    # timing lives in the changes, while slow errors of a reference would only blur it
+    # the simulated channels are filled across their gaps before they are shifted: an edge
+    # made by filling with zeros would ring into the valid samples around it
+    shifters = [_Shifter(_gap_filled(_prep(x, ok), ok)) for x, ok in zip(sims, oks)]
+    rs = [_prep(r, ok) for r, ok in zip(reals, oks)]
+    coarse = k0 + np.linspace(-2.0, 2.0, 17)
+    k1 = _parabola_min(coarse, _block_chi2(shifters, rs, oks, coarse, edges).sum(axis=1))
+    fine = k1 + np.linspace(-0.5, 0.5, 11)
+    chi = _block_chi2(shifters, rs, oks, fine, edges)
+    tot = chi.sum(axis=1)
+    k = _parabola_min(fine, tot)
     nblk = edges.size - 1
-    shortest = int(np.min(np.diff(edges)))
-    nseg = 1 << int(math.floor(math.log2(max(8, min(shortest, int(4.0 / dt))))))
-    if shortest < nseg or nblk < 3:
-        return None
-    freq = np.fft.rfftfreq(nseg, dt)
-    k = float(whole_sample_lag(sims, reals, oks, int(max_lag_s / dt)))
-    for _ in range(2):
-        C, PS, PR = _spectra(sims, reals, oks, k, edges, nseg)
-        tot = (C.sum(0), PS.sum(0), PR.sum(0))
-        frac, coh, band = _phase_slope(*tot, freq, min_coh)
-        if not math.isfinite(frac):
-            return None
-        k += frac / dt
-    loo = []
-    for b in range(nblk):
-        t_b, _, _ = _phase_slope(tot[0] - C[b], tot[1] - PS[b], tot[2] - PR[b], freq, min_coh)
-        loo.append(t_b if math.isfinite(t_b) else frac)
-    loo = np.asarray(loo)
-    std = float(np.sqrt((nblk - 1) / nblk * np.sum((loo - loo.mean()) ** 2)))
-    # how many blocks carry the evidence: a delay seen in one manoeuvre is one observation
-    inband = (freq >= band[0]) & (freq <= band[1])
-    info = np.sum(np.abs(C[:, inband]) * freq[inband] ** 2, axis=1)
-    k_eff = float(info.sum() ** 2 / max(float(np.sum(info ** 2)), 1e-300))
-    return Delay(k * dt, std, int(max(1, math.floor(k_eff))), band, loo + (k * dt - frac), coh)
+    loo = np.array([_parabola_min(fine, tot - chi[:, b]) for b in range(nblk)])
+    std = float(np.sqrt((nblk - 1) / nblk * np.sum((loo - loo.mean()) ** 2))) * dt
+    # how many blocks carry the evidence: the curvature each block adds at the minimum
+    i = int(np.clip(np.argmin(tot), 1, fine.size - 2))
+    curv = np.maximum(chi[i - 1] - 2.0 * chi[i] + chi[i + 1], 0.0)
+    k_eff = float(curv.sum() ** 2 / max(float(np.sum(curv ** 2)), 1e-300))
+    return Delay(k * dt, std, int(max(1, math.floor(k_eff))), (0.0, 0.5 / dt),
+                 loo * dt)
 
 
 def lag_response(x: np.ndarray, dt: float, tau: float) -> np.ndarray:

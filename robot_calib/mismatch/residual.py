@@ -34,6 +34,8 @@ from robot_calib.mismatch.locate import active_windows, moving_average
 
 RATIO_BAR = 2.0
 """Two-scale variance ratio above which a residual holds structure (1 for noise, up to 4)."""
+MIN_EXCESS = 0.5
+"""Least size of an unexplained structure, in units of the channel's noise level."""
 MIN_CORR = 0.3
 """Least correlation for naming the signal an unexplained residual follows."""
 
@@ -112,7 +114,9 @@ def unexplained(prob: S.Problem, final: S.Fit, aux: dict, edges: np.ndarray,
     for f in prob.fields:
         e = prob.r[f] - final.contrib.get(f, 0.0)
         ratio, excess = structure(e, prob.mask[f], edges)
-        if ratio >= RATIO_BAR and excess > 0:
+        scale = float(np.sqrt(np.mean(np.nan_to_num(pt.sim[f][prob.mask[f]]) ** 2)))
+        if ratio >= RATIO_BAR and excess >= MIN_EXCESS * prob.sigma[f] and \
+                excess > 1e-6 * scale:
             per[f] = (excess, ratio, e)
     bad = {t.channel[len(pt.name) + 1:]: (t, p) for t, p in implausible}
     if not per and not bad:

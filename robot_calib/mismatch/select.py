@@ -474,7 +474,8 @@ def alternatives(prob: Problem, sel: list, cands: list, min_len: int,
         res = _residuals(prob, fit(prob, others))
         chans = set(t.cols)
         for c in cands:
-            if c.effect == t.effect or not set(c.cols) <= chans:
+            # a refinement of the same quantity (an offset that drifts) is not another physics
+            if c.effect == t.effect or c.group == t.group or not set(c.cols) <= chans:
                 continue
             if any(c.group == o.group for o in others):
                 continue
