@@ -407,7 +407,8 @@ def _select(prob: S.Problem, cands: list, prm: MismatchParams, edges: np.ndarray
     sel = S.refine_nonlinear(prob, sel)
     sel = S.backward_eliminate(prob, sel, prm.margin)
     sel, dropped = R.robust_prune(prob, sel, edges, prm.alpha,
-                                  refine=lambda ts: S.refine_nonlinear(prob, ts))
+                                  refine=lambda ts: S.refine_nonlinear(prob, ts),
+                                  min_block_s=prm.min_block_s)
     for t, (w, thr, kb) in dropped:
         notes.append(f'{t.channel}: a candidate {t.effect} fits, but not consistently across '
                      f'the recording (robust test {w:.3g} < {thr:.3g} over {kb} blocks); '
@@ -638,7 +639,7 @@ def _analyse_topic(pt: PairedTopic, sim: Recording, real: Recording, t0: float,
     sel, prob, implausible = _select(prob, cands, prm, edges, notes, not_judged)
     held = _heldout(prob, sel, prm.heldout_chunks) if sel else {}
     final = S.fit(prob, sel, contributions=True)
-    tests = R.wald(prob, sel, final, edges, prm.alpha) if sel else []
+    tests = R.wald(prob, sel, final, edges, prm.alpha, prm.min_block_s) if sel else []
     alts = S.alternatives(prob, sel, cands, _min_len(prob, prm), prm.alt_margin) \
         if sel and prm.mode != 'seed' else {}
     term_findings = [_term_finding(prob, final, sel, i, held.get(i, {}), tests[i],

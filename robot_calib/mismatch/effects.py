@@ -356,6 +356,28 @@ def _imu_gyro_terms(pt: PairedTopic, gyro: list, sigma: dict, terms: list, canno
     return moving
 
 
+def matched(pt: PairedTopic, f: str, x: np.ndarray) -> np.ndarray:
+    """
+    Return a regressor for field ``f`` passed through that field's smoothing kernel, if any.
+
+    A simulated channel derived from ground truth is the truth seen through a
+    known kernel, and the real channel is compared through the same one
+    (``pt.kernels[f]``: FIR weights on the topic's grid). A regressor built from
+    other signals (the lever arm from the gyro, v*omega from odometry) must be
+    seen through it too, or its fitted coefficient shrinks with the bandwidth
+    it loses.
+    """
+    k = (getattr(pt, 'kernels', None) or {}).get(f)
+    if k is None or np.size(k) < 2:
+        return x
+    k = np.asarray(k, float)
+    x2 = np.atleast_2d(x.T).T
+    out = np.empty_like(x2, dtype=float)
+    for j in range(x2.shape[1]):
+        out[:, j] = np.convolve(np.nan_to_num(x2[:, j]), k[::-1], mode='same')
+    return out.reshape(x.shape)
+
+
 def _lever_arm_term(pt: PairedTopic, acc: tuple, gyro: tuple, sigma: dict) -> Optional[Term]:
     """Return the lever-arm term: a = a_sim + w' x r + w x (w x r), columns per observable axis."""
     from robot_calib.mismatch.channels import loo_derivative
@@ -373,7 +395,8 @@ def _lever_arm_term(pt: PairedTopic, acc: tuple, gyro: tuple, sigma: dict) -> Op
             keep.append(j)
     if not keep:
         return None
-    colmap = {acc[i]: np.column_stack([cols[j][:, i] for j in keep]) for i in range(3)}
+    colmap = {acc[i]: matched(pt, acc[i], np.column_stack([cols[j][:, i] for j in keep]))
+              for i in range(3)}
     return Term('lever_arm', pt.name, colmap, 'lever', f'{pt.name}.{acc[0]}',
                 windowable=False, meta={'axes': tuple(keep)})
 
@@ -395,7 +418,8 @@ def _imu_terms(pt: PairedTopic, fields: list, sigma: dict, aux: dict, terms: lis
     if fy in acc:
         v, om = aux.get('v'), aux.get('omega')
         if v is not None and om is not None and _informative(v * om, sigma[fy]):
-            terms.append(Term('centripetal_acceleration', pt.name, {fy: _col(v * om)},
+            terms.append(Term('centripetal_acceleration', pt.name,
+                              {fy: matched(pt, fy, _col(v * om))},
                               'centripetal', f'{pt.name}.{fy}', windowable=False))
         elif v is not None and om is not None:
             cannot.append(f'{pt.name}: the run has no turns while moving, so a missing '

@@ -69,6 +69,43 @@ def _gap_filled(x: np.ndarray, ok: np.ndarray) -> np.ndarray:
     return np.interp(np.arange(x.size), np.flatnonzero(ok), x[ok])
 
 
+def _box(x: np.ndarray, width: int) -> np.ndarray:
+    """Return the centred moving average of ``x`` over ``width`` samples (odd; 1: unchanged)."""
+    if width <= 1:
+        return x
+    c = np.concatenate(([0.0], np.cumsum(x)))
+    h = width // 2
+    i = np.arange(x.size)
+    lo, hi = np.clip(i - h, 0, x.size), np.clip(i + h + 1, 0, x.size)
+    return (c[hi] - c[lo]) / (hi - lo)
+
+
+def _signal_width(x: np.ndarray, ok: np.ndarray, most: int = 64) -> int:
+    """
+    Return the width (samples, odd) of a moving average that keeps a channel's motion but not its noise.
+
+    The white-noise level comes from the second differences (their MAD,
+    ``sigma^2 = var(d2) / 6``); the signal's own second differences over a span
+    of ``m`` samples grow as ``m^2`` while the noise in them stays, so the
+    width is the smallest ``m`` at which the motion's second differences stand
+    ten times above the noise's.
+    """
+    xs = x[ok]
+    if xs.size < 32:
+        return 1
+    d2 = np.diff(xs, 2)
+    noise = 1.4826 * float(np.median(np.abs(d2 - np.median(d2)))) / np.sqrt(6.0)
+    if noise <= 0:
+        return 1
+    m = 1
+    while m < most:
+        span = np.abs(xs[2 * m:] - 2.0 * xs[m:-m] + xs[:-2 * m])
+        if float(np.sqrt(np.mean(span ** 2))) > 10.0 * noise * np.sqrt(6.0 / max(m, 1)):
+            break
+        m *= 2
+    return 2 * (m // 2) + 1
+
+
 def whole_sample_lag(sims: list, reals: list, oks: list, max_lag: int) -> int:
     """Return the lag (samples, positive: real lags) of the summed normalised cross-correlation."""
     n = sims[0].size
@@ -99,59 +136,74 @@ def _shift_int(x: np.ndarray, k: int) -> np.ndarray:
 
 
 def shift_frac(x: np.ndarray, k: float) -> np.ndarray:
-    """Return ``x`` delayed by ``k`` samples (fractional: an exact FFT phase ramp, zero-padded)."""
-    n = x.size
-    nfft = 1 << int(math.ceil(math.log2(n + 2 * abs(k) + 16)))
-    f = np.fft.rfftfreq(nfft)
-    return np.fft.irfft(np.fft.rfft(x, nfft) * np.exp(-2j * math.pi * f * k), nfft)[:n]
+    """Return ``x`` delayed by ``k`` samples (an exact FFT phase ramp on a mirrored extension)."""
+    return Shifter(x).delayed(k)
 
 
-class _Shifter:
+def fast_len(n: int) -> int:
+    """Return the smallest 2^a 3^b 5^c >= ``n`` (a length the FFT handles fast)."""
+    best = 1 << int(math.ceil(math.log2(max(n, 1))))
+    p5 = 1
+    while p5 < best:
+        p35 = p5
+        while p35 < best:
+            m = p35
+            while m < n:
+                m *= 2
+            best = min(best, m)
+            p35 *= 3
+        p5 *= 5
+    return best
+
+
+class Shifter:
     """
     Exact fractional delays of one channel (its FFT computed once).
 
-    The channel is extended by its mirror image, so its periodic extension
-    has no jump at the ends that would ring into the samples near them.
+    The channel is extended by its mirror image and held at its first value
+    up to a fast FFT length, so its periodic extension has no jump that would
+    ring into the samples near the ends.
     """
 
     def __init__(self, x: np.ndarray):
-        """Take the FFT of ``x`` and its mirror image once."""
+        """Take the FFT of ``x`` extended by its mirror image once."""
         self.n = x.size
-        ext = np.concatenate((x, x[::-1]))
-        self.nfft = ext.size
+        self.nfft = fast_len(2 * self.n)
+        ext = np.full(self.nfft, x[0] if x.size else 0.0)
+        ext[:self.n] = x
+        ext[self.n:2 * self.n] = x[::-1]
         self.spec = np.fft.rfft(ext)
         self.f = np.fft.rfftfreq(self.nfft)
 
-    def delayed(self, k: float) -> np.ndarray:
-        """Return the channel delayed by ``k`` samples."""
-        return np.fft.irfft(self.spec * np.exp(-2j * math.pi * self.f * k), self.nfft)[:self.n]
+    def delayed(self, k: float, derivative: bool = False) -> np.ndarray:
+        """Return the channel delayed by ``k`` samples (or the derivative of that in k)."""
+        ramp = np.exp(-2j * math.pi * self.f * k)
+        if derivative:
+            ramp = ramp * (-2j * math.pi * self.f)
+        return np.fft.irfft(self.spec * ramp, self.nfft)[:self.n]
 
 
-def _block_chi2(shifters: list, reals: list, oks: list, ks: np.ndarray,
-                edges: np.ndarray) -> np.ndarray:
-    """Return the (len(ks), blocks) weighted squared residual of ``real - sim delayed by k``."""
-    out = np.zeros((ks.size, edges.size - 1))
-    margin = int(math.ceil(float(np.max(np.abs(ks))))) + 4
-    for sh, r, ok in zip(shifters, reals, oks):
-        valid = ok.copy()
-        valid[:margin] = False  # no sample the padding of the shift reaches
-        valid[sh.n - margin:] = False
-        base = np.where(valid, r - sh.delayed(float(np.round(np.median(ks)))), 0.0)
-        w = 1.0 / max(float(np.mean(base[valid] ** 2)) if valid.any() else 0.0, 1e-300)
-        for i, k in enumerate(ks):
-            e = np.where(valid, r - sh.delayed(float(k)), 0.0)
-            out[i] += w * np.add.reduceat(e[:edges[-1]] ** 2, edges[:-1])
+def _cross(shifters: list, rspecs: list, weights: list, ks: np.ndarray) -> np.ndarray:
+    """Return ``sum_c w_c sum_t r_c(t) s_c(t - k)`` for each trial delay ``k`` (samples)."""
+    out = np.zeros(ks.size)
+    for sh, rs, w in zip(shifters, rspecs, weights):
+        prod = np.conj(rs) * sh.spec
+        fac = np.full(sh.f.size, 2.0)
+        fac[0] = 1.0
+        if sh.nfft % 2 == 0:
+            fac[-1] = 1.0
+        ramps = np.exp(-2j * math.pi * np.outer(ks, sh.f))
+        out += w * (ramps * (fac * prod)).real.sum(axis=1) / sh.nfft
     return out
 
 
-def _parabola_min(ks: np.ndarray, chi: np.ndarray) -> float:
-    """Return the minimiser of a parabola through the lowest point of ``chi`` and its neighbours."""
-    i = int(np.clip(np.argmin(chi), 1, ks.size - 2))
-    y0, y1, y2 = chi[i - 1], chi[i], chi[i + 1]
+def _parabola_max(ks: np.ndarray, y: np.ndarray) -> float:
+    """Return the maximiser of a parabola through the highest point of ``y`` and its neighbours."""
+    i = int(np.clip(np.argmax(y), 1, ks.size - 2))
+    y0, y1, y2 = y[i - 1], y[i], y[i + 1]
     den = y0 - 2.0 * y1 + y2
-    h = ks[i + 1] - ks[i]
-    frac = 0.5 * (y0 - y2) / den if den > 0 else 0.0
-    return float(ks[i] + np.clip(frac, -1.0, 1.0) * h)
+    frac = 0.5 * (y0 - y2) / den if den < 0 else 0.0
+    return float(ks[i] + np.clip(frac, -1.0, 1.0) * (ks[i + 1] - ks[i]))
 
 
 def estimate_delay(sims: list, reals: list, oks: list, dt: float, edges: np.ndarray,
@@ -161,42 +213,78 @@ def estimate_delay(sims: list, reals: list, oks: list, dt: float, edges: np.ndar
 
     Least squares in time: the simulated channels are delayed exactly (an
     FFT phase ramp, which keeps their noise as it is, so the noise of neither
-    side can pull the estimate) by trial delays around the cross-correlation
-    peak, and the sum of squared differences (each channel weighted by its
-    residual level) is minimised, coarse then fine, with a parabola through
-    the best three. Every block is left out in turn for the jackknife error.
+    side can pull the estimate). The delay maximises the weighted correlation
+    ``sum_c w_c sum_t r_c(t) s_c(t - tau)`` (each channel weighted by its
+    residual level), found on a grid of trial delays around the
+    cross-correlation peak (evaluated in the frequency domain) and refined by
+    Gauss-Newton steps. Its error is the block sandwich of the score
+    (``sum_b g_b^2 / H^2``, the linearised jackknife), and the blocks that carry
+    the curvature ``H`` count as its degrees of freedom.
 
     :param sims: simulated channels on a common grid (NaN-free where ``oks``)
     :param reals: real channels on the same grid
     :param oks: valid-sample masks
     :param dt: grid period (s)
-    :param edges: block boundaries (sample indices) for the jackknife
+    :param edges: block boundaries (sample indices) for the error
     :param max_lag_s: largest delay searched (s)
     """
     if not sims or edges.size < 4:
         return None
     k0 = whole_sample_lag(sims, reals, oks, int(max_lag_s / dt))
-    # first differences of both sides (a delay survives any filter applied to both): the
-    # timing lives in the changes, while slow errors of a reference would only blur it
+    # a noisy simulation (a ground truth differentiated) is smoothed, both sides alike, to
+    # the band where its motion stands above its noise: the delay survives a filter applied
+    # to both, while the noise would otherwise pass for curvature of the fit
+    smooth = [_box(_gap_filled(_prep(x, ok), ok), _signal_width(x, ok))
+              for x, ok in zip(sims, oks)]
+    reals = [_box(_gap_filled(_prep(r, ok), ok), _signal_width(x, ok))
+             for x, r, ok in zip(sims, reals, oks)]
     # the simulated channels are filled across their gaps before they are shifted: an edge
     # made by filling with zeros would ring into the valid samples around it
-    shifters = [_Shifter(_gap_filled(_prep(x, ok), ok)) for x, ok in zip(sims, oks)]
-    rs = [_prep(r, ok) for r, ok in zip(reals, oks)]
-    coarse = k0 + np.linspace(-2.0, 2.0, 17)
-    k1 = _parabola_min(coarse, _block_chi2(shifters, rs, oks, coarse, edges).sum(axis=1))
-    fine = k1 + np.linspace(-0.5, 0.5, 11)
-    chi = _block_chi2(shifters, rs, oks, fine, edges)
-    tot = chi.sum(axis=1)
-    k = _parabola_min(fine, tot)
-    nblk = edges.size - 1
-    loo = np.array([_parabola_min(fine, tot - chi[:, b]) for b in range(nblk)])
-    std = float(np.sqrt((nblk - 1) / nblk * np.sum((loo - loo.mean()) ** 2))) * dt
-    # how many blocks carry the evidence: the curvature each block adds at the minimum
-    i = int(np.clip(np.argmin(tot), 1, fine.size - 2))
-    curv = np.maximum(chi[i - 1] - 2.0 * chi[i] + chi[i + 1], 0.0)
-    k_eff = float(curv.sum() ** 2 / max(float(np.sum(curv ** 2)), 1e-300))
-    return Delay(k * dt, std, int(max(1, math.floor(k_eff))), (0.0, 0.5 / dt),
-                 loo * dt)
+    shifters = [Shifter(x) for x in smooth]
+    valid = []
+    for ok in oks:
+        v = ok.copy()
+        v[:abs(k0) + 8] = False  # samples a shift moves across the ends are not compared
+        v[v.size - abs(k0) - 8:] = False
+        valid.append(v)
+    rs = [np.where(v, _prep(r, ok), 0.0) for r, ok, v in zip(reals, oks, valid)]
+    weights = []
+    for sh, r, v in zip(shifters, rs, valid):
+        e = np.where(v, r - sh.delayed(float(k0)), 0.0)
+        weights.append(1.0 / max(float(np.sum(e * e)) / max(int(v.sum()), 1), 1e-300))
+    rspecs = [np.fft.rfft(r, sh.nfft) for r, sh in zip(rs, shifters)]
+    grid = k0 + np.linspace(-2.0, 2.0, 41)
+    k = _parabola_max(grid, _cross(shifters, rspecs, weights, grid))
+    for _ in range(3):  # Gauss-Newton on the squared residual
+        g, h = _scores(shifters, rs, valid, weights, k, edges)
+        step = float(g.sum() / max(float(h.sum()), 1e-300))
+        k += float(np.clip(step, -0.5, 0.5))
+        if abs(step) < 1e-4:
+            break
+    g, h = _scores(shifters, rs, valid, weights, k, edges)
+    nblk = g.size
+    H = max(float(h.sum()), 1e-300)
+    std = float(np.sqrt(np.sum(g * g) * nblk / max(nblk - 1, 1))) / H * dt
+    k_eff = float(h.sum() ** 2 / max(float(np.sum(h * h)), 1e-300))
+    return Delay(k * dt, std, int(max(1, math.floor(k_eff))), (0.0, 0.5 / dt))
+
+
+def _scores(shifters: list, rs: list, valid: list, weights: list, k: float,
+            edges: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """
+    Return per block the Gauss-Newton score and curvature of the delay at ``k`` samples.
+
+    With ``e = r - s(t - k)`` and ``d = ds(t - k)/dk``: ``g_b = sum w e d``,
+    ``h_b = sum w d^2`` over the block, so one step is ``sum g / sum h``.
+    """
+    g = np.zeros(edges.size - 1)
+    h = np.zeros(edges.size - 1)
+    for sh, r, v, w in zip(shifters, rs, valid, weights):
+        d = np.where(v, sh.delayed(k, derivative=True), 0.0)
+        e = np.where(v, r - sh.delayed(k), 0.0)
+        g += w * np.add.reduceat((e * d)[:edges[-1]], edges[:-1])
+        h += w * np.add.reduceat((d * d)[:edges[-1]], edges[:-1])
+    return g, h
 
 
 def lag_response(x: np.ndarray, dt: float, tau: float) -> np.ndarray:

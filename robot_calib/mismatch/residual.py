@@ -116,7 +116,7 @@ def unexplained(prob: S.Problem, final: S.Fit, aux: dict, edges: np.ndarray,
         ratio, excess = structure(e, prob.mask[f], edges)
         scale = float(np.sqrt(np.mean(np.nan_to_num(pt.sim[f][prob.mask[f]]) ** 2)))
         if ratio >= RATIO_BAR and excess >= MIN_EXCESS * prob.sigma[f] and \
-                excess > 1e-6 * scale:
+                excess > 1e-4 * scale:
             per[f] = (excess, ratio, e)
     bad = {t.channel[len(pt.name) + 1:]: (t, p) for t, p in implausible}
     if not per and not bad:

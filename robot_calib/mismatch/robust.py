@@ -51,11 +51,46 @@ def block_edges(n: int, dt: float, target: int = 40, min_block_s: float = 1.0,
     return np.unique(np.linspace(0, n, k + 1).astype(int))
 
 
-def window_edges(edges: np.ndarray, window: tuple, dt: float) -> np.ndarray:
-    """Return ``edges`` with the window [i0, i1) cut into as many blocks as the whole has."""
-    i0, i1 = int(window[0]), int(window[1])
-    inner = block_edges(i1 - i0, dt, edges.size - 1, 0.0) + i0
-    return np.unique(np.concatenate((edges[(edges < i0) | (edges > i1)], inner)))
+def _block_energy(prob: S.Problem, term, edges: np.ndarray) -> np.ndarray:
+    energy = np.zeros(edges.size - 1)
+    for f in term.cols:
+        if f not in prob.fields:
+            continue
+        X = S.term_cols(term, f, prob)
+        e = np.einsum('ij,ij->i', X, X) * prob.w[f]
+        energy += np.add.reduceat(e[:edges[-1]], edges[:-1])
+    return energy
+
+
+def focused_edges(prob: S.Problem, term, edges: np.ndarray, min_block_s: float,
+                  frac: float = 0.02) -> np.ndarray:
+    """
+    Return ``edges``, or finer ones where the term acts when it acts in few blocks.
+
+    An effect excited only in a short manoeuvre (one rotation of a protocol,
+    an effect in a window) would otherwise be judged on two or three blocks,
+    whose spread says nothing; its active blocks are cut into pieces until it
+    spans half as many blocks as the whole recording has. A piece is no
+    shorter than a quarter of ``min_block_s`` nor than ten correlation lengths
+    of the residual's noise (``10 phi`` samples), so neighbouring pieces stay
+    nearly independent.
+    """
+    energy = _block_energy(prob, term, edges)
+    top = float(energy.max()) if energy.size else 0.0
+    active = np.flatnonzero(energy > frac * top) if top > 0 else np.zeros(0, int)
+    want = (edges.size - 1) // 2
+    if active.size == 0 or active.size >= want:
+        return edges
+    phi = max((prob.phi[f] for f in term.cols if f in prob.fields), default=1.0)
+    shortest = max(4, int(round(0.25 * min_block_s / max(prob.pt.dt, 1e-9))),
+                   int(np.ceil(10.0 * phi)))
+    parts = int(np.ceil(want / active.size))
+    extra = []
+    for b in active:
+        a0, a1 = int(edges[b]), int(edges[b + 1])
+        m = max(1, min(parts, (a1 - a0) // shortest))
+        extra.append(np.linspace(a0, a1, m + 1).astype(int))
+    return np.unique(np.concatenate([edges] + extra))
 
 
 def _term_index(terms: list) -> list:
@@ -90,13 +125,7 @@ def block_scores(prob: S.Problem, terms: list, fit: S.Fit, edges: np.ndarray) ->
 
 def active_blocks(prob: S.Problem, term, edges: np.ndarray, frac: float = 0.02) -> int:
     """Return the number of blocks holding at least ``frac`` of the term's peak block energy."""
-    energy = np.zeros(edges.size - 1)
-    for f in term.cols:
-        if f not in prob.fields:
-            continue
-        X = S.term_cols(term, f, prob)
-        e = np.einsum('ij,ij->i', X, X) * prob.w[f]
-        energy += np.add.reduceat(e[:edges[-1]], edges[:-1])
+    energy = _block_energy(prob, term, edges)
     top = float(energy.max()) if energy.size else 0.0
     return int(np.sum(energy > frac * top)) if top > 0 else 0
 
@@ -118,24 +147,21 @@ def sandwich(prob: S.Problem, terms: list, fit: S.Fit,
 
 
 def wald(prob: S.Problem, terms: list, fit: S.Fit, edges: np.ndarray,
-         alpha: float) -> list:
+         alpha: float, min_block_s: float = 1.0) -> list:
     """
     Return per term ``(W, threshold, blocks)``: its robust Wald statistic and the bar it must pass.
 
     A term whose covariance cannot be estimated (fewer active blocks than
-    coefficients plus one) gets ``W = 0``.
+    coefficients plus one) gets ``W = 0``. A term acting only in part of the
+    recording is judged on blocks cut finer there (:func:`focused_edges`).
     """
     if not fit.contrib:
         fit = S.fit(prob, terms, contributions=True)
     V = sandwich(prob, terms, fit, edges)
     out = []
     for j, (t, idx) in enumerate(zip(terms, _term_index(terms))):
-        e_t = edges
-        if t.window is not None:  # as many blocks inside the window as in a whole recording
-            e_t = window_edges(edges, t.window, prob.pt.dt)
-            V_t = sandwich(prob, terms, fit, e_t)
-        else:
-            V_t = V
+        e_t = focused_edges(prob, t, edges, min_block_s)
+        V_t = V if e_t is edges else sandwich(prob, terms, fit, e_t)
         kb = active_blocks(prob, t, e_t)
         p = t.p
         thr = p * float(special.fdtri(p, max(kb - p, 1), 1.0 - alpha))
@@ -155,7 +181,7 @@ def wald(prob: S.Problem, terms: list, fit: S.Fit, edges: np.ndarray,
 
 
 def robust_prune(prob: S.Problem, sel: list, edges: np.ndarray, alpha: float,
-                 refine=None) -> tuple[list, list]:
+                 refine=None, min_block_s: float = 1.0) -> tuple[list, list]:
     """
     Drop, weakest first, the terms that fail the robust Wald test; return (kept, dropped).
 
@@ -165,7 +191,7 @@ def robust_prune(prob: S.Problem, sel: list, edges: np.ndarray, alpha: float,
     dropped = []
     while out:
         f = S.fit(prob, out, contributions=True)
-        tests = wald(prob, out, f, edges, alpha)
+        tests = wald(prob, out, f, edges, alpha, min_block_s)
         ratios = [w / max(thr, 1e-12) for w, thr, _ in tests]
         i = int(np.argmin(ratios))
         if ratios[i] >= 1.0:
