@@ -177,6 +177,7 @@ class PairedTopic:
     sim_reg: dict = field(default_factory=dict)
     sim_noisy: dict = field(default_factory=dict)
     sim_src: Optional[tuple] = None
+    kernels: dict = field(default_factory=dict)
 
     def __post_init__(self) -> None:
         """Build the regressor copies of the simulated channels (see :func:`regressor_signal`)."""
