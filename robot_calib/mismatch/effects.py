@@ -317,8 +317,7 @@ def rotate(v: tuple, roll: float, pitch: float, yaw: float) -> tuple:
     To first order ``R^T v = v + v x theta`` with ``theta = (roll, pitch, yaw)``.
     """
     vx, vy, vz = v
-    cy, sy, cp, sp, cr, sr = (np.cos(yaw), np.sin(yaw), np.cos(pitch), np.sin(pitch),
-                              np.cos(roll), np.sin(roll))
+    cy, sy = np.cos(yaw), np.sin(yaw)
     x0 = cy * vx + sy * vy           # Rz(yaw)^T
     y0 = -sy * vx + cy * vy
     x1, y2, z2 = tilt_rotate(x0, y0, vz, roll, pitch)

@@ -56,9 +56,9 @@ def _sentence(effect: str, params: dict, where: str, meta: dict) -> str:
             f'{_deg(p["roll"])}, pitch {_deg(p["pitch"])}, yaw {_deg(p["yaw"])}: rates and ' \
             'accelerations leak between axes alike.'
     if effect == 'lever_arm':
-        return f'The real IMU sits {p["x"] * 100:.1f}, {p["y"] * 100:.1f}, {p["z"] * 100:.1f} cm ' \
-            '(x, y, z) from the point the simulation measured, so it feels extra centripetal ' \
-            'and tangential acceleration when turning.'
+        xyz = ', '.join(f'{p[k] * 100:.1f}' for k in 'xyz')
+        return f'The real IMU sits {xyz} cm (x, y, z) from the point the simulation ' \
+            'measured, so it feels extra centripetal and tangential acceleration when turning.'
     if effect == 'wheel_slip':
         return f'The real odometry speed changes with the commanded acceleration (coefficient ' \
             f'{_fmt(p["coefficient"], "s^2/m")}): the wheels slip{where}.'

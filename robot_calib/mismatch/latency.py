@@ -82,7 +82,7 @@ def _box(x: np.ndarray, width: int) -> np.ndarray:
 
 def _signal_width(x: np.ndarray, ok: np.ndarray, most: int = 64) -> int:
     """
-    Return the width (samples, odd) of a moving average that keeps a channel's motion but not its noise.
+    Return the width (samples, odd) of a moving average that keeps motion but not noise.
 
     The white-noise level comes from the second differences (their MAD,
     ``sigma^2 = var(d2) / 6``); the signal's own second differences over a span

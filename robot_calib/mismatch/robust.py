@@ -30,7 +30,6 @@ from __future__ import annotations
 from typing import Optional
 
 import numpy as np
-from scipy import special
 
 from robot_calib.mismatch import select as S
 
@@ -164,6 +163,7 @@ def wald(prob: S.Problem, terms: list, fit: S.Fit, edges: np.ndarray,
         V_t = V if e_t is edges else sandwich(prob, terms, fit, e_t)
         kb = active_blocks(prob, t, e_t)
         p = t.p
+        from scipy import special
         thr = p * float(special.fdtri(p, max(kb - p, 1), 1.0 - alpha))
         if V_t is None or kb <= p:
             out.append((0.0, thr, kb))
