@@ -42,12 +42,21 @@ class ChannelError(ValueError):
 
 @dataclass
 class Topic:
-    """One topic of a recording: times (s) and field arrays (SI units) of equal length."""
+    """
+    One topic of a recording: times (s) and field arrays (SI units) of equal length.
+
+    ``kernels`` maps a field to the smoothing its values went through, as
+    ``(shape, half_width_s)`` with shape ``'box'`` or ``'tri'`` (see
+    :func:`kernel_weights`): a simulated channel derived from a ground truth
+    is the truth seen through such a kernel, and the real channel is compared
+    through the same one.
+    """
 
     name: str
     msgtype: str
     t: np.ndarray
     fields: dict = field(default_factory=dict)
+    kernels: dict = field(default_factory=dict)
 
     def __len__(self) -> int:
         """Return the number of samples."""
@@ -271,6 +280,39 @@ def _box(x: np.ndarray, width: int) -> np.ndarray:
         return np.where(den > 0, num / np.maximum(den, 1), np.nan)
 
 
+def kernel_weights(spec: tuple, dt: float) -> np.ndarray:
+    """
+    Return the FIR weights (odd length, sum 1) of a smoothing kernel on a grid of period ``dt``.
+
+    ``('box', h)``: the mean over ``[t - h, t + h]`` (trapezoid ends; what a
+    central difference of an integral over ``2h`` computes); ``('tri', h)``: the
+    triangle of half width ``h`` (what a second difference over ``+-h`` does to
+    an acceleration).
+    """
+    shape, half = spec
+    m = max(0, int(round(float(half) / dt)))
+    if m == 0:
+        return np.ones(1)
+    if shape == 'box':
+        w = np.ones(2 * m + 1)
+        w[0] = w[-1] = 0.5
+    elif shape == 'tri':
+        w = (m + 1.0 - np.abs(np.arange(-m, m + 1))).astype(float)
+    else:
+        raise ChannelError(f'unknown smoothing kernel {shape!r}; expected box or tri')
+    return w / w.sum()
+
+
+def smoothed(x: np.ndarray, weights: np.ndarray) -> np.ndarray:
+    """Return ``x`` convolved with symmetric ``weights``; NaN where they reach a NaN or an end."""
+    if weights.size < 2:
+        return x
+    ok = np.isfinite(x)
+    y = np.convolve(np.where(ok, x, 0.0), weights, mode='same')
+    cover = np.convolve(ok.astype(float), weights, mode='same')
+    return np.where(cover > 1.0 - 1e-9, y, np.nan)
+
+
 def _interp(t_src: np.ndarray, x: np.ndarray, t_dst: np.ndarray, max_gap: float) -> np.ndarray:
     """Interpolate linearly; NaN outside the source span or across gaps longer than max_gap (s)."""
     ok = np.isfinite(x)
@@ -440,12 +482,20 @@ def _pair_one(a: Topic, b: Topic, t0: float, shift: float, max_lag: float,
     else:
         grid = tb[(tb >= lo) & (tb <= hi)]
         dt = dtb
-    sim_f, real_f = {}, {}
+    sim_f, real_f, kernels = {}, {}, {}
     for k in a.fields:
         if k not in b.fields:
             continue
         sim_f[k] = _interp(a.t, a.fields[k], grid, 5 * dta + 1e-9)
-        real_f[k] = _interp(tb, b.fields[k], grid, 5 * dtb + 1e-9)
+        real_k = b.fields[k]
+        if k in a.kernels:  # compare the real channel through the simulation's own smoothing
+            real_k = smoothed(real_k, kernel_weights(a.kernels[k], dtb))
+            kernels[k] = kernel_weights(a.kernels[k], dt)
+        real_f[k] = _interp(tb, real_k, grid, 5 * dtb + 1e-9)
+    if kernels:
+        notes.append(f'{a.name}: the real channels are compared through the smoothing of the '
+                     'simulated ones (' + ', '.join(f'{k} {s[0]} +-{s[1] * 1000:.0f} ms'
+                                                  for k, s in a.kernels.items()) + ')')
     tau, gain = xcorr_lag(sim_f, real_f, dt, max_lag)
     return PairedTopic(a.name, a.msgtype, grid - t0, sim_f, real_f, dt, tau, gain, notes,
-                       sim_src=(a.t - t0, a.fields))
+                       sim_src=(a.t - t0, a.fields), kernels=kernels)
