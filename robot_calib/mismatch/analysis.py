@@ -93,8 +93,9 @@ def _aux(sim: Recording, real: Recording, pt: PairedTopic, t0: float, notes: lis
     odoms.sort(key=lambda tp: ('truth' not in tp.name, tp.name))
     if odoms:
         o = odoms[0]
-        aux['v'] = _t_abs_interp(o.t, o.fields['twist.twist.linear.x'], ta)
-        aux['omega'] = _t_abs_interp(o.t, o.fields['twist.twist.angular.z'], ta)
+        for key, f in (('v', 'twist.twist.linear.x'), ('omega', 'twist.twist.angular.z')):
+            if f in o.fields:
+                aux[key] = _t_abs_interp(o.t, o.fields[f], ta)
     if pt.msgtype == IMU_TYPE and 'angular_velocity.z' in pt.sim:
         aux['omega'] = np.nan_to_num(pt.sim_reg['angular_velocity.z'])
     cmds = [tp for rec in (sim, real) for tp in rec.values()

@@ -33,7 +33,8 @@ IMU_FIELDS = ('angular_velocity.x', 'angular_velocity.y', 'angular_velocity.z',
               'linear_acceleration.x', 'linear_acceleration.y', 'linear_acceleration.z')
 ODOM_FIELDS = ('twist.twist.linear.x', 'twist.twist.angular.z')
 TWIST_FIELDS = ('linear.x', 'angular.z')
-COMPARED_TYPES = (IMU_TYPE, ODOM_TYPE)
+JOINT_STATE_TYPE = 'sensor_msgs/msg/JointState'
+COMPARED_TYPES = (IMU_TYPE, ODOM_TYPE, JOINT_STATE_TYPE)
 
 
 class ChannelError(ValueError):
@@ -101,12 +102,23 @@ def _add(buf: dict, topic: str, msgtype: str, s) -> None:
         vals = (s.vx, s.wz)
         names = TWIST_FIELDS
         msgtype = msgtype or TWIST_TYPES[0]
+    elif isinstance(s, T.JointStateSample):
+        names = tuple(f'position.{n}' for n in s.names) + tuple(f'velocity.{n}'
+                                                                for n in s.names)
+        vals = tuple(np.asarray(s.position, float)) + tuple(np.asarray(s.velocity, float))
+        msgtype = msgtype or JOINT_STATE_TYPE
     else:
         return
     b = buf.setdefault(topic, {'type': msgtype, 't': [], 'cols': {}})
+    n = len(b['t'])
     b['t'].append(s.t)
     for k, v in zip(names, vals):
-        b['cols'].setdefault(k, []).append(v)
+        # a joint that appears late (or a message that omits it) reads NaN where it is absent
+        col = b['cols'].setdefault(k, [float('nan')] * n)
+        col.extend([float('nan')] * (n - len(col)))
+        col.append(v)
+    for col in b['cols'].values():
+        col.extend([float('nan')] * (n + 1 - len(col)))
 
 
 def _finish(buf: dict) -> Recording:
@@ -123,8 +135,37 @@ def _finish(buf: dict) -> Recording:
                 f['twist.twist.linear.x'], f['twist.twist.angular.z'] = v, w
         for k in ('pose.x', 'pose.y', 'pose.yaw'):
             tp.fields.pop(k, None)
+        if tp.msgtype == JOINT_STATE_TYPE:
+            tp.fields = joint_channels(tp.t, tp.fields)
         rec[topic] = tp
     return rec
+
+
+def joint_channels(t: np.ndarray, fields: dict) -> dict:
+    """
+    Return the joint channels worth comparing: steering angles, and wheel rates.
+
+    A steering joint (its name holds ``steer``) is compared by its angle; any
+    other joint by its rate (rad/s), differentiated from its angle when the
+    messages carry none: a wheel's angle is the integral of its rate, whose
+    difference between two runs only grows.
+    """
+    out = {}
+    joints = {k.split('.', 1)[1] for k in fields}
+    for j in sorted(joints):
+        pos, vel = fields.get(f'position.{j}'), fields.get(f'velocity.{j}')
+        if 'steer' in j:
+            if pos is not None and np.isfinite(pos).sum() > 2:
+                out[f'position.{j}'] = pos
+            continue
+        if vel is None or np.isfinite(vel).sum() < 3:
+            if pos is None or np.isfinite(pos).sum() < 3 or t.size < 3:
+                continue
+            ok = np.isfinite(pos)
+            vel = np.full(t.size, np.nan)
+            vel[ok] = np.gradient(pos[ok], t[ok])
+        out[f'velocity.{j}'] = vel
+    return out
 
 
 def recording_from_samples(items) -> Recording:
@@ -493,9 +534,9 @@ def _pair_one(a: Topic, b: Topic, t0: float, shift: float, max_lag: float,
             kernels[k] = kernel_weights(a.kernels[k], dt)
         real_f[k] = _interp(tb, real_k, grid, 5 * dtb + 1e-9)
     if kernels:
+        used = ', '.join(f'{k} {s[0]} +-{s[1] * 1000:.0f} ms' for k, s in a.kernels.items())
         notes.append(f'{a.name}: the real channels are compared through the smoothing of the '
-                     'simulated ones (' + ', '.join(f'{k} {s[0]} +-{s[1] * 1000:.0f} ms'
-                                                  for k, s in a.kernels.items()) + ')')
+                     f'simulated ones ({used})')
     tau, gain = xcorr_lag(sim_f, real_f, dt, max_lag)
     return PairedTopic(a.name, a.msgtype, grid - t0, sim_f, real_f, dt, tau, gain, notes,
                        sim_src=(a.t - t0, a.fields), kernels=kernels)

@@ -46,7 +46,7 @@ from typing import Optional
 
 import numpy as np
 
-from robot_calib.mismatch.channels import IMU_TYPE, ODOM_TYPE, PairedTopic
+from robot_calib.mismatch.channels import IMU_TYPE, JOINT_STATE_TYPE, ODOM_TYPE, PairedTopic
 
 G = 9.80665  # standard gravity (m/s^2)
 _UID = itertools.count(1)
@@ -124,6 +124,13 @@ SPECS = {s.name: s for s in (
                'the real drive follows its command with a first-order lag', 0.005),
     EffectSpec('steering_offset', ('offset',), ('rad',), (0.2,), True,
                'the steering encoder reads with a zero offset', 0.002),
+    # beyond the contract table, named freely
+    # an encoder-to-angle gain set from a wrong gear ratio can be off by a large factor
+    EffectSpec('steering_scale', ('scale',), ('',), (0.95,), False,
+               'the steering angle is converted from its encoder with a wrong gain', 0.01),
+    EffectSpec('yaw_rate_offset', ('offset',), ('rad/s',), (0.2,), True,
+               'the two yaw rates differ by a constant: the bias of a gyro used as the '
+               'reference, or odometry that turns while driving straight', 0.001),
 )}
 
 
@@ -142,8 +149,6 @@ def effect_size(effect: str, params: dict, duration: float) -> float:
         return float(np.sqrt(sum(v * v for v in vals.values())))
     return max((abs(v) for v in vals.values()), default=0.0)
 
-
-JOINT_STATE_TYPE = 'sensor_msgs/msg/JointState'
 
 # Motion that separates two effects that one recording cannot tell apart.
 SEPARATE = {
@@ -469,6 +474,8 @@ def _odom_terms(pt: PairedTopic, fields: list, sigma: dict, aux: dict, terms: li
             cannot.append(f'{pt.name}: the simulated run does not drive, so wheel radius and '
                           'slip cannot be judged')
     if fw in fields:
+        terms.append(Term('yaw_rate_offset', pt.name, {fw: np.ones((pt.t.size, 1))},
+                          f'offset:{fw}', f'{pt.name}.{fw}'))
         if _informative(sim[fw], sigma[fw]):
             terms.append(Term('track_width_scale', pt.name, {fw: _col(sim[fw])},
                               f'scale:{fw}', f'{pt.name}.{fw}'))
@@ -487,6 +494,9 @@ def _joint_terms(pt: PairedTopic, fields: list, sigma: dict, terms: list,
         ch = f'{pt.name}.{f}'
         if kind == 'position' and 'steer' in joint:
             terms.append(Term('steering_offset', pt.name, {f: ones}, f'offset:{f}', ch))
+            if _informative(sim[f], sigma[f]):
+                terms.append(Term('steering_scale', pt.name, {f: _col(sim[f])}, f'scale:{f}',
+                                  ch, windowable=False))
         elif kind == 'velocity' and 'steer' not in joint:
             if _informative(sim[f], sigma[f]):
                 terms.append(Term('wheel_radius_scale', pt.name, {f: _col(sim[f])},

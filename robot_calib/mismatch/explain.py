@@ -67,6 +67,14 @@ def _sentence(effect: str, params: dict, where: str, meta: dict) -> str:
         c = p['coefficient']
         return f'Rotation about {src} leaks into this axis with coefficient {c:.4f} (an axis ' \
             f'misalignment of {np.degrees(np.arcsin(np.clip(c, -1, 1))):.2f} deg).'
+    if effect == 'steering_scale':
+        return f'The real steering angle is {abs(p["scale"]) * 100:.1f}% ' \
+            f'{"larger" if p["scale"] > 0 else "smaller"} than simulated: the encoder-to-angle ' \
+            'gain differs.'
+    if effect == 'yaw_rate_offset':
+        return f'The real yaw rate reads {_fmt(p["offset"], "rad/s")} more than the simulated ' \
+            f'one{where}: a gyro bias of the reference, or odometry that turns while driving ' \
+            'straight.'
     if effect == 'steering_offset':
         return f'The real steering angle reads {_deg(p["offset"])} ' \
             f'{"more" if p["offset"] > 0 else "less"} than simulated (a zero offset of the ' \
