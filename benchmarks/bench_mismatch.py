@@ -39,7 +39,7 @@ import mismatch_suite as M  # noqa: E402,I100
 from robot_calib.mismatch import analyse, analyse_recordings  # noqa: E402
 from robot_calib.mismatch import analysis as A  # noqa: E402
 from robot_calib.mismatch import effects as E  # noqa: E402
-from robot_calib.mismatch.channels import pair_topics  # noqa: E402
+from robot_calib.mismatch.align import pair_topics  # noqa: E402
 
 NOISE_KEY = {'angular_velocity': 'gyro', 'linear_acceleration': 'accel',
              'linear.x': 'speed', 'angular.z': 'yaw_rate'}
@@ -234,7 +234,7 @@ def baseline(rows: list, thr_rel: float = 0.05) -> dict:
     free = free_false = 0
     for r in rows:
         sim, real, tr = M.make_pair(r['seed'], n_effects=len(r['truth']['effects']))
-        paired, _, t0, _ = pair_topics(sim, real)
+        paired, _, t0, _, _ = pair_topics(sim, real)
         names = []
         for pt in paired:
             prob = A._problem(pt, 2.0, [])

@@ -43,8 +43,9 @@ from robot_calib.mismatch import residual as U
 from robot_calib.mismatch import robust as R
 from robot_calib.mismatch import select as S
 from robot_calib.mismatch import timing as T
-from robot_calib.mismatch.channels import (ChannelError, IMU_TYPE, ODOM_TYPE, pair_topics,
-                                           PairedTopic, Recording, TWIST_TYPES)
+from robot_calib.mismatch.align import pair_topics
+from robot_calib.mismatch.channels import (ChannelError, IMU_TYPE, ODOM_TYPE, PairedTopic,
+                                           Recording, TWIST_TYPES)
 from robot_calib.mismatch.findings import term_finding
 from robot_calib.mismatch.locate import active_windows, local_weights, moving_average
 from robot_calib.mismatch.locate import noise_level
@@ -314,14 +315,16 @@ def _analyse_topic(pt: PairedTopic, sim: Recording, real: Recording, t0: float,
 
 
 def analyse_recordings(sim: Recording, real: Recording,
-                       params: Optional[MismatchParams] = None) -> tuple[dict, list]:
+                       params: Optional[MismatchParams] = None,
+                       remaps: Optional[list] = None) -> tuple[dict, list]:
     """
     Compare two recordings; return (findings dict, per-topic :class:`TopicDetail` list).
 
-    :raises ChannelError: when nothing can be compared
+    :param remaps: ``[(sim topic, real topic)]`` pairs the user gave (``--remap``)
+    :raises ChannelError: when nothing can be compared, or the clocks cannot be aligned
     """
     prm = params or MismatchParams()
-    paired, not_judged, t0, notes = pair_topics(sim, real, prm.max_lag)
+    paired, not_judged, t0, notes, clock = pair_topics(sim, real, prm.max_lag, remaps)
     if not paired:
         reasons = '; '.join(f'{d["channel"]}: {d["reason"]}' for d in not_judged) or \
             'no common topic'
@@ -344,6 +347,17 @@ def analyse_recordings(sim: Recording, real: Recording,
     if not channel_info:
         raise ChannelError('no channel can be compared (' + '; '.join(
             f'{d["channel"]}: {d["reason"]}' for d in not_judged) + ')')
+    if clock.method == 'motion':
+        # clocks aligned on the motion: a latency common to the run is part of the offset
+        delays = [f for f in findings if f['effect'] == 'time_offset']
+        findings = [f for f in findings if f['effect'] != 'time_offset']
+        if delays:
+            best = max(delays, key=lambda f: f['evidence']['z'])
+            clock.offset -= best['parameters']['tau']
+            notes.append('the clocks differ, so a latency common to a whole sensor cannot be '
+                         'told from the clock offset; the offset includes '
+                         f'{best["parameters"]["tau"] * 1000:.1f} ms measured on '
+                         f'{best["channel"]}; per-sensor delays are in time_alignment')
     findings.sort(key=lambda f: (f['effect'] == 'unexplained', -f.get('confidence', 0.0)))
     duration = max((float(pt.t[-1] - pt.t[0]) for pt in paired if pt.t.size), default=0.0)
     weak = [f for f in findings if f.get('evidence_strength', f['confidence']) <
@@ -358,7 +372,7 @@ def analyse_recordings(sim: Recording, real: Recording,
             'as minor.'
     out = {'verdict': 'mismatch' if findings else 'consistent',
            'findings': findings, 'minor_findings': minor, 'weak_findings': weak,
-           'time_alignment': timing,
+           'time_alignment': {'clock': clock.as_dict(), **timing},
            'channels': channel_info,
            'not_judged': not_judged, 'notes': notes, 'bag_start': t0}
     return out, details

@@ -128,6 +128,10 @@ SPECS = {s.name: s for s in (
     # an encoder-to-angle gain set from a wrong gear ratio can be off by a large factor
     EffectSpec('steering_scale', ('scale',), ('',), (0.95,), False,
                'the steering angle is converted from its encoder with a wrong gain', 0.01),
+    # unequal wheels turn the odometry while driving straight: yaw rate error ~ speed
+    EffectSpec('wheel_radius_difference', ('coefficient',), ('1/m',), (0.5,), True,
+               'the left and right wheels differ in radius, so the odometry turns in '
+               'proportion to the speed', 0.005),
     EffectSpec('yaw_rate_offset', ('offset',), ('rad/s',), (0.2,), True,
                'the two yaw rates differ by a constant: the bias of a gyro used as the '
                'reference, or odometry that turns while driving straight', 0.001),
@@ -170,6 +174,8 @@ SEPARATE = {
     'turns) separate a latency from a scale error',
     frozenset(('accel_bias', 'accel_scale')): 'poses with the axis up, down and sideways '
     'separate an offset from a scale error',
+    frozenset(('yaw_rate_offset', 'wheel_radius_difference')): 'driving at several speeds '
+    '(and standing still) separates a constant turn from one that grows with the speed',
     frozenset(('time_offset', 'drive_lag')): 'sharp steps of the command separate a pure '
     'delay (the response keeps its shape) from a lag (the response is rounded)',
     frozenset(('imu_mounting_rotation', 'gyro_cross_axis')): 'strong specific force on '
@@ -476,6 +482,10 @@ def _odom_terms(pt: PairedTopic, fields: list, sigma: dict, aux: dict, terms: li
     if fw in fields:
         terms.append(Term('yaw_rate_offset', pt.name, {fw: np.ones((pt.t.size, 1))},
                           f'offset:{fw}', f'{pt.name}.{fw}'))
+        v = aux.get('v')
+        if v is not None and _informative(v, sigma[fw]):
+            terms.append(Term('wheel_radius_difference', pt.name, {fw: _col(v)},
+                              f'radius_difference:{fw}', f'{pt.name}.{fw}'))
         if _informative(sim[fw], sigma[fw]):
             terms.append(Term('track_width_scale', pt.name, {fw: _col(sim[fw])},
                               f'scale:{fw}', f'{pt.name}.{fw}'))

@@ -71,6 +71,10 @@ def _sentence(effect: str, params: dict, where: str, meta: dict) -> str:
         return f'The real steering angle is {abs(p["scale"]) * 100:.1f}% ' \
             f'{"larger" if p["scale"] > 0 else "smaller"} than simulated: the encoder-to-angle ' \
             'gain differs.'
+    if effect == 'wheel_radius_difference':
+        return f'The real odometry turns by {_fmt(p["coefficient"], "rad/m")} per metre driven ' \
+            f'more than simulated{where}: the right and left wheels differ in radius by about ' \
+            'that times the track width (relative).'
     if effect == 'yaw_rate_offset':
         return f'The real yaw rate reads {_fmt(p["offset"], "rad/s")} more than the simulated ' \
             f'one{where}: a gyro bias of the reference, or odometry that turns while driving ' \

@@ -252,7 +252,15 @@ def _alignment(findings: dict) -> list:
     if not ta:
         return []
     lines = ['## Time alignment', '']
+    clock = ta.get('clock')
+    if clock:
+        how = 'the recordings share a clock' if clock['method'] == 'stamps' else \
+            f'aligned on the motion (correlation {clock["correlation"]:.2f}, ' \
+            f'{clock["confidence"]:.1f} times the next best)'
+        lines.append(f'- clock: real + {clock["offset"]:.3f} s = simulation time; {how}')
     for tp, v in ta.items():
+        if tp == 'clock':
+            continue
         if not isinstance(v, dict):
             lines.append(f'- {tp}: {v}')
             continue
