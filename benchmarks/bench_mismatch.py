@@ -398,3 +398,7 @@ def main(argv=None) -> int:
     out.write_text(text)
     print(text)
     return 0
+
+
+if __name__ == '__main__':
+    sys.exit(main())

@@ -14,6 +14,7 @@ on common times (made by :mod:`.align`).
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+import math
 import os
 from typing import Optional
 
@@ -106,13 +107,19 @@ def _add(buf: dict, topic: str, msgtype: str, s) -> None:
     b = buf.setdefault(topic, {'type': msgtype, 't': [], 'cols': {}})
     n = len(b['t'])
     b['t'].append(s.t)
+    cols = b['cols']
     for k, v in zip(names, vals):
-        # a joint that appears late (or a message that omits it) reads NaN where it is absent
-        col = b['cols'].setdefault(k, [float('nan')] * n)
-        col.extend([float('nan')] * (n - len(col)))
+        col = cols.get(k)
+        if col is None:
+            # a joint that appears late reads NaN before it appeared
+            col = cols[k] = [math.nan] * n
+        elif len(col) < n:
+            col.extend([math.nan] * (n - len(col)))  # a message that omitted it
         col.append(v)
-    for col in b['cols'].values():
-        col.extend([float('nan')] * (n + 1 - len(col)))
+    if len(cols) > len(names):
+        for col in cols.values():
+            if len(col) <= n:
+                col.append(math.nan)
 
 
 def _finish(buf: dict) -> Recording:
