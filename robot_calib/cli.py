@@ -1,7 +1,7 @@
 # Copyright 2026 robot_calib contributors
 # SPDX-License-Identifier: Apache-2.0
 """
-The ``robot-calib`` command line: ``simulate``, ``replay`` and ``mismatch``.
+The ``robot-calib`` command line: ``simulate``, ``replay``, ``mismatch`` and ``ideal``.
 
 Bad input of any kind (a missing, truncated or corrupt bag, an unknown node,
 topic or type, an unwritable output folder, a bad ``--set``/``--remap``/
@@ -82,6 +82,25 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument('--sim', required=True, metavar='SIM_BAG', help='simulated bag')
     p.add_argument('--real', required=True, metavar='REAL_BAG', help='real bag')
     p.add_argument('--out', required=True, metavar='DIR', help='output folder')
+    p.add_argument('--remap', action='append', default=[], metavar='SIM_TOPIC:=REAL_TOPIC',
+                   help='compare these two topics (repeatable); topics of different types '
+                        'are compared on what they share (an IMU yaw rate with an odometry '
+                        "yaw rate, a velocity command's speed with an odometry speed)")
+
+    p = sub.add_parser('ideal', help='derive ideal sensors from a ground-truth recording',
+                       description='Write the recording a perfect robot would have made '
+                                   '(/imu, /odom, and /joint_states with --set drive_type=...) '
+                                   'from a ground-truth motion (motion capture poses or '
+                                   'ground-truth odometry), to compare with the real sensors '
+                                   'by robot-calib mismatch.')
+    p.add_argument('truth', metavar='TRUTH_BAG', help='bag with the ground-truth poses')
+    p.add_argument('--out', required=True, metavar='SIM_BAG', help='output bag folder')
+    p.add_argument('--truth-topic', default=None, metavar='TOPIC',
+                   help='the ground-truth topic (default: the only pose topic, or the one '
+                        'named truth / mocap / vrpn / vicon / optitrack)')
+    p.add_argument('--set', dest='overrides', action='append', default=[], metavar='KEY=VALUE',
+                   help='imu_xyz, imu_rpy, gravity, rel_noise, max_window, drive_type, '
+                        'wheel_radius, track_width, wheel_base (repeatable)')
     return parser
 
 
@@ -152,10 +171,31 @@ def _replay(args: argparse.Namespace) -> int:
 
 def _mismatch(args: argparse.Namespace) -> int:
     from robot_calib import mismatch
-    findings = mismatch.analyse(args.sim, args.real, args.out)
+    from robot_calib.replay import parse_remaps
+    findings = mismatch.analyse(args.sim, args.real, args.out, remaps=parse_remaps(args.remap))
     n = len(findings.get('findings', [])) if isinstance(findings, dict) else 0
     verdict = findings.get('verdict', '?') if isinstance(findings, dict) else '?'
     print(f'{verdict}: {n} finding(s); wrote {args.out}/findings.json')
+    return 0
+
+
+def _ideal(args: argparse.Namespace) -> int:
+    from robot_calib.core.params import from_flat
+    from robot_calib.mismatch import derive
+    from robot_calib.mismatch.channels import ChannelError
+    sets = _parse_sets(args.overrides)
+    for key in ('imu_xyz', 'imu_rpy'):
+        if key in sets:
+            sets[key] = [v for v in sets[key].strip('[]').split(',') if v.strip()]
+    params = from_flat(derive.IdealParams, sets)
+    try:
+        info = derive.derive(args.truth, args.out, args.truth_topic, params)
+    except ChannelError as exc:
+        raise ValueError(str(exc)) from None
+    widths = ', '.join(f'{t} {f}: {k[0]} +-{k[1] * 1000:.0f} ms' for t, ks in
+                       info['kernels'].items() for f, k in list(ks.items())[:1])
+    print(f'wrote {args.out}: {info["messages"]} messages from {info["poses"]} poses of '
+          f'{info["truth_topic"]} ({info["span_s"]:.1f} s); smoothing {widths}')
     return 0
 
 
@@ -201,7 +241,7 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
         args = parser.parse_args(argv)
     except SystemExit as exc:
         return int(exc.code or 0) if not isinstance(exc.code, str) else _EXIT_BAD_INPUT
-    verbs = {'simulate': _simulate, 'replay': _replay, 'mismatch': _mismatch}
+    verbs = {'simulate': _simulate, 'replay': _replay, 'mismatch': _mismatch, 'ideal': _ideal}
     try:
         with _sigterm_as_interrupt():
             return verbs[args.verb](args)

@@ -9,8 +9,9 @@ import numpy as np
 import pytest
 
 from robot_calib.mismatch import analyse_recordings
+from robot_calib.mismatch.align import xcorr_lag
 from robot_calib.mismatch.channels import (IMU_FIELDS, IMU_TYPE, loo_derivative, ODOM_FIELDS,
-                                           ODOM_TYPE, regressor_signal, Topic, xcorr_lag)
+                                           ODOM_TYPE, regressor_signal, Topic)
 from robot_calib.mismatch.effects import G, tilt_rotate
 from robot_calib.mismatch.locate import active_windows, noise_level, scan_window
 

@@ -473,6 +473,14 @@ class BagSet:
             out[s.topic] = (prev[0] if prev else s.msgtype, (prev[1] if prev else 0) + s.count)
         return out
 
+    def custom_data(self) -> dict[str, str]:
+        """Return the ``custom_data`` of the bags' metadata, merged (ROS 2 bags; {} else)."""
+        out: dict[str, str] = {}
+        for reader, _ in self._readers:
+            meta = getattr(getattr(reader, 'storage', None), 'metadata', None)
+            out.update(getattr(meta, 'custom', None) or {})
+        return out
+
     @property
     def start_ns(self) -> int:
         """Return the earliest receive time over all bags (ns), 0 when empty."""
@@ -607,8 +615,14 @@ class BagWriter:
     """
 
     def __init__(self, path: os.PathLike | str, storage: str = 'mcap',
-                 latched: Iterable[str] = ('/tf_static',), compress: bool = False):
-        """Prepare a writer; BagError when the target exists or its folder is not writable."""
+                 latched: Iterable[str] = ('/tf_static',), compress: bool = False,
+                 custom: Optional[dict[str, str]] = None):
+        """
+        Prepare a writer; BagError when the target exists or its folder is not writable.
+
+        ``custom`` is written into the bag's metadata (``custom_data``: string keys
+        and values, as rosbag2 keeps them).
+        """
         from rosbags.rosbag2 import StoragePlugin
         self.path = Path(path)
         if storage not in ('mcap', 'sqlite3'):
@@ -619,6 +633,7 @@ class BagWriter:
         if not parent.is_dir() or not os.access(parent, os.W_OK):
             raise BagError(f'output folder is missing or not writable: {parent}')
         self._plugin = StoragePlugin.MCAP if storage == 'mcap' else StoragePlugin.SQLITE3
+        self._custom = {str(k): str(v) for k, v in (custom or {}).items()}
         self._compress = bool(compress) and storage == 'mcap'
         self._tmpdir = parent / f'.{self.path.name}.partial'
         self._tmp = self._tmpdir / self.path.name
@@ -640,6 +655,8 @@ class BagWriter:
             self._writer = Writer(self._tmp, version=9, storage_plugin=self._plugin)
             if self._compress:
                 self._writer.set_compression(CompressionMode.STORAGE, CompressionFormat.ZSTD)
+            for key, value in self._custom.items():
+                self._writer.set_custom_data(key, value)
             self._writer.open()
             mcap.write_chunk_crcs(self._writer)
             self._mcap = mcap.fast_storage(self._writer) if self.fast_mcap else None

@@ -14,6 +14,8 @@ from __future__ import annotations
 
 import os
 from pathlib import Path
+import shutil
+import tempfile
 from typing import Optional
 
 from robot_calib.mismatch.analysis import analyse_recordings, MismatchParams
@@ -28,7 +30,7 @@ class MismatchError(ValueError):
 
 def analyse(sim_bag: os.PathLike | str, real_bag: os.PathLike | str,
             out_dir: os.PathLike | str, params: Optional[MismatchParams] = None,
-            plots: bool = True) -> dict:
+            plots: bool = True, remaps: Optional[list] = None) -> dict:
     """
     Compare a simulated and a real recording of the same run; write findings and a report.
 
@@ -37,6 +39,7 @@ def analyse(sim_bag: os.PathLike | str, real_bag: os.PathLike | str,
     :param out_dir: output folder (created); receives findings.json, report.md and PNGs
     :param params: analyser parameters (defaults: :class:`MismatchParams`)
     :param plots: write the PNG plots
+    :param remaps: ``[(sim topic, real topic)]`` the user paired (``--remap``)
     :returns: the findings dict (contract schema plus additive keys)
     :raises MismatchError: on input that cannot be compared (one-line message)
     """
@@ -52,14 +55,35 @@ def analyse(sim_bag: os.PathLike | str, real_bag: os.PathLike | str,
                                 'topic')
         if not real:
             raise MismatchError(f'the real bag {real_bag} has no IMU, odometry or command topic')
-        findings, details = analyse_recordings(sim, real, params)
+        findings, details = analyse_recordings(sim, real, params, remaps)
     except ChannelError as exc:
         raise MismatchError(str(exc).splitlines()[0]) from None
     out = Path(out_dir)
+    tmp = _partial_folder(out)
     try:
-        out.mkdir(parents=True, exist_ok=True)
-    except OSError as exc:
-        raise MismatchError(f'cannot create the output folder {out}: {exc}') from None
-    findings['inputs'] = {'sim': str(sim_bag), 'real': str(real_bag)}
-    report.write(out, findings, details, plots=plots)
+        findings['inputs'] = {'sim': str(sim_bag), 'real': str(real_bag)}
+        report.write(tmp, findings, details, plots=plots)
+        if out.exists():
+            shutil.rmtree(out)
+        os.replace(tmp, out)
+    except BaseException:
+        shutil.rmtree(tmp, ignore_errors=True)
+        raise
     return findings
+
+
+def _partial_folder(out: Path) -> Path:
+    """Return a fresh hidden folder next to ``out``; MismatchError when it cannot be written."""
+    if out.exists() and not out.is_dir():
+        raise MismatchError(f'output {out} exists and is not a folder; expected a folder path')
+    if out.is_dir() and any(out.iterdir()) and not (out / 'findings.json').is_file():
+        raise MismatchError(f'output folder {out} exists, is not empty and is not a previous '
+                            'mismatch output; give a new or empty folder')
+    try:
+        out.absolute().parent.mkdir(parents=True, exist_ok=True)
+        tmp = Path(tempfile.mkdtemp(prefix=f'.{out.name}.partial-', dir=out.absolute().parent))
+        os.chmod(tmp, 0o755)
+        return tmp
+    except OSError as exc:
+        raise MismatchError(f'cannot write the output folder {out}: '
+                            f'{exc.strerror or exc}') from None

@@ -6,53 +6,75 @@ The mismatch analysis: align, locate, name, model and show, or abstain.
 :func:`analyse_recordings` takes two :class:`~robot_calib.mismatch.channels.Recording`
 objects (the simulated and the real run) and returns the findings dict of
 the contract (architecture.md, "Mismatch findings") plus additive keys:
-``time_alignment`` (per topic, the cross-correlation lag), ``channels``
-(per channel the residual RMS, the noise level and the windows where the
-residual is beyond noise), ``not_judged`` (what cannot be judged and why)
-and ``notes``.
+``time_alignment`` (per topic, the cross-correlation lag and the delay
+judged per sensor), ``channels`` (per channel the residual RMS, the noise
+level and the windows where the residual is beyond noise), ``not_judged``
+(what cannot be judged and why) and ``notes``.
+
+Per sensor (topic) the analysis runs in three stages:
+
+1. time: one delay per clock group (an IMU's gyro and accelerometer may
+   differ), by least squares with exact shifts, kept when its block error
+   makes it significant; a drive (odometry, joint states) also tries a
+   first-order lag (:mod:`.timing`, :mod:`.latency`). The simulation is then
+   delayed by it.
+2. amplitude: forward selection of the library's effects on the aligned
+   residual (:mod:`.select`), kept only when they pass a block-robust test
+   (:mod:`.robust`) and improve held-out time.
+3. what is left: structure beyond noise that no effect explains becomes one
+   ``unexplained`` finding (where, how large, what it follows), never a
+   forced wrong name (:mod:`.residual`).
 
 Held-out evaluation: the common time line is cut into ``heldout_chunks``
-equal chunks; every third chunk is held out. The selected effects (with
-their windows and nonlinear parameters from the whole recording) are
+equal chunks; every third chunk is held out. The selected effects are
 re-fitted on the other chunks only and the RMSE of ``real - sim`` before and
 after applying them is reported on both parts, inside the finding's window.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Optional
 
 import numpy as np
 
-from robot_calib.core.params import param
 from robot_calib.mismatch import effects as E
+from robot_calib.mismatch import residual as U
+from robot_calib.mismatch import robust as R
 from robot_calib.mismatch import select as S
-from robot_calib.mismatch.channels import (ChannelError, IMU_TYPE, ODOM_TYPE, pair_topics,
-                                           PairedTopic, Recording, TWIST_TYPES)
-from robot_calib.mismatch.locate import active_windows, moving_average, noise_level
+from robot_calib.mismatch import timing as T
+from robot_calib.mismatch.align import pair_topics
+from robot_calib.mismatch.channels import (ChannelError, IMU_TYPE, ODOM_TYPE, PairedTopic,
+                                           Recording, TWIST_TYPES)
+from robot_calib.mismatch.findings import term_finding
+from robot_calib.mismatch.locate import active_windows, local_weights, moving_average
+from robot_calib.mismatch.locate import noise_level
+from robot_calib.mismatch.params import MismatchParams
+from robot_calib.mismatch.problem import held_mask, make_problem, noise_floor, rmse
+
+__all__ = ['MismatchParams', 'TopicDetail', 'analyse_recordings']
 
 
 @dataclass
-class MismatchParams:
-    """Parameters of the mismatch analyser."""
+class TopicDetail:
+    """
+    What the report needs of one analysed topic.
 
-    mode: str = param('improved', '', "'improved' (windows, alternatives, exact refinement) "
-                      "or 'seed' (global effects only, no windows)",
-                      choices=('improved', 'seed'))
-    margin: float = param(12.0, '', 'BIC gain an effect must bring to be reported', minimum=0.0)
-    alt_margin: float = param(10.0, '', 'BIC distance within which another effect is listed '
-                              'as an alternative', minimum=0.0)
-    max_lag: float = param(0.5, 's', 'largest time offset searched by cross-correlation',
-                           minimum=0.0)
-    min_window: float = param(0.03, '', 'shortest effect window as a fraction of the recording',
-                              minimum=0.0, maximum=1.0)
-    min_window_s: float = param(2.0, 's', 'shortest effect window', minimum=0.0)
-    noise_smooth: float = param(2.0, 's', 'moving average removed before measuring the noise',
-                                minimum=0.0)
-    heldout_chunks: int = param(60, '', 'chunks of the time line; every third is held out',
-                                minimum=3)
-    max_terms: int = param(14, '', 'most effects selected per topic', minimum=1)
+    ``pt`` is the paired topic as recorded, ``prob0`` its residual before any
+    effect, ``prob`` the residual after the time stage (the simulation
+    delayed), ``sel`` and ``final`` the amplitude effects and their fit,
+    ``held`` the held-out samples.
+    """
+
+    pt: PairedTopic
+    prob0: S.Problem
+    prob: S.Problem
+    sel: list
+    final: S.Fit
+    term_findings: list
+    time_findings: list
+    unexplained: Optional[dict]
+    held: np.ndarray
 
 
 def _t_abs_interp(t_src: np.ndarray, x: np.ndarray, t_dst: np.ndarray) -> np.ndarray:
@@ -72,8 +94,9 @@ def _aux(sim: Recording, real: Recording, pt: PairedTopic, t0: float, notes: lis
     odoms.sort(key=lambda tp: ('truth' not in tp.name, tp.name))
     if odoms:
         o = odoms[0]
-        aux['v'] = _t_abs_interp(o.t, o.fields['twist.twist.linear.x'], ta)
-        aux['omega'] = _t_abs_interp(o.t, o.fields['twist.twist.angular.z'], ta)
+        for key, f in (('v', 'twist.twist.linear.x'), ('omega', 'twist.twist.angular.z')):
+            if f in o.fields:
+                aux[key] = _t_abs_interp(o.t, o.fields[f], ta)
     if pt.msgtype == IMU_TYPE and 'angular_velocity.z' in pt.sim:
         aux['omega'] = np.nan_to_num(pt.sim_reg['angular_velocity.z'])
     cmds = [tp for rec in (sim, real) for tp in rec.values()
@@ -91,55 +114,29 @@ def _aux(sim: Recording, real: Recording, pt: PairedTopic, t0: float, notes: lis
     return {k: np.nan_to_num(v) for k, v in aux.items()}
 
 
-def _floor(res: np.ndarray, m: np.ndarray, a: np.ndarray, b: np.ndarray) -> float:
-    """Return the smallest noise level used (noiseless data): keeps chi2 well conditioned."""
-    scale = max(float(np.sqrt(np.mean(b[m] ** 2))), float(np.sqrt(np.mean(a[m] ** 2))))
-    return max(1e-3 * float(np.sqrt(np.mean(res[m] ** 2))), 1e-9 * scale, 1e-12)
-
-
-def _problem(pt: PairedTopic, smooth: float, not_judged: list) -> Optional[S.Problem]:
-    fields, r, mask, sigma, phi = [], {}, {}, {}, {}
-    for f in pt.sim:
-        a, b = pt.sim[f], pt.real[f]
-        m = np.isfinite(a) & np.isfinite(b)
-        ch = f'{pt.name}.{f}'
-        if m.sum() < 20:
-            not_judged.append({'channel': ch, 'reason': 'empty: no overlapping samples'})
-            continue
-        if np.ptp(b[m]) == 0 and np.ptp(a[m]) > 0:
-            not_judged.append({'channel': ch, 'reason': 'the real channel is constant while the '
-                               'simulated one varies (a stuck or unfilled field)'})
-            continue
-        res = np.where(m, b - a, 0.0)
-        s, ph = noise_level(res, m, pt.dt, smooth)
-        s = max(s, _floor(res, m, a, b))
-        fields.append(f)
-        r[f], mask[f], sigma[f], phi[f] = res, m, s, ph
-    if not fields:
-        return None
-    return S.Problem(pt, fields, r, mask, sigma, phi, pt.t.size)
-
-
-def _implausible(prob: S.Problem, sel: list, not_judged: list) -> list:
+# -- stage 2: amplitude effects -------------------------------------------------------------
+def _implausible(prob: S.Problem, sel: list, not_judged: list) -> tuple[list, list]:
     """
-    Move effects fitted far beyond their plausible range into ``not_judged``.
+    Move effects fitted far beyond their plausible range out of the findings.
 
-    A parameter beyond twice the plausible magnitude (e.g. a gyro scale of
-    -1: the real channel does not follow the simulation at all) is not a
-    physical effect of that name; it is reported as a stretch the tool
-    cannot explain.
+    A parameter beyond the plausible magnitude of a working sensor (e.g. a
+    gyro scale of -1: the real channel does not follow the simulation at all)
+    is not a physical effect of that name; it is reported as a stretch the tool
+    cannot explain. Returns (kept terms, [(term, parameters)] dropped).
     """
     if not sel:
-        return sel
+        return sel, []
     f = S.fit(prob, sel)
-    keep = []
+    keep, dropped = [], []
     for i, t in enumerate(sel):
         params, _ = E.to_params(t, f.betas[i], f.covs[i])
         spec = E.SPECS[t.effect]
-        bad = [k for k, lim in zip(spec.params, spec.plausible) if abs(params[k]) > 2 * lim]
+        bad = [k for k, lim in zip(spec.params, spec.plausible)
+               if np.isfinite(params[k]) and abs(params[k]) > lim]
         if not bad:
             keep.append(t)
             continue
+        dropped.append((t, params))
         pt = prob.pt
         where = 'the whole recording' if t.window is None else \
             f'{pt.t[t.window[0]]:.1f}-{pt.t[min(t.window[1], prob.n) - 1]:.1f} s'
@@ -149,7 +146,77 @@ def _implausible(prob: S.Problem, sel: list, not_judged: list) -> list:
                            'beyond a physical value; is the simulated signal noise there?)'})
     if len(keep) < len(sel):
         keep = S.refine_nonlinear(prob, keep)
-    return keep
+    return keep, dropped
+
+
+def _plain_offsets(prob: S.Problem, sel: list, prm: MismatchParams) -> list:
+    """
+    Return ``sel`` with drifting offsets whose drift is immaterial replaced by plain offsets.
+
+    A drift that moves the offset by less than the offset's reporting floor
+    over the recording is not worth naming; the plain offset is the simpler
+    claim (its terms are made from the drift term's first column).
+    """
+    out = list(sel)
+    f = S.fit(prob, out)
+    span = float(prob.pt.t[-1] - prob.pt.t[0]) if prob.n else 0.0
+    floor = prm.floor_scale * E.SPECS['gyro_bias'].floor
+    for i, t in enumerate(out):
+        if t.effect != 'gyro_bias_drift' or abs(f.betas[i][1]) * span >= floor:
+            continue
+        out[i] = E.Term('gyro_bias', t.topic, {k: c[:, :1] for k, c in t.cols.items()}, t.group,
+                        t.channel, t.windowable, t.window, dict(t.meta))
+    return out
+
+
+def _min_len(prob: S.Problem, prm: MismatchParams) -> int:
+    """Return the shortest effect window (samples); longer than the recording in seed mode."""
+    if prm.mode == 'seed':  # global effects only
+        return prob.n + 1
+    return max(20, int(prm.min_window * prob.n), int(prm.min_window_s / max(prob.pt.dt, 1e-9)))
+
+
+def _select(prob: S.Problem, cands: list, prm: MismatchParams, edges: np.ndarray,
+            notes: list, not_judged: list) -> tuple[list, S.Problem, list]:
+    pt = prob.pt
+    min_len = _min_len(prob, prm)
+    sel, _ = S.forward_select(prob, cands, prm.margin, min_len, prm.max_terms)
+    # second pass with the noise level, and its changes along the recording, measured on
+    # the first model's residual
+    cur = S.fit(prob, sel, contributions=True)
+    sig2, phi2, sw2 = {}, {}, {}
+    for f in prob.fields:
+        e = prob.r[f] - cur.contrib.get(f, 0.0)
+        s, ph = noise_level(e, prob.mask[f], pt.dt, prm.noise_smooth)
+        sig2[f] = max(s, noise_floor(prob.r[f], prob.mask[f], pt.sim[f], pt.real[f]))
+        phi2[f] = ph
+        sw2[f] = np.sqrt(local_weights(e, prob.mask[f], pt.dt, prm.noise_smooth,
+                                       prm.noise_smooth))
+    prob = S.Problem(pt, prob.fields, prob.r, prob.mask, sig2, phi2, prob.n, sw=sw2)
+    sel, _ = S.forward_select(prob, cands, prm.margin, min_len, prm.max_terms)
+    if sel and prm.mode != 'seed':
+        sel = S.refine_windows(prob, sel, min_len)
+        sel = S.unexcited_windows(prob, sel)
+    sel = S.refine_nonlinear(prob, sel)
+    sel = S.backward_eliminate(prob, sel, prm.margin)
+    sel, dropped = R.robust_prune(prob, sel, edges, prm.alpha,
+                                  refine=lambda ts: S.refine_nonlinear(prob, ts),
+                                  min_block_s=prm.min_block_s)
+    for t, (w, thr, kb) in dropped:
+        notes.append(f'{t.channel}: a candidate {t.effect} fits, but not consistently across '
+                     f'the recording (robust test {w:.3g} < {thr:.3g} over {kb} blocks); '
+                     'not reported')
+    sel = _plain_offsets(prob, sel, prm)
+    sel, implausible = _implausible(prob, sel, not_judged)
+    held = _heldout(prob, sel, prm.heldout_chunks) if sel else {}
+    bad = {i for i, h in held.items() if h['heldout_rmse_before'] is not None and
+           h['heldout_rmse_after'] is not None and
+           h['heldout_rmse_after'] > h['heldout_rmse_before']}
+    for i in sorted(bad):
+        notes.append(f'{sel[i].channel}: a candidate {sel[i].effect} did not improve the '
+                     'held-out part and is not reported')
+    sel = [t for i, t in enumerate(sel) if i not in bad]
+    return sel, prob, implausible
 
 
 def _predict(prob: S.Problem, terms: list, betas: list, f: str) -> np.ndarray:
@@ -157,8 +224,7 @@ def _predict(prob: S.Problem, terms: list, betas: list, f: str) -> np.ndarray:
     for t, b in zip(terms, betas):
         if f not in t.cols:
             continue
-        X = t.cols[f]
-        c = S.mdot(X, b)
+        c = S.mdot(t.cols[f], b)
         off = t.meta.get('offset')
         if off is not None and f in off:
             c = c + off[f]
@@ -170,17 +236,13 @@ def _predict(prob: S.Problem, terms: list, betas: list, f: str) -> np.ndarray:
     return out
 
 
-def _rmse(x: np.ndarray, m: np.ndarray) -> Optional[float]:
-    return float(np.sqrt(np.mean(x[m] ** 2))) if m.any() else None
-
-
 def _heldout(prob: S.Problem, sel: list, chunks: int) -> dict:
     """Re-fit the selected terms on the fitting chunks; RMSE before/after per selected term."""
     n = prob.n
-    chunk = max(1, n // chunks)
-    held = ((np.arange(n) // chunk) % 3) == 2
+    held = held_mask(n, chunks)
     fit_mask = {f: prob.mask[f] & ~held for f in prob.fields}
-    pf = S.Problem(prob.pt, prob.fields, prob.r, fit_mask, prob.sigma, prob.phi, n)
+    pf = S.Problem(prob.pt, prob.fields, prob.r, fit_mask, prob.sigma, prob.phi, n,
+                   sw=dict(prob.sw))
     fr = S.fit(pf, sel)
     out = {}
     for i, t in enumerate(sel):
@@ -194,177 +256,75 @@ def _heldout(prob: S.Problem, sel: list, chunks: int) -> dict:
             w[t.window[0]:t.window[1]] = True
             m &= w
         r = prob.r[f]
-        out[i] = {'rmse_before': _rmse(r, m & ~held), 'rmse_after': _rmse(r - pred, m & ~held),
-                  'heldout_rmse_before': _rmse(r, m & held),
-                  'heldout_rmse_after': _rmse(r - pred, m & held)}
+        out[i] = {'rmse_before': rmse(r, m & ~held), 'rmse_after': rmse(r - pred, m & ~held),
+                  'heldout_rmse_before': rmse(r, m & held),
+                  'heldout_rmse_after': rmse(r - pred, m & held)}
     return out
 
 
-def _fmt(v: float, unit: str) -> str:
-    return f'{v:.4g} {unit}'.strip()
-
-
-def explain(term: E.Term, params: dict, window: Optional[list], fitd: dict) -> str:
-    """Return one or two plain sentences on a finding."""
-    e = term.effect
-    spec = E.SPECS[e]
-    where = f' between {window[0]:.1f} s and {window[1]:.1f} s' if window else ''
-    if e == 'gyro_bias':
-        s = f'The real gyro reads {_fmt(params["bias"], "rad/s")} more than the simulation{where}.'
-    elif e == 'gyro_bias_drift':
-        s = (f'The real gyro has an offset of {_fmt(params["bias"], "rad/s")} at the start that '
-             f'changes by {_fmt(params["drift"], "rad/s^2")} (a warm-up drift){where}.')
-    elif e in ('gyro_scale', 'accel_scale', 'wheel_radius_scale', 'track_width_scale'):
-        k = params['scale']
-        what = {'gyro_scale': 'the real gyro rate', 'accel_scale': 'the real acceleration',
-                'wheel_radius_scale': 'the real odometry speed (wheel radius)',
-                'track_width_scale': 'the effective track width (odometry yaw rate / (1+k))'}[e]
-        s = f'{what[0].upper() + what[1:]} is {abs(k) * 100:.2f}% ' \
-            f'{"larger" if k > 0 else "smaller"} than simulated{where}.'
-    elif e == 'time_offset':
-        tau = params['tau']
-        s = f'The real recording {"lags" if tau > 0 else "leads"} the simulation by ' \
-            f'{abs(tau) * 1000:.1f} ms (a latency).'
-    elif e == 'accel_bias':
-        s = f'The real accelerometer reads {_fmt(params["bias"], "m/s^2")} more than the ' \
-            f'simulation{where}.'
-    elif e == 'centripetal_acceleration':
-        s = f'The real lateral acceleration contains v*omega with gain {params["gain"]:.3f}: ' \
-            'the simulation leaves out the centripetal acceleration in turns.'
-    elif e == 'imu_mounting_tilt':
-        s = f'The IMU is mounted tilted by roll {np.degrees(params["roll"]):.2f} deg and pitch ' \
-            f'{np.degrees(params["pitch"]):.2f} deg, so gravity leaks into a_x and a_y.'
-    elif e == 'wheel_slip':
-        s = f'The real odometry speed changes with the commanded acceleration (coefficient ' \
-            f'{_fmt(params["coefficient"], "s^2/m")}): the wheels slip{where}.'
-    elif e == 'gyro_cross_axis':
-        src = term.meta.get('source', 'another axis')
-        s = f'Rotation about {src} leaks into this axis with ' \
-            f'coefficient {params["coefficient"]:.4f} (an axis misalignment of ' \
-            f'{np.degrees(np.arcsin(np.clip(params["coefficient"], -1, 1))):.2f} deg).'
-    else:
-        s = f'{spec.what}.'
-    hb, ha = fitd.get('heldout_rmse_before'), fitd.get('heldout_rmse_after')
-    if hb and ha is not None and hb > 0:
-        s += f' Modelling it cuts the held-out residual from {hb:.3g} to {ha:.3g}.'
-    for name, lim in zip(spec.params, spec.plausible):
-        if abs(params.get(name, 0.0)) > lim:
-            s += f' The {name} is beyond the plausible {lim:g}: check units and the pairing.'
-    return s
-
-
+# -- findings -------------------------------------------------------------------------------
 def _analyse_topic(pt: PairedTopic, sim: Recording, real: Recording, t0: float,
                    prm: MismatchParams, notes: list, not_judged: list,
-                   channel_info: dict) -> tuple[list, Optional[S.Problem], list]:
-    prob = _problem(pt, prm.noise_smooth, not_judged)
+                   channel_info: dict) -> tuple[list, Optional[S.Problem], list, dict]:
+    prob0 = make_problem(pt, prm.noise_smooth, not_judged)
+    if prob0 is None:
+        return [], None, [], {}
+    edges = R.block_edges(prob0.n, pt.dt, prm.blocks, prm.min_block_s)
+    timing = T.time_stage(pt, prob0, prm, edges)
+    findings = T.time_findings(pt, prob0, timing, prm, edges)
+    taus = {}
+    for kind, te, _ in timing:
+        if kind == 'time_offset':
+            taus.update(T.field_taus(te))
+    pta = T.aligned(pt, taus)
+    lags = [(te, info) for kind, te, info in timing if kind == 'drive_lag']
+    if lags:
+        sim_l = dict(pta.sim)
+        for te, info in lags:
+            sim_l.update({f: T.lagged(pt, f, info['lag_tau']) for f in te.fields})
+        pta = replace(pta, sim=sim_l, sim_reg={}, sim_noisy={})
+    prob = make_problem(pta, prm.noise_smooth, None) if (taus or lags) else prob0
     if prob is None:
-        return [], None, []
-    aux = _aux(sim, real, pt, t0, notes)
-    cands, cannot = E.candidates(pt, prob.sigma, aux)
-    for c in cannot:
-        if c not in notes:
-            notes.append(c)
-    min_len = max(20, int(prm.min_window * prob.n),
-                  int(prm.min_window_s / max(pt.dt, 1e-9)))
-    if prm.mode == 'seed':  # global effects only: no window can be as long as this
-        min_len = prob.n + 1
-    sel, _ = S.forward_select(prob, cands, prm.margin, min_len, prm.max_terms)
-    if sel:
-        # second pass with the noise level measured on the model's residual
-        cur = S.fit(prob, sel, contributions=True)
-        sig2, phi2 = {}, {}
-        changed = False
-        for f in prob.fields:
-            s, ph = noise_level(prob.r[f] - cur.contrib.get(f, 0.0), prob.mask[f], pt.dt,
-                                prm.noise_smooth)
-            s = max(s, _floor(prob.r[f], prob.mask[f], pt.sim[f], pt.real[f]))
-            sig2[f], phi2[f] = s, ph
-            changed |= s < 0.9 * prob.sigma[f]
-        if changed:
-            prob = S.Problem(pt, prob.fields, prob.r, prob.mask, sig2, phi2, prob.n)
-            sel, _ = S.forward_select(prob, cands, prm.margin, min_len, prm.max_terms)
-    if sel and prm.mode != 'seed':
-        sel = S.refine_windows(prob, sel, min_len)
-        sel = S.unexcited_windows(prob, sel)
-    sel = S.refine_nonlinear(prob, sel)
-    sel = S.backward_eliminate(prob, sel, prm.margin)
-    sel = _implausible(prob, sel, not_judged)
+        return findings, None, [], {}
+    aux = _aux(sim, real, pta, t0, notes)
+    cands, cannot = E.candidates(pta, prob.sigma, aux)
+    notes.extend(c for c in cannot if c not in notes)
+    sel, prob, implausible = _select(prob, cands, prm, edges, notes, not_judged)
     held = _heldout(prob, sel, prm.heldout_chunks) if sel else {}
-    # cross-validation guard: an effect that makes the held-out part worse is dropped
-    bad = {i for i, h in held.items() if h['heldout_rmse_before'] is not None and
-           h['heldout_rmse_after'] is not None and
-           h['heldout_rmse_after'] > h['heldout_rmse_before']}
-    if bad:
-        for i in sorted(bad):
-            notes.append(f'{sel[i].channel}: a candidate {sel[i].effect} did not improve the '
-                         'held-out part and is not reported')
-        sel = [t for i, t in enumerate(sel) if i not in bad]
-        held = _heldout(prob, sel, prm.heldout_chunks) if sel else {}
     final = S.fit(prob, sel, contributions=True)
-    for f in prob.fields:
-        ch = f'{pt.name}.{f}'
-        r = prob.r[f]
-        m = prob.mask[f]
-        channel_info[ch] = {
-            'rmse': _rmse(r, m), 'noise': prob.sigma[f], 'noise_inflation': prob.phi[f],
-            'rmse_after': _rmse(r - final.contrib.get(f, 0.0), m),
-            'beyond_noise': active_windows(pt.t, r, m, prob.sigma[f], prob.phi[f])}
-    for f in prob.fields:
-        ci = channel_info[f'{pt.name}.{f}']
-        left = ci['rmse_after'] or 0.0
-        if left > 3.0 * prob.sigma[f] * np.sqrt(prob.phi[f]) and left > 0:
-            not_judged.append({'channel': f'{pt.name}.{f}', 'reason': (
-                f'after the effects found the residual is still {left / prob.sigma[f]:.1f} '
-                'times the noise: the runs may not follow the same motion, or an effect '
-                'outside the library acts; findings on this channel are uncertain')})
-    alts = S.alternatives(prob, sel, cands, min_len, prm.alt_margin) \
+    tests = R.wald(prob, sel, final, edges, prm.alpha, prm.min_block_s) if sel else []
+    alts = S.alternatives(prob, sel, cands, _min_len(prob, prm), prm.alt_margin) \
         if sel and prm.mode != 'seed' else {}
-    base = S.score(prob, final)
-    findings = []
-    for i, t in enumerate(sel):
-        params, sds = E.to_params(t, final.betas[i], final.covs[i])
-        window = None
-        if t.window is not None:
-            i0, i1 = t.window
-            window = [round(float(pt.t[i0]), 4), round(float(pt.t[min(i1, prob.n) - 1]), 4)]
-        fitd = held.get(i, {})
-        without = S.score(prob, S.fit(prob, sel[:i] + sel[i + 1:]))
-        fd = {'channel': t.channel, 'effect': t.effect,
-              'parameters': {k: float(v) for k, v in params.items()},
-              'window': window, 'fit': fitd,
-              'explanation': explain(t, params, window, fitd),
-              'std': sds,
-              'ci95': {k: [params[k] - 1.96 * sds[k], params[k] + 1.96 * sds[k]] for k in params},
-              'units': dict(zip(E.SPECS[t.effect].params, E.SPECS[t.effect].units)),
-              'evidence': {'delta_bic': float(without - base)}}
-        if 'source' in t.meta:
-            fd['source_channel'] = t.meta['source']
-        if i in alts:
-            fd['alternatives'] = []
-            for c, cf, d in alts[i]:
-                j = len(cf.terms) - 1
-                cp, _ = E.to_params(c, cf.betas[j], cf.covs[j])
-                fd['alternatives'].append({
-                    'effect': c.effect, 'channel': c.channel,
-                    'parameters': {k: float(v) for k, v in cp.items()},
-                    'delta_bic': d,
-                    'separating_motion': E.separating_motion(t.effect, c.effect)})
-            names = ', '.join(sorted({a['effect'] for a in fd['alternatives']}))
-            fd['explanation'] += f' This recording cannot clearly tell it from {names}; ' \
-                f'{fd["alternatives"][0]["separating_motion"]}.'
-        findings.append(fd)
-    return findings, prob, sel
+    term_findings = [term_finding(prob, final, sel, i, held.get(i, {}), tests[i],
+                                  alts.get(i, [])) for i in range(len(sel))]
+    time_findings = list(findings)
+    findings.extend(term_findings)
+    for f in prob.fields:
+        r, m = prob0.r[f], prob0.mask[f]
+        left = prob.r[f] - final.contrib.get(f, 0.0)
+        channel_info[f'{pt.name}.{f}'] = {
+            'rmse': rmse(r, m), 'noise': prob.sigma[f], 'noise_inflation': prob.phi[f],
+            'rmse_after': rmse(left, prob.mask[f]),
+            'beyond_noise': active_windows(pt.t, r, m, prob0.sigma[f], prob0.phi[f])}
+    extra = U.unexplained(prob, final, aux, edges, implausible)
+    if extra is not None:
+        findings.append(extra)
+    detail = TopicDetail(pt, prob0, prob, sel, final, term_findings, time_findings, extra,
+                         held_mask(prob.n, prm.heldout_chunks))
+    return findings, prob, sel, {'delays': timing, 'detail': detail}
 
 
 def analyse_recordings(sim: Recording, real: Recording,
-                       params: Optional[MismatchParams] = None) -> tuple[dict, list]:
+                       params: Optional[MismatchParams] = None,
+                       remaps: Optional[list] = None) -> tuple[dict, list]:
     """
-    Compare two recordings; return (findings dict, per-topic details for the report).
+    Compare two recordings; return (findings dict, per-topic :class:`TopicDetail` list).
 
-    :raises ChannelError: when nothing can be compared
+    :param remaps: ``[(sim topic, real topic)]`` pairs the user gave (``--remap``)
+    :raises ChannelError: when nothing can be compared, or the clocks cannot be aligned
     """
     prm = params or MismatchParams()
-    paired, not_judged, t0, notes = pair_topics(sim, real, prm.max_lag)
+    paired, not_judged, t0, notes, clock = pair_topics(sim, real, prm.max_lag, remaps)
     if not paired:
         reasons = '; '.join(f'{d["channel"]}: {d["reason"]}' for d in not_judged) or \
             'no common topic'
@@ -375,16 +335,44 @@ def analyse_recordings(sim: Recording, real: Recording,
     timing: dict = {}
     for pt in paired:
         notes.extend(pt.notes)
-        timing[pt.name] = {'xcorr_lag': pt.tau_xcorr, 'xcorr_gain': pt.xcorr_gain}
-        fs, prob, sel = _analyse_topic(pt, sim, real, t0, prm, notes, not_judged, channel_info)
+        fs, prob, sel, info = _analyse_topic(pt, sim, real, t0, prm, notes, not_judged,
+                                             channel_info)
+        timing[pt.name] = {'xcorr_lag': pt.tau_xcorr, 'xcorr_gain': pt.xcorr_gain,
+                           'delays': [{'fields': te.fields, 'effect': kind,
+                                       'tau': te.delay.tau, 'std': te.delay.std}
+                                      for kind, te, _ in info.get('delays', [])]}
         findings.extend(fs)
-        if prob is not None:
-            details.append((pt, prob, sel, fs))
+        if 'detail' in info:
+            details.append(info['detail'])
     if not channel_info:
         raise ChannelError('no channel can be compared (' + '; '.join(
             f'{d["channel"]}: {d["reason"]}' for d in not_judged) + ')')
-    findings.sort(key=lambda f: -f['evidence']['delta_bic'])
-    out = {'verdict': 'mismatch' if findings else 'consistent', 'findings': findings,
-           'time_alignment': timing, 'channels': channel_info, 'not_judged': not_judged,
-           'notes': notes, 'bag_start': t0}
+    if clock.method == 'motion':
+        # clocks aligned on the motion: a latency common to the run is part of the offset
+        delays = [f for f in findings if f['effect'] == 'time_offset']
+        findings = [f for f in findings if f['effect'] != 'time_offset']
+        if delays:
+            best = max(delays, key=lambda f: f['evidence']['z'])
+            clock.offset -= best['parameters']['tau']
+            notes.append('the clocks differ, so a latency common to a whole sensor cannot be '
+                         'told from the clock offset; the offset includes '
+                         f'{best["parameters"]["tau"] * 1000:.1f} ms measured on '
+                         f'{best["channel"]}; per-sensor delays are in time_alignment')
+    findings.sort(key=lambda f: (f['effect'] == 'unexplained', -f.get('confidence', 0.0)))
+    duration = max((float(pt.t[-1] - pt.t[0]) for pt in paired if pt.t.size), default=0.0)
+    weak = [f for f in findings if f.get('evidence_strength', f['confidence']) <
+            prm.min_confidence]
+    minor = [f for f in findings if f not in weak and f['effect'] != 'unexplained' and
+             E.effect_size(f['effect'], f['parameters'], duration) <
+             prm.floor_scale * E.SPECS[f['effect']].floor]
+    findings = [f for f in findings if f not in weak and f not in minor]
+    for f in minor:
+        f['explanation'] += ' It is smaller than the ' \
+            f'{E.SPECS[f["effect"]].floor:g} worth naming for a ground robot, so it is listed ' \
+            'as minor.'
+    out = {'verdict': 'mismatch' if findings else 'consistent',
+           'findings': findings, 'minor_findings': minor, 'weak_findings': weak,
+           'time_alignment': {'clock': clock.as_dict(), **timing},
+           'channels': channel_info,
+           'not_judged': not_judged, 'notes': notes, 'bag_start': t0}
     return out, details

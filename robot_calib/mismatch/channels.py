@@ -1,19 +1,14 @@
 # Copyright 2026 robot_calib contributors
 # SPDX-License-Identifier: Apache-2.0
 """
-Recordings as channels, and their alignment: pairing, resampling and a lagged cross-correlation.
+Recordings as channels: topics, fields, kernels; reading them from bags.
 
 A :class:`Recording` maps a topic (``/imu``) to a :class:`Topic`: one time
 vector (s, header stamps) and named field arrays whose names follow the ROS
-message field paths (``angular_velocity.z``, ``twist.twist.linear.x``), so a
-channel is ``topic + '.' + field`` as in ``findings.json``.
-
-:func:`pair_topics` pairs the simulated and the real recording topic by
-topic, resamples both onto the times of the slower side (linear
-interpolation; no filtering, which would damp the faster side only), and
-estimates each topic's time offset by a lagged cross-correlation of the
-mean-removed, standardised channels (parabolic peak refinement). Problems
-that make a channel impossible to judge are returned as plain sentences.
+message field paths (``angular_velocity.z``, ``twist.twist.linear.x``,
+``velocity.left_wheel_joint``), so a channel is ``topic + '.' + field`` as in
+``findings.json``. A :class:`PairedTopic` holds one topic of both recordings
+on common times (made by :mod:`.align`).
 """
 
 from __future__ import annotations
@@ -33,7 +28,8 @@ IMU_FIELDS = ('angular_velocity.x', 'angular_velocity.y', 'angular_velocity.z',
               'linear_acceleration.x', 'linear_acceleration.y', 'linear_acceleration.z')
 ODOM_FIELDS = ('twist.twist.linear.x', 'twist.twist.angular.z')
 TWIST_FIELDS = ('linear.x', 'angular.z')
-COMPARED_TYPES = (IMU_TYPE, ODOM_TYPE)
+JOINT_STATE_TYPE = 'sensor_msgs/msg/JointState'
+COMPARED_TYPES = (IMU_TYPE, ODOM_TYPE, JOINT_STATE_TYPE)
 
 
 class ChannelError(ValueError):
@@ -42,12 +38,21 @@ class ChannelError(ValueError):
 
 @dataclass
 class Topic:
-    """One topic of a recording: times (s) and field arrays (SI units) of equal length."""
+    """
+    One topic of a recording: times (s) and field arrays (SI units) of equal length.
+
+    ``kernels`` maps a field to the smoothing its values went through, as
+    ``(shape, half_width_s)`` with shape ``'box'`` or ``'tri'`` (see
+    :func:`kernel_weights`): a simulated channel derived from a ground truth
+    is the truth seen through such a kernel, and the real channel is compared
+    through the same one.
+    """
 
     name: str
     msgtype: str
     t: np.ndarray
     fields: dict = field(default_factory=dict)
+    kernels: dict = field(default_factory=dict)
 
     def __len__(self) -> int:
         """Return the number of samples."""
@@ -92,12 +97,29 @@ def _add(buf: dict, topic: str, msgtype: str, s) -> None:
         vals = (s.vx, s.wz)
         names = TWIST_FIELDS
         msgtype = msgtype or TWIST_TYPES[0]
+    elif isinstance(s, T.JointStateSample):
+        names = tuple(f'position.{n}' for n in s.names) + tuple(f'velocity.{n}'
+                                                                for n in s.names)
+        vals = tuple(np.asarray(s.position, float)) + tuple(np.asarray(s.velocity, float))
+        msgtype = msgtype or JOINT_STATE_TYPE
     else:
         return
     b = buf.setdefault(topic, {'type': msgtype, 't': [], 'cols': {}})
+    n = len(b['t'])
     b['t'].append(s.t)
+    cols = b['cols']
     for k, v in zip(names, vals):
-        b['cols'].setdefault(k, []).append(v)
+        col = cols.get(k)
+        if col is None:
+            # a joint that appears late reads NaN before it appeared
+            col = cols[k] = [math.nan] * n
+        elif len(col) < n:
+            col.extend([math.nan] * (n - len(col)))  # a message that omitted it
+        col.append(v)
+    if len(cols) > len(names):
+        for col in cols.values():
+            if len(col) <= n:
+                col.append(math.nan)
 
 
 def _finish(buf: dict) -> Recording:
@@ -114,8 +136,37 @@ def _finish(buf: dict) -> Recording:
                 f['twist.twist.linear.x'], f['twist.twist.angular.z'] = v, w
         for k in ('pose.x', 'pose.y', 'pose.yaw'):
             tp.fields.pop(k, None)
+        if tp.msgtype == JOINT_STATE_TYPE:
+            tp.fields = joint_channels(tp.t, tp.fields)
         rec[topic] = tp
     return rec
+
+
+def joint_channels(t: np.ndarray, fields: dict) -> dict:
+    """
+    Return the joint channels worth comparing: steering angles, and wheel rates.
+
+    A steering joint (its name holds ``steer``) is compared by its angle; any
+    other joint by its rate (rad/s), differentiated from its angle when the
+    messages carry none: a wheel's angle is the integral of its rate, whose
+    difference between two runs only grows.
+    """
+    out = {}
+    joints = {k.split('.', 1)[1] for k in fields}
+    for j in sorted(joints):
+        pos, vel = fields.get(f'position.{j}'), fields.get(f'velocity.{j}')
+        if 'steer' in j:
+            if pos is not None and np.isfinite(pos).sum() > 2:
+                out[f'position.{j}'] = pos
+            continue
+        if vel is None or np.isfinite(vel).sum() < 3:
+            if pos is None or np.isfinite(pos).sum() < 3 or t.size < 3:
+                continue
+            ok = np.isfinite(pos)
+            vel = np.full(t.size, np.nan)
+            vel[ok] = np.gradient(pos[ok], t[ok])
+        out[f'velocity.{j}'] = vel
+    return out
 
 
 def recording_from_samples(items) -> Recording:
@@ -143,6 +194,8 @@ def read_bag(path: os.PathLike | str) -> Recording:
     from robot_calib.io import bags
     buf: dict = {}
     try:
+        with bags.BagSet([path]) as bagset:
+            custom = bagset.custom_data()
         for msg in bags.read_messages([path]):
             if msg.msgtype not in COMPARED_TYPES and msg.msgtype not in TWIST_TYPES:
                 continue
@@ -152,7 +205,36 @@ def read_bag(path: os.PathLike | str) -> Recording:
         raise ChannelError(str(exc)) from None
     except (OSError, ValueError, KeyError) as exc:
         raise ChannelError(f'cannot read {path}: {exc}') from None
-    return _finish(buf)
+    rec = _finish(buf)
+    for topic, kernels in decode_kernels(custom.get(KERNELS_KEY, '')).items():
+        if topic in rec:
+            rec[topic].kernels.update({f: k for f, k in kernels.items()
+                                       if f in rec[topic].fields})
+    return rec
+
+
+KERNELS_KEY = 'robot_calib.kernels'
+"""Bag metadata key of the smoothing kernels of derived channels (JSON)."""
+
+
+def encode_kernels(rec: Recording) -> str:
+    """Return the kernels of a recording as the JSON kept in a bag's metadata."""
+    import json
+    return json.dumps({k: {f: [s[0], float(s[1])] for f, s in tp.kernels.items()}
+                       for k, tp in rec.items() if tp.kernels}, sort_keys=True)
+
+
+def decode_kernels(text: str) -> dict:
+    """Return ``{topic: {field: (shape, half width s)}}`` from bag metadata (``{}`` if none)."""
+    import json
+    if not text:
+        return {}
+    try:
+        data = json.loads(text)
+        return {str(k): {str(f): (str(s[0]), float(s[1])) for f, s in v.items()}
+                for k, v in data.items()}
+    except (ValueError, TypeError, KeyError, IndexError) as exc:
+        raise ChannelError(f'unreadable {KERNELS_KEY} in the bag metadata: {exc}') from None
 
 
 @dataclass
@@ -177,6 +259,7 @@ class PairedTopic:
     sim_reg: dict = field(default_factory=dict)
     sim_noisy: dict = field(default_factory=dict)
     sim_src: Optional[tuple] = None
+    kernels: dict = field(default_factory=dict)
 
     def __post_init__(self) -> None:
         """Build the regressor copies of the simulated channels (see :func:`regressor_signal`)."""
@@ -270,181 +353,34 @@ def _box(x: np.ndarray, width: int) -> np.ndarray:
         return np.where(den > 0, num / np.maximum(den, 1), np.nan)
 
 
-def _interp(t_src: np.ndarray, x: np.ndarray, t_dst: np.ndarray, max_gap: float) -> np.ndarray:
-    """Interpolate linearly; NaN outside the source span or across gaps longer than max_gap (s)."""
-    ok = np.isfinite(x)
-    ts, xs = t_src[ok], x[ok]
-    if ts.size < 2:
-        return np.full(t_dst.size, np.nan)
-    y = np.interp(t_dst, ts, xs)
-    idx = np.clip(np.searchsorted(ts, t_dst), 1, ts.size - 1)
-    gap = ts[idx] - ts[idx - 1]
-    bad = (t_dst < ts[0]) | (t_dst > ts[-1]) | (gap > max_gap)
-    y[bad] = np.nan
-    return y
-
-
-def median_dt(t: np.ndarray) -> float:
-    """Return the median sample period (s), NaN for fewer than two samples."""
-    if t.size < 2:
-        return float('nan')
-    return float(np.median(np.diff(t)))
-
-
-def xcorr_lag(sim: dict, real: dict, dt: float, max_lag: float) -> tuple[float, float]:
+def kernel_weights(spec: tuple, dt: float) -> np.ndarray:
     """
-    Return (lag s, correlation gain) of the peak of the summed normalised cross-correlation.
+    Return the FIR weights (odd length, sum 1) of a smoothing kernel on a grid of period ``dt``.
 
-    Each channel is mean-removed and divided by its standard deviation; the
-    correlations of all channels are summed; the peak is refined by a parabola
-    through its neighbours. Positive lag: ``real`` lags ``sim``.
+    ``('box', h)``: the mean over ``[t - h, t + h]`` (trapezoid ends; what a
+    central difference of an integral over ``2h`` computes); ``('tri', h)``: the
+    triangle of half width ``h`` (what a second difference over ``+-h`` does to
+    an acceleration).
     """
-    num = None
-    n_used = 0
-    for k in sim:
-        a, b = sim[k], real.get(k)
-        if b is None:
-            continue
-        ok = np.isfinite(a) & np.isfinite(b)
-        if ok.sum() < 20:
-            continue
-        a0 = np.where(ok, a - np.nanmean(a[ok]), 0.0)
-        b0 = np.where(ok, b - np.nanmean(b[ok]), 0.0)
-        sa, sb = np.std(a0[ok]), np.std(b0[ok])
-        if sa <= 0 or sb <= 0:
-            continue
-        a0, b0 = a0 / sa, b0 / sb
-        n = a0.size
-        nfft = 1 << int(math.ceil(math.log2(2 * n)))
-        c = np.fft.irfft(np.fft.rfft(b0, nfft) * np.conj(np.fft.rfft(a0, nfft)), nfft)
-        c = c / ok.sum()
-        num = c if num is None else num + c
-        n_used += 1
-    if num is None or not np.isfinite(dt) or dt <= 0:
-        return 0.0, 0.0
-    num = num / n_used
-    nfft = num.size
-    m = int(min(max_lag / dt, nfft // 4))
-    if m < 1:
-        return 0.0, 0.0
-    lags = np.concatenate((np.arange(0, m + 1), np.arange(-m, 0)))
-    vals = np.concatenate((num[:m + 1], num[nfft - m:]))
-    i = int(np.argmax(vals))
-    best = lags[i]
-    frac = 0.0
-    if -m < best < m:
-        y0, y1, y2 = num[(best - 1) % nfft], num[best % nfft], num[(best + 1) % nfft]
-        den = y0 - 2 * y1 + y2
-        if den < 0:
-            frac = float(np.clip(0.5 * (y0 - y2) / den, -0.5, 0.5))
-    return float((best + frac) * dt), float(vals[i] - num[0])
-
-
-def topic_start(rec: Recording) -> float:
-    """Return the earliest sample time (s) of a recording's compared topics (NaN if none)."""
-    starts = [tp.t[0] for tp in rec.values() if len(tp)]
-    return float(min(starts)) if starts else float('nan')
-
-
-def pair_topics(sim: Recording, real: Recording,
-                max_lag: float = 0.5) -> tuple[list, list, float, list]:
-    """
-    Pair and resample the compared topics of two recordings.
-
-    :param sim: the simulated recording
-    :param real: the real recording
-    :param max_lag: largest time offset (s) the cross-correlation searches
-    :returns: (paired topics, not-judged entries ``{'channel', 'reason'}``,
-        the sim bag start (s) used as time zero, notes)
-    :raises ChannelError: when nothing at all can be compared
-    """
-    notes: list = []
-    not_judged: list = []
-    sim_c = {k: v for k, v in sim.items() if v.msgtype in COMPARED_TYPES}
-    real_c = {k: v for k, v in real.items() if v.msgtype in COMPARED_TYPES}
-    if not sim_c:
-        raise ChannelError('the simulated recording has no IMU or odometry topic '
-                           f'(topics: {sorted(sim) or "none"})')
-    if not real_c:
-        raise ChannelError('the real recording has no IMU or odometry topic '
-                           f'(topics: {sorted(real) or "none"})')
-    s0, r0 = topic_start(sim_c), topic_start(real_c)
-    s1 = max(tp.t[-1] for tp in sim_c.values() if len(tp)) if np.isfinite(s0) else s0
-    r1 = max(tp.t[-1] for tp in real_c.values() if len(tp)) if np.isfinite(r0) else r0
-    if not (np.isfinite(s0) and np.isfinite(r0)):
-        raise ChannelError('one recording has no samples on its IMU/odometry topics')
-    shift = 0.0
-    overlap = min(s1, r1) - max(s0, r0)
-    if overlap < 0.5 * min(s1 - s0, r1 - r0):
-        shift = s0 - r0
-        notes.append(f'the recordings use different clocks (starts {s0:.3f} s and {r0:.3f} s); '
-                     'their starts were aligned')
-    # a topic renamed on one side (/imu vs /imu/data): pair the only unmatched topic of a
-    # type with the only unmatched one of the same type on the other side
-    for mt in COMPARED_TYPES:
-        us = [k for k, v in sim_c.items() if v.msgtype == mt and k not in real_c]
-        ur = [k for k, v in real_c.items() if v.msgtype == mt and k not in sim_c]
-        if len(us) == 1 and len(ur) == 1:
-            notes.append(f'sim topic {us[0]} compared with real topic {ur[0]} (same type, '
-                         'different names)')
-            tp = real_c.pop(ur[0])
-            real_c[us[0]] = Topic(us[0], tp.msgtype, tp.t, tp.fields)
-    paired = []
-    for name in sorted(set(sim_c) | set(real_c)):
-        if name not in real_c:
-            not_judged.append({'channel': name, 'reason': 'topic missing in the real recording'})
-            continue
-        if name not in sim_c:
-            not_judged.append({'channel': name, 'reason': 'topic missing in the simulated '
-                               'recording'})
-            continue
-        a, b = sim_c[name], real_c[name]
-        if a.msgtype != b.msgtype:
-            not_judged.append({'channel': name, 'reason': f'different message types: sim '
-                               f'{a.msgtype}, real {b.msgtype}'})
-            continue
-        if len(a) < 20 or len(b) < 20:
-            not_judged.append({'channel': name, 'reason': f'too few samples (sim {len(a)}, '
-                               f'real {len(b)})'})
-            continue
-        pt = _pair_one(a, b, s0, shift, max_lag, not_judged)
-        if pt is not None:
-            paired.append(pt)
-    return paired, not_judged, s0, notes
-
-
-def _pair_one(a: Topic, b: Topic, t0: float, shift: float, max_lag: float,
-              not_judged: list) -> Optional[PairedTopic]:
-    tb = b.t + shift
-    dta, dtb = median_dt(a.t), median_dt(tb)
-    notes = []
-    if not (dta > 0 and dtb > 0):
-        not_judged.append({'channel': a.name, 'reason': 'time stamps do not increase'})
-        return None
-    if abs(dta - dtb) > 0.05 * min(dta, dtb):
-        notes.append(f'different rates: sim {1 / dta:.1f} Hz, real {1 / dtb:.1f} Hz; '
-                     'compared at the slower rate')
-    lo, hi = max(a.t[0], tb[0]), min(a.t[-1], tb[-1])
-    if hi - lo < 20 * max(dta, dtb):
-        not_judged.append({'channel': a.name, 'reason': 'the two recordings of this topic do '
-                           'not overlap in time'})
-        return None
-    dur_a, dur_b = a.t[-1] - a.t[0], tb[-1] - tb[0]
-    if abs(dur_a - dur_b) > 0.02 * max(dur_a, dur_b) + 2 * max(dta, dtb):
-        notes.append(f'different lengths: sim {dur_a:.1f} s, real {dur_b:.1f} s; compared '
-                     f'on the common {hi - lo:.1f} s')
-    if dta >= dtb:
-        grid = a.t[(a.t >= lo) & (a.t <= hi)]
-        dt = dta
+    shape, half = spec
+    m = max(0, int(round(float(half) / dt)))
+    if m == 0:
+        return np.ones(1)
+    if shape == 'box':
+        w = np.ones(2 * m + 1)
+        w[0] = w[-1] = 0.5
+    elif shape == 'tri':
+        w = (m + 1.0 - np.abs(np.arange(-m, m + 1))).astype(float)
     else:
-        grid = tb[(tb >= lo) & (tb <= hi)]
-        dt = dtb
-    sim_f, real_f = {}, {}
-    for k in a.fields:
-        if k not in b.fields:
-            continue
-        sim_f[k] = _interp(a.t, a.fields[k], grid, 5 * dta + 1e-9)
-        real_f[k] = _interp(tb, b.fields[k], grid, 5 * dtb + 1e-9)
-    tau, gain = xcorr_lag(sim_f, real_f, dt, max_lag)
-    return PairedTopic(a.name, a.msgtype, grid - t0, sim_f, real_f, dt, tau, gain, notes,
-                       sim_src=(a.t - t0, a.fields))
+        raise ChannelError(f'unknown smoothing kernel {shape!r}; expected box or tri')
+    return w / w.sum()
+
+
+def smoothed(x: np.ndarray, weights: np.ndarray) -> np.ndarray:
+    """Return ``x`` convolved with symmetric ``weights``; NaN where they reach a NaN or an end."""
+    if weights.size < 2:
+        return x
+    ok = np.isfinite(x)
+    y = np.convolve(np.where(ok, x, 0.0), weights, mode='same')
+    cover = np.convolve(ok.astype(float), weights, mode='same')
+    return np.where(cover > 1.0 - 1e-9, y, np.nan)

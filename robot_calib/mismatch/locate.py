@@ -208,3 +208,36 @@ def scan_window(xs: list, es: list, ws: list, min_len: int,
             break
     best = float(_dchi(CG, Ch, np.array([a0]), np.array([b0]))[0])
     return a0, b0, best
+
+
+def local_weights(e: np.ndarray, mask: np.ndarray, dt: float, smooth: float = 2.0,
+                  local_s: float = 2.0, clip: float = 100.0) -> np.ndarray:
+    """
+    Return each sample's relative weight ``v_typ / v_i`` from the local noise variance.
+
+    Real residuals are often louder while moving (vibration, a ground truth
+    differentiated) than at rest; weighting each sample by the inverse of its
+    local noise variance (weighted least squares for heteroscedastic noise)
+    lets the quiet stretches carry what they measure best. ``v_i`` is the
+    variance of the fast part of ``e`` (``e`` minus its ``smooth``-second moving
+    average) over ``local_s`` seconds around sample ``i``; ``v_typ`` its median.
+    Weights are clipped to ``[1 / clip, clip]`` and are 0 where ``mask`` is False.
+
+    :param e: residual after the effects found so far (channel units)
+    :param mask: valid samples
+    :param dt: sample period (s)
+    """
+    valid = mask.astype(float)
+    x = np.where(mask, e, 0.0)
+    w = max(3, int(round(smooth / max(dt, 1e-9))))
+    level = moving_average(x, w) / np.maximum(moving_average(valid, w), 1e-9)
+    fast = np.where(mask, e - level, 0.0)
+    wl = max(3, int(round(local_s / max(dt, 1e-9))))
+    v = moving_average(fast * fast, wl) / np.maximum(moving_average(valid, wl), 1e-9)
+    if not mask.any():
+        return valid
+    typ = float(np.median(v[mask]))
+    if typ <= 0:
+        return valid
+    h = typ / np.maximum(v, typ / clip)
+    return np.clip(h, 1.0 / clip, clip) * valid

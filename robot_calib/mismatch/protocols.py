@@ -76,16 +76,30 @@ def imu_from_orientation(t: np.ndarray, q: np.ndarray, g: float = G,
     return gyro, acc
 
 
-def _rec(t: np.ndarray, gyro: np.ndarray, acc: np.ndarray) -> dict:
+def _rec(t: np.ndarray, gyro: np.ndarray, acc: np.ndarray, kernels: dict = None) -> dict:
     fields = {f: (gyro if i < 3 else acc)[:, i % 3].astype(float)
               for i, f in enumerate(IMU_FIELDS)}
-    return {'/imu': Topic('/imu', IMU_TYPE, np.asarray(t, float), fields)}
+    per_field = {}
+    for f in IMU_FIELDS:
+        k = (kernels or {}).get('gyro' if f.startswith('angular') else 'accel')
+        if k is not None:
+            per_field[f] = k
+    return {'/imu': Topic('/imu', IMU_TYPE, np.asarray(t, float), fields, per_field)}
 
 
-def broad_pair(trial) -> tuple[dict, dict]:
-    """Return (sim, real) recordings of a BROAD trial (see module doc)."""
-    gyro, acc = imu_from_orientation(trial.t, trial.gt_quat)
-    return _rec(trial.t, gyro, acc), _rec(trial.t, trial.gyr, trial.acc)
+def broad_pair(trial, pos: np.ndarray = None) -> tuple[dict, dict]:
+    """
+    Return (sim, real) recordings of a BROAD trial.
+
+    The simulated IMU is the ideal one of the optical truth
+    (:func:`robot_calib.mismatch.ideal.ideal_imu`: rates from the
+    orientations, specific force from the positions when given, each with
+    the smoothing kernel it went through); the real one is the trial's IMU.
+    """
+    from robot_calib.mismatch.ideal import ideal_imu
+    ideal = ideal_imu(trial.t, trial.gt_quat, trial.pos if pos is None else pos)
+    return (_rec(trial.t, ideal['gyro'], ideal['accel'], ideal['kernels']),
+            _rec(trial.t, trial.gyr, trial.acc))
 
 
 POSE_AXIS = {'x_p': (0, 1.0), 'x_a': (0, -1.0), 'y_p': (1, 1.0), 'y_a': (1, -1.0),

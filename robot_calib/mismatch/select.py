@@ -28,6 +28,8 @@ import numpy as np
 from robot_calib.mismatch import effects as E
 from robot_calib.mismatch.locate import scan_window
 
+NONLINEAR = ('imu_mounting_tilt', 'imu_mounting_rotation')
+
 
 @dataclass
 class Problem:
@@ -43,11 +45,30 @@ class Problem:
     w: dict = field(default_factory=dict)
     n_eff: float = 0.0
     cache: dict = field(default_factory=dict)
+    sw: dict = field(default_factory=dict)
 
     def __post_init__(self) -> None:
-        """Compute the weights and the effective sample count."""
+        """
+        Compute the weights and the effective sample count.
+
+        ``w[f]`` is the channel weight ``1 / (sigma^2 phi)``; ``sw[f]`` the square
+        root of each sample's relative weight (1 by default, 0 where invalid;
+        see :func:`local_weights` for noise that changes along the recording).
+        """
         self.w = {f: 1.0 / (max(self.sigma[f], 1e-300) ** 2 * self.phi[f]) for f in self.fields}
         self.n_eff = float(sum(self.mask[f].sum() / self.phi[f] for f in self.fields))
+        for f in self.fields:
+            sw = self.sw.get(f)
+            self.sw[f] = self.mask[f].astype(float) if sw is None else sw * self.mask[f]
+
+    def rw(self, f: str) -> np.ndarray:
+        """Return the weighted residual ``sw * r`` of field ``f`` (cached)."""
+        key = ('rw', f)
+        v = self.cache.get(key)
+        if v is None:
+            v = self.r[f] * self.sw[f]
+            self.cache[key] = v
+        return v
 
 
 @dataclass
@@ -60,6 +81,7 @@ class Fit:
     chi2: float
     k: int
     contrib: dict
+    cov_full: np.ndarray = field(default_factory=lambda: np.zeros((0, 0)))
 
 
 def tdot(X: np.ndarray, Y: np.ndarray) -> np.ndarray:
@@ -98,7 +120,7 @@ def _mcols(prob: Problem, term: E.Term, f: str) -> np.ndarray:
     key = ('m', term.uid, f)
     X = prob.cache.get(key)
     if X is None:
-        X = term.cols[f] * prob.mask[f][:, None]
+        X = term.cols[f] * prob.sw[f][:, None]
         prob.cache[key] = X
     return X
 
@@ -133,12 +155,13 @@ def _xtv(prob: Problem, a: E.Term, f: str, v: np.ndarray, tag: object) -> np.nda
     return out
 
 
-def term_offset(term: E.Term, f: str, prob: Problem) -> Optional[np.ndarray]:
+def term_offset(term: E.Term, f: str, prob: Problem,
+                weighted: bool = False) -> Optional[np.ndarray]:
     """Return the fixed (exact-model) contribution of a refined nonlinear term, or None."""
     off = term.meta.get('offset')
     if off is None or f not in off:
         return None
-    return off[f] * prob.mask[f]
+    return off[f] * (prob.sw[f] if weighted else prob.mask[f])
 
 
 def n_coef(terms: list) -> int:
@@ -164,18 +187,17 @@ def fit(prob: Problem, terms: list, contributions: bool = False) -> Fit:
     rr = 0.0
     resid = {}
     for f in prob.fields:
-        offs = [o for o in (term_offset(t, f, prob) for t in terms) if o is not None]
+        offs = [o for o in (term_offset(t, f, prob, True) for t in terms) if o is not None]
         if offs:
-            r = prob.r[f] * prob.mask[f] - sum(offs)
+            r = prob.rw(f) - sum(offs)
             tag = None
             rr += prob.w[f] * float(np.einsum('i,i->', r, r))
         else:
-            r = prob.r[f]
+            r = prob.rw(f)
             tag = 'r'
             key = ('rr', f)
             if key not in prob.cache:
-                rm = r * prob.mask[f]
-                prob.cache[key] = float(np.einsum('i,i->', rm, rm))
+                prob.cache[key] = float(np.einsum('i,i->', r, r))
             rr += prob.w[f] * prob.cache[key]
         resid[f] = r
         js = [j for j, t in enumerate(terms) if f in t.cols]
@@ -212,10 +234,11 @@ def fit(prob: Problem, terms: list, contributions: bool = False) -> Fit:
                 if off is not None:
                     c += off
                 lo, hi = _span(t, prob.n)
-                c[lo:hi] += mdot(_mcols(prob, t, f)[lo:hi], beta[idx[j]])
+                X = t.cols[f][lo:hi] * prob.mask[f][lo:hi, None]
+                c[lo:hi] += mdot(X, beta[idx[j]])
             contrib[f] = c
     return Fit(list(terms), [beta[i] for i in idx], [cov[np.ix_(i, i)] for i in idx],
-               max(float(chi2), 0.0), n_coef(terms), contrib)
+               max(float(chi2), 0.0), n_coef(terms), contrib, cov)
 
 
 def score(prob: Problem, f: Fit) -> float:
@@ -236,7 +259,7 @@ def _screen(prob: Problem, cand: E.Term, res: dict, min_len: int,
     if not fs:
         return -np.inf, None
     xs = [term_cols(cand, f, prob) for f in fs]
-    es = [res[f] * prob.mask[f] for f in fs]
+    es = [res[f] * prob.sw[f] for f in fs]
     ws = [prob.w[f] for f in fs]
     p = cand.p
     A = sum(w * _xtx(prob, cand, cand, f) for f, w in zip(fs, ws))
@@ -253,11 +276,34 @@ def _screen(prob: Problem, cand: E.Term, res: dict, min_len: int,
         sw = scan_window(xs, es, ws, min_len)
         if sw is not None:
             i0, i1, d = sw
-            if (i1 - i0) < 0.9 * prob.n:
+            if (i1 - i0) < 0.9 * prob.n and excited(cand, (i0, i1)):
                 g = d - (p + 2) * logn
                 if g > best[0]:
                     best = (g, (i0, i1))
     return best
+
+
+def excited(term: E.Term, window: tuple, rel: float = 0.1) -> bool:
+    """
+    Return True when the term's regressors vary inside ``window`` (sample indices).
+
+    A scale acting in a stretch where its regressor stays nearly constant (a
+    gravity component at rest) cannot be told from an offset there, so it is
+    not offered in that window: the regressor's spread, less what its own
+    sample-to-sample noise explains (``var(diff x) / 2``), must reach ``rel``
+    of its RMS. Constant regressors (offsets) always pass.
+    """
+    i0, i1 = window
+    for X in term.cols.values():
+        seg = np.nan_to_num(X[i0:i1])
+        for j in range(seg.shape[1]):
+            x = seg[:, j]
+            if np.ptp(x) == 0 or x.size < 3:
+                continue
+            spread = float(np.var(x)) - 0.5 * float(np.var(np.diff(x)))
+            if spread < (rel ** 2) * float(np.mean(x * x)):
+                return False
+    return True
 
 
 def _model_with(sel: list, cand: E.Term) -> list:
@@ -346,51 +392,39 @@ def refine_windows(prob: Problem, sel: list, min_len: int) -> list:
         fs = [f for f in t.cols if f in prob.fields]
         glob = t.with_window(None)
         sw = scan_window([term_cols(glob, f, prob) for f in fs],
-                         [res[f] * prob.mask[f] for f in fs], [prob.w[f] for f in fs], min_len)
-        if sw is not None and sw[1] - sw[0] < 0.9 * prob.n:
+                         [res[f] * prob.sw[f] for f in fs], [prob.w[f] for f in fs], min_len)
+        if sw is not None and sw[1] - sw[0] < 0.9 * prob.n and excited(t, sw[:2]):
             cand = out[:i] + [t.with_window((sw[0], sw[1]))] + out[i + 1:]
             if score(prob, fit(prob, cand)) <= score(prob, fit(prob, out)):
                 out = cand
     return out
 
 
-def _tilt_exact(prob: Problem, theta: np.ndarray, term: E.Term) -> dict:
+def _rotation_exact(prob: Problem, theta: np.ndarray, term: E.Term) -> dict:
+    """Return the exact change of the rotated channels for a mounting tilt or rotation."""
     pt = prob.pt
     out = {}
-    kinds = ['linear_acceleration'] + (['angular_velocity'] if term.meta.get('gyro') else [])
+    gyro = term.effect == 'imu_mounting_rotation' or term.meta.get('gyro')
+    kinds = ['linear_acceleration'] + (['angular_velocity'] if gyro else [])
+    yaw = float(theta[2]) if theta.size > 2 else 0.0
     for kind in kinds:
-        fx, fy, fz = (f'{kind}.{a}' for a in 'xyz')
-        sx, sy, sz = (np.nan_to_num(pt.sim_reg[f]) for f in (fx, fy, fz))
-        rx, ry, rz = E.tilt_rotate(sx, sy, sz, theta[0], theta[1])
-        out.update({fx: rx - sx, fy: ry - sy, fz: rz - sz})
+        fs = tuple(f'{kind}.{a}' for a in 'xyz')
+        v = tuple(np.nan_to_num(pt.sim_reg[f]) for f in fs)
+        rot = E.rotate(v, float(theta[0]), float(theta[1]), yaw)
+        out.update({f: r - x for f, r, x in zip(fs, rot, v)})
     return out
-
-
-def _time_exact(prob: Problem, term: E.Term, tau: float, nan: bool = False) -> dict:
-    pt = prob.pt
-    smooth = not term.meta.get('raw_shift', False)
-    out = {f: (E.shifted_smooth(pt, f, tau) - pt.sim[f]) if smooth and pt.sim_noisy.get(f)
-           else (E.shifted(pt, f, tau) - pt.sim_reg[f]) for f in term.cols}
-    return out if nan else {f: np.nan_to_num(v) for f, v in out.items()}
 
 
 def _linearise(prob: Problem, term: E.Term, theta: np.ndarray) -> E.Term:
     """Return the term linearised at ``theta``: exact offset + Jacobian columns."""
-    if term.effect == 'imu_mounting_tilt':
-        off = _tilt_exact(prob, theta, term)
-        h = 1e-6
-        cols = {}
-        jr = _tilt_exact(prob, theta + [h, 0.0], term)
-        jp = _tilt_exact(prob, theta + [0.0, h], term)
-        for f in off:
-            cols[f] = np.column_stack(((jr[f] - off[f]) / h, (jp[f] - off[f]) / h))
-    else:
-        tau = float(theta[0])
-        off = _time_exact(prob, term, tau)
-        h = max(1e-4 * prob.pt.dt, 1e-7)
-        a = _time_exact(prob, term, tau + h, nan=True)
-        b = _time_exact(prob, term, tau - h, nan=True)
-        cols = {f: np.nan_to_num((a[f] - b[f]) / (2 * h)).reshape(-1, 1) for f in off}
+    off = _rotation_exact(prob, theta, term)
+    h = 1e-6
+    jac = []
+    for j in range(theta.size):
+        step = np.zeros(theta.size)
+        step[j] = h
+        jac.append(_rotation_exact(prob, theta + step, term))
+    cols = {f: np.column_stack([(jj[f] - off[f]) / h for jj in jac]) for f in off}
     meta = dict(term.meta)
     meta['offset'] = off
     meta['theta'] = np.asarray(theta, float)
@@ -399,8 +433,8 @@ def _linearise(prob: Problem, term: E.Term, theta: np.ndarray) -> E.Term:
 
 
 def refine_nonlinear(prob: Problem, sel: list, iters: int = 8) -> list:
-    """Gauss-Newton refinement of time offsets and mounting tilts with their exact models."""
-    nl = [i for i, t in enumerate(sel) if t.effect in ('imu_mounting_tilt', 'time_offset')]
+    """Gauss-Newton refinement of mounting tilts and rotations with their exact models."""
+    nl = [i for i, t in enumerate(sel) if t.effect in NONLINEAR]
     if not nl:
         return sel
     f0 = fit(prob, sel)
@@ -408,40 +442,18 @@ def refine_nonlinear(prob: Problem, sel: list, iters: int = 8) -> list:
     for i in nl:
         t = out[i]
         b = f0.betas[i]
-        if t.meta.get('theta_fixed'):
-            theta = np.asarray(t.meta['theta'], float)
-        elif 'theta' in t.meta:  # already linearised: continue from there
-            theta = np.asarray(t.meta['theta'], float) + b
-        elif t.effect == 'time_offset':
-            theta = np.array([b[0] * t.meta['tau_ref']])
-        else:
-            theta = np.array(b, float)
+        theta = (np.asarray(t.meta['theta'], float) + b) if 'theta' in t.meta \
+            else np.array(b, float)
         out[i] = _linearise(prob, t, theta)
     for _ in range(iters):
         f = fit(prob, out)
         step = 0.0
         for i in nl:
             t = out[i]
-            if t.meta.get('theta_fixed'):
-                continue
-            theta = t.meta['theta'] + f.betas[i]
             step = max(step, float(np.max(np.abs(f.betas[i]))))
-            out[i] = _linearise(prob, t, theta)
+            out[i] = _linearise(prob, t, t.meta['theta'] + f.betas[i])
         if step < 1e-10:
             break
-    # A noisy simulation: tau comes from comparing the real channel with the smoothed,
-    # shifted simulation only (no sim noise at t in the objective, so no pull to half
-    # samples); the model kept for the other effects uses the leave-one-out form, whose
-    # noise is independent of theirs, with tau held at that value.
-    for i in nl:
-        t = out[i]
-        if t.effect == 'time_offset' and any(prob.pt.sim_noisy.get(f) for f in t.cols):
-            meta = dict(t.meta)
-            meta['raw_shift'] = True
-            meta['theta_fixed'] = True
-            t2 = E.Term(t.effect, t.topic, t.cols, t.group, t.channel, t.windowable, t.window,
-                        meta)
-            out[i] = _linearise(prob, t2, t.meta['theta'])
     return out
 
 
@@ -450,9 +462,10 @@ def alternatives(prob: Problem, sel: list, cands: list, min_len: int,
     """
     Return {index of selected term: [(candidate, its fit, score difference)]}.
 
-    A candidate is an alternative to a selected term when it acts on the same
-    channel(s), names a different effect, and the model with it in place of
-    the selected term scores within ``alt_margin``.
+    A candidate is an alternative to a selected term when it acts on no
+    channel the selected term leaves alone (so it competes for the same
+    residual, not for others), names a different effect, and the model with
+    it in place of the selected term scores within ``alt_margin``.
     """
     base = score(prob, fit(prob, sel))
     out: dict = {}
@@ -461,7 +474,8 @@ def alternatives(prob: Problem, sel: list, cands: list, min_len: int,
         res = _residuals(prob, fit(prob, others))
         chans = set(t.cols)
         for c in cands:
-            if c.effect == t.effect or not (set(c.cols) & chans):
+            # a refinement of the same quantity (an offset that drifts) is not another physics
+            if c.effect == t.effect or c.group == t.group or not set(c.cols) <= chans:
                 continue
             if any(c.group == o.group for o in others):
                 continue

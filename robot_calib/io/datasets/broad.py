@@ -7,7 +7,8 @@ Laidig, Caruso, Cereatti, Seel, *Data* 6(7):72, 2021 (CC BY 4.0). Each trial
 here is an ``.npz`` with ``t`` (s), ``fs`` (Hz), ``gyr`` (rad/s, the gyro bias is
 left in on purpose), ``acc`` (m/s^2), ``gt_quat`` (optical ground truth of the
 IMU frame w.r.t. ENU, ``[w x y z]``, NaN where the markers were lost) and
-``movement`` (the samples the benchmark scores).
+``movement`` (the samples the benchmark scores) and, where the file has it,
+``pos`` (optical position of the marker body, m, NaN where lost).
 
 The metric is the dataset's 6D inclination error:
 ``q_err = q_est * inv(q_gt)`` (both sensor-to-earth), inclination error
@@ -18,7 +19,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Union
+from typing import Optional, Union
 
 import numpy as np
 
@@ -34,6 +35,7 @@ class BroadTrial:
     acc: np.ndarray
     gt_quat: np.ndarray
     movement: np.ndarray
+    pos: Optional[np.ndarray] = None
 
     def true_tilt(self) -> np.ndarray:
         """Return the true tilt (rad) of the IMU z axis from up; NaN where the truth is lost."""
@@ -49,9 +51,10 @@ def load_trial(path: Union[str, Path]) -> BroadTrial:
         fs = float(d['fs'])
         gyr = np.asarray(d['gyr'], dtype=float)
         t = np.asarray(d['t'], dtype=float) if 't' in d.files else np.arange(len(gyr)) / fs
+        pos = np.asarray(d['pos'], dtype=float) if 'pos' in d.files else None
         return BroadTrial(path.stem, t, fs, gyr, np.asarray(d['acc'], dtype=float),
                           np.asarray(d['gt_quat'], dtype=float),
-                          np.asarray(d['movement'], dtype=bool))
+                          np.asarray(d['movement'], dtype=bool), pos)
 
 
 def list_trials(folder: Union[str, Path]) -> list[Path]:

@@ -1,0 +1,96 @@
+# Copyright 2026 robot_calib contributors
+# SPDX-License-Identifier: Apache-2.0
+"""
+A finding as findings.json holds it: parameters, interval, fit, evidence, confidence.
+
+The confidence of a finding is the evidence that something real is there
+times its share among the explanations that fit about as well.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from robot_calib.mismatch import effects as E
+from robot_calib.mismatch import select as S
+from robot_calib.mismatch.explain import explain
+
+
+def evidence(strength: float, fitd: dict) -> float:
+    """
+    Return how strongly (0..1) the data say that a finding is real, whatever its name.
+
+    The product of how far the robust statistic clears its bar
+    (``1 - bar / statistic``) and whether held-out time confirms at least half
+    of the in-sample improvement (full credit), less (partial) or none.
+    """
+    s = float(np.clip(strength, 0.0, 1.0))
+    hb, ha = fitd.get('heldout_rmse_before'), fitd.get('heldout_rmse_after')
+    ib, ia = fitd.get('rmse_before'), fitd.get('rmse_after')
+    gen = 1.0
+    if None not in (hb, ha, ib, ia) and ib ** 2 - ia ** 2 > 0:
+        gen = float(np.clip(2.0 * (hb ** 2 - ha ** 2) / (ib ** 2 - ia ** 2), 0.0, 1.0))
+    return round(s * gen, 3)
+
+
+def confidence(evidence: float, alt_deltas: list) -> float:
+    """
+    Return the trust (0..1) in a finding's name: its evidence times its share.
+
+    The share among the explanations that fit about as well is a BIC weight,
+    ``1 / (1 + sum exp(-delta / 2))`` over the alternatives (Schwarz 1978).
+    """
+    alt = 1.0 / (1.0 + sum(float(np.exp(-max(d, 0.0) / 2.0)) for d in alt_deltas))
+    return round(evidence * alt, 3)
+
+
+def term_finding(prob: S.Problem, final: S.Fit, sel: list, i: int, fitd: dict,
+                 test: tuple, alts: list) -> dict:
+    """
+    Return the finding of the selected term ``sel[i]`` (contract keys plus evidence).
+
+    :param final: the joint fit of ``sel``
+    :param fitd: its held-out fit dict
+    :param test: its robust test ``(W, threshold, blocks)``
+    :param alts: the alternatives ``[(term, fit, delta BIC)]``
+    """
+    pt = prob.pt
+    t = sel[i]
+    params, sds = E.to_params(t, final.betas[i], final.covs[i])
+    window = None
+    if t.window is not None:
+        i0, i1 = t.window
+        window = [round(float(pt.t[i0]), 4), round(float(pt.t[min(i1, prob.n) - 1]), 4)]
+    base = S.score(prob, final)
+    without = S.score(prob, S.fit(prob, sel[:i] + sel[i + 1:]))
+    w, thr, kb = test
+    fd = {'channel': t.channel, 'effect': t.effect,
+          'parameters': {k: float(v) for k, v in params.items()},
+          'window': window, 'fit': fitd,
+          'explanation': explain(t.effect, params, window, fitd, t.meta),
+          'std': sds,
+          'ci95': {k: [params[k] - 1.96 * sds[k], params[k] + 1.96 * sds[k]] for k in params},
+          'units': dict(zip(E.SPECS[t.effect].params, E.SPECS[t.effect].units)),
+          'evidence': {'delta_bic': float(without - base), 'robust_wald': w,
+                       'robust_threshold': thr, 'blocks': kb}}
+    if len(t.cols) > 1:
+        fd['channels'] = [f'{pt.name}.{f}' for f in t.cols]
+    if 'source' in t.meta:
+        fd['source_channel'] = t.meta['source']
+    deltas = []
+    if alts:
+        fd['alternatives'] = []
+        for c, cf, d in alts:
+            j = len(cf.terms) - 1
+            cp, _ = E.to_params(c, cf.betas[j], cf.covs[j])
+            fd['alternatives'].append({
+                'effect': c.effect, 'channel': c.channel,
+                'parameters': {k: float(v) for k, v in cp.items()}, 'delta_bic': d,
+                'separating_motion': E.separating_motion(t.effect, c.effect)})
+            deltas.append(d)
+        names = ', '.join(sorted({a['effect'] for a in fd['alternatives']}))
+        fd['explanation'] += f' This recording cannot clearly tell it from {names}; ' \
+            f'{fd["alternatives"][0]["separating_motion"]}.'
+    fd['evidence_strength'] = evidence(1.0 - thr / max(w, 1e-12), fitd)
+    fd['confidence'] = confidence(fd['evidence_strength'], deltas)
+    return fd

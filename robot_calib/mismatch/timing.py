@@ -1,0 +1,233 @@
+# Copyright 2026 robot_calib contributors
+# SPDX-License-Identifier: Apache-2.0
+"""
+Stage 1 of the analysis: the time relation of each sensor, and the simulation aligned to it.
+
+One delay per clock group (:mod:`.latency`), kept when its block error makes
+it significant; a drive (odometry, joint states) also tries a first-order
+lag and names whichever fits clearly better. The simulation is then delayed
+(or lagged) by it, so the amplitude effects are judged on aligned signals.
+"""
+
+from __future__ import annotations
+
+from dataclasses import replace
+from typing import Any
+
+import numpy as np
+
+from robot_calib.mismatch import effects as E
+from robot_calib.mismatch import latency as L
+from robot_calib.mismatch import select as S
+from robot_calib.mismatch.channels import IMU_TYPE, PairedTopic
+from robot_calib.mismatch.explain import explain
+from robot_calib.mismatch.findings import confidence, evidence
+from robot_calib.mismatch.problem import held_mask, rmse
+
+
+def moving_fields(pt: PairedTopic, prob: S.Problem) -> list:
+    """Return the fields whose simulated signal moves well beyond the channel noise."""
+    out = []
+    for f in prob.fields:
+        x = pt.sim_reg[f][prob.mask[f]]
+        x = x[np.isfinite(x)]
+        if x.size > 20 and float(np.std(x)) > 3.0 * prob.sigma[f]:
+            out.append(f)
+    return out
+
+
+def group_data(pt: PairedTopic, prob: S.Problem, fields: list, keep: np.ndarray) -> dict:
+    data = {}
+    for i, group in enumerate(L.field_groups(pt.msgtype, fields)):
+        sims, reals, oks = [], [], []
+        for f in group:
+            # the raw simulated channel: independent noise does not bias the cross-spectral
+            # phase, while a smoothed copy would bend it
+            ok = prob.mask[f] & keep
+            sims.append(np.where(ok, pt.sim[f], 0.0))
+            reals.append(np.where(ok, pt.real[f], 0.0))
+            oks.append(ok)
+        data[f'g{i}'] = (group, sims, reals, oks)
+    return data
+
+
+def filled(x: np.ndarray) -> np.ndarray:
+    """Return ``x`` with NaN replaced by linear interpolation (held at the ends)."""
+    ok = np.isfinite(x)
+    if ok.all() or ok.sum() < 2:
+        return np.nan_to_num(x)
+    return np.interp(np.arange(x.size), np.flatnonzero(ok), x[ok])
+
+
+def delayed(x: np.ndarray, tau: float, dt: float) -> np.ndarray:
+    """
+    Return ``x`` (on a grid of period ``dt``) delayed by ``tau`` s, NaN where unknown.
+
+    An exact fractional delay (FFT phase ramp): linear interpolation would damp
+    fast motion and noise and so pass for a scale error.
+    """
+    k = tau / dt
+    y = L.shift_frac(filled(x), k)
+    bad = ~np.isfinite(x)
+    lo, hi = int(np.floor(k)), int(np.ceil(k))
+    unknown = np.zeros(x.size, bool)
+    for s in {lo, hi}:
+        sh = np.ones(x.size, bool)
+        if 0 <= s < x.size:
+            sh[s:] = bad[:x.size - s]
+        elif -x.size < s < 0:
+            sh[:s] = bad[-s:]
+        unknown |= sh
+    return np.where(unknown, np.nan, y)
+
+
+def aligned(pt: PairedTopic, taus: dict) -> PairedTopic:
+    """Return ``pt`` with the simulated fields delayed by ``taus[field]`` s (others unchanged)."""
+    if not taus:
+        return pt
+    sim = {f: (delayed(x, taus[f], pt.dt) if f in taus else x) for f, x in pt.sim.items()}
+    return replace(pt, sim=sim, sim_reg={}, sim_noisy={})
+
+
+def time_stage(pt: PairedTopic, prob: S.Problem, prm: Any, edges: np.ndarray) -> list:
+    """Return the significant time effects of a topic: [(kind, TimeEffect, lag info)]."""
+    fields = moving_fields(pt, prob)
+    if not fields:
+        return []
+    keep = np.ones(prob.n, bool)
+    effects = L.delays_of(group_data(pt, prob, fields, keep), pt.dt, edges, prm.alpha,
+                          prm.max_lag)
+    out = []
+    for te in effects:
+        kind, info = 'time_offset', {}
+        if pt.msgtype != IMU_TYPE and te.delay.tau > 0:
+            kind, info = _lag_or_delay(pt, prob, te, prm)
+        out.append((kind, te, info))
+    return out
+
+
+def _whitened_chi2(prob: S.Problem, fields: list, pred: dict) -> float:
+    """Return the chi2 of ``real - pred`` after a per-field offset and scale are fitted."""
+    total = 0.0
+    for f in fields:
+        m = prob.mask[f] & np.isfinite(pred[f])
+        y = prob.pt.real[f][m] - pred[f][m]
+        X = np.column_stack((np.ones(m.sum()), pred[f][m]))
+        beta, *_ = np.linalg.lstsq(X, y, rcond=None)
+        e = y - X @ beta
+        total += float(e @ e) * prob.w[f]
+    return total
+
+
+def _golden(fun, lo: float, hi: float, iters: int = 30) -> float:
+    """Return the minimiser of a unimodal ``fun`` on [lo, hi] by golden-section search."""
+    g = (np.sqrt(5.0) - 1.0) / 2.0
+    a, b = lo, hi
+    for _ in range(iters):
+        c, d = b - g * (b - a), a + g * (b - a)
+        if fun(c) < fun(d):
+            b = d
+        else:
+            a = c
+    return 0.5 * (a + b)
+
+
+def _lag_or_delay(pt: PairedTopic, prob: S.Problem, te: L.TimeEffect,
+                  prm: Any) -> tuple[str, dict]:
+    """
+    Compare a pure delay with a first-order lag of the drive; return (effect name, info).
+
+    Both are fitted by least squares in time (each with its own time
+    constant, after a per-field offset and scale), so neither is favoured by
+    the estimator; the lag must fit better by ``alt_margin`` to be named.
+    """
+    sims = {f: filled(pt.sim[f]) for f in te.fields}
+    tau0 = te.delay.tau
+
+    def chi_delay(tau: float) -> float:
+        return _whitened_chi2(prob, te.fields,
+                              {f: delayed(pt.sim[f], tau, pt.dt) for f in te.fields})
+
+    def chi_lag(log_tau: float) -> float:
+        return _whitened_chi2(prob, te.fields, {f: L.lag_response(sims[f], pt.dt,
+                                                                  np.exp(log_tau))
+                                                for f in te.fields})
+    tau_d = _golden(chi_delay, tau0 - 0.5 * abs(tau0) - pt.dt, tau0 + 0.5 * abs(tau0) + pt.dt)
+    log_l = _golden(chi_lag, np.log(max(pt.dt, 0.2 * tau0)), np.log(max(5.0 * tau0, 3 * pt.dt)))
+    info = {'delay_chi2': chi_delay(tau_d), 'lag_chi2': chi_lag(log_l),
+            'lag_tau': float(np.exp(log_l)), 'delay_tau_ls': float(tau_d)}
+    better = info['lag_chi2'] < info['delay_chi2'] - prm.alt_margin
+    return ('drive_lag' if better else 'time_offset'), info
+
+
+def field_taus(te: L.TimeEffect) -> dict:
+    """Return the delay applied to each field: the pooled one, or its group's when they differ."""
+    out = {}
+    for group, d in te.groups.items():
+        out.update({f: (te.delay.tau if te.consistent else d.tau) for f in group})
+    return out
+
+
+def _time_fit(pt: PairedTopic, prob: S.Problem, te: L.TimeEffect, prm: Any,
+              edges: np.ndarray) -> tuple[str, dict]:
+    """Return (best channel, fit dict): the delay re-estimated without the held-out chunks."""
+    held = held_mask(prob.n, prm.heldout_chunks)
+    refit = L.delays_of(group_data(pt, prob, te.fields, ~held), pt.dt, edges, 1.0, prm.max_lag)
+    moved = aligned(pt, field_taus(refit[0] if refit else te))
+    best, fitd, channel = None, {}, f'{pt.name}.{te.fields[0]}'
+    for f in te.fields:
+        r0 = prob.r[f]
+        r1 = np.where(prob.mask[f], pt.real[f] - moved.sim[f], np.nan)
+        m = prob.mask[f] & np.isfinite(r1)
+        fd = {'rmse_before': rmse(r0, m & ~held), 'rmse_after': rmse(r1, m & ~held),
+              'heldout_rmse_before': rmse(r0, m & held),
+              'heldout_rmse_after': rmse(r1, m & held)}
+        gain = (fd['heldout_rmse_before'] or 0.0) - (fd['heldout_rmse_after'] or 0.0)
+        if best is None or gain > best:
+            best, fitd, channel = gain, fd, f'{pt.name}.{f}'
+    return channel, fitd
+
+
+def time_findings(pt: PairedTopic, prob: S.Problem, found: list, prm: Any,
+                  edges: np.ndarray) -> list:
+    """Return the findings of the time stage, with held-out fit (delay re-estimated without)."""
+    out = []
+    for kind, te, info in found:
+        d = te.delay
+        channel, fitd = _time_fit(pt, prob, te, prm, edges)
+        tau = d.tau if kind == 'time_offset' else info['lag_tau']
+        params, sds = {'tau': float(tau)}, {'tau': float(d.std)}
+        z_thr = L.t_quantile(prm.alpha, d.blocks - 1)
+        alt = []
+        if info:
+            other = 'drive_lag' if kind == 'time_offset' else 'time_offset'
+            gap = abs(info['lag_chi2'] - info['delay_chi2'])
+            if gap < prm.alt_margin:
+                alt.append({'effect': other, 'channel': channel, 'delta_bic': float(gap),
+                            'parameters': {'tau': float(d.tau if other == 'time_offset'
+                                                        else info['lag_tau'])},
+                            'separating_motion': E.separating_motion(kind, other)})
+        text = explain(kind, params, None, fitd)
+        per_group = {g[0].rsplit('.', 1)[0]: gd.tau for g, gd in te.groups.items()}
+        if not te.consistent:
+            text += ' Its channels do not share one delay: ' + ', '.join(
+                f'{k} {v * 1000:.1f} ms' for k, v in per_group.items()) + \
+                ' (filters of different delay inside the sensor, or in the reference).'
+        fd = {'channel': channel, 'effect': kind, 'parameters': params, 'window': None,
+              'fit': fitd, 'explanation': text,
+              'std': sds, 'ci95': {'tau': [tau - 1.96 * d.std, tau + 1.96 * d.std]},
+              'units': {'tau': 's'}, 'channels': [f'{pt.name}.{f}' for f in te.fields],
+              'per_group': per_group,
+              'evidence': {'z': float(d.z), 'z_threshold': z_thr, 'blocks': d.blocks,
+                           'band_hz': list(d.band_hz), 'coherence': d.coherence},
+              'evidence_strength': evidence(1.0 - (z_thr / max(d.z, 1e-12)) ** 2, fitd)}
+        fd['confidence'] = confidence(fd['evidence_strength'], [a['delta_bic'] for a in alt])
+        if alt:
+            fd['alternatives'] = alt
+        out.append(fd)
+    return out
+
+
+def lagged(pt: PairedTopic, f: str, tau: float) -> np.ndarray:
+    x = pt.sim[f]
+    return np.where(np.isfinite(x), L.lag_response(filled(x), pt.dt, tau), np.nan)

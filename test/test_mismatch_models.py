@@ -1,0 +1,213 @@
+# Copyright 2026 robot_calib contributors
+# SPDX-License-Identifier: Apache-2.0
+"""
+The mismatch analyser on real-data problems: whole-sensor effects, robust evidence, honesty.
+
+Each test builds a simulated recording with known physics, makes a "real"
+one that differs by a known effect (or by something outside the library, or
+by nothing), and checks what the analyser names, how precisely, and what it
+refuses to name.
+"""
+
+import numpy as np
+import pytest
+
+from robot_calib.mismatch import analyse_recordings
+from robot_calib.mismatch import latency as L
+from robot_calib.mismatch import robust as R
+from robot_calib.mismatch.channels import IMU_FIELDS, IMU_TYPE, ODOM_FIELDS, ODOM_TYPE, Topic
+from robot_calib.mismatch.effects import G, rotate
+
+GYRO, ACC = IMU_FIELDS[:3], IMU_FIELDS[3:]
+
+
+def _smooth_noise(rng, n, width):
+    """Return unit-variance noise smoothed by three passes of a ``width``-sample box."""
+    x = rng.standard_normal(n + 3 * width)
+    for _ in range(3):
+        x = np.convolve(x, np.ones(width) / width, 'valid')
+    return x[:n] / np.std(x[:n])
+
+
+def _tumbling_imu(seed=0, duration=120.0, rate=200.0):
+    """Return (t, gyro (n, 3), specific force (n, 3)) of a hand-held IMU turned every way."""
+    rng = np.random.default_rng(seed)
+    n = int(duration * rate)
+    t = np.arange(n) / rate
+    w = np.column_stack([1.2 * _smooth_noise(rng, n, int(0.3 * rate)) for _ in range(3)])
+    # gravity direction in the sensor frame, integrated from the rates (dR/dt = -w x R)
+    g = np.zeros((n, 3))
+    g[0] = (0.0, 0.0, G)
+    dt = 1.0 / rate
+    for i in range(1, n):
+        v = g[i - 1] - np.cross(w[i - 1], g[i - 1]) * dt
+        g[i] = v * (G / np.linalg.norm(v))
+    lin = np.column_stack([1.0 * _smooth_noise(rng, n, int(0.4 * rate)) for _ in range(3)])
+    return t, w, g + lin
+
+
+def _imu_rec(t, gyro, acc):
+    fields = {f: (gyro if i < 3 else acc)[:, i % 3].copy() for i, f in enumerate(IMU_FIELDS)}
+    return {'/imu': Topic('/imu', IMU_TYPE, t.copy(), fields)}
+
+
+def _noisy(rec, seed, sg=0.003, sa=0.03):
+    rng = np.random.default_rng(seed)
+    tp = rec['/imu']
+    f = {k: v + rng.standard_normal(v.size) * (sg if k in GYRO else sa)
+         for k, v in tp.fields.items()}
+    return {'/imu': Topic('/imu', IMU_TYPE, tp.t.copy(), f)}
+
+
+def _named(out, effect):
+    return [f for f in out['findings'] + out['minor_findings'] if f['effect'] == effect]
+
+
+def test_mounting_rotation_of_the_whole_imu_is_one_finding():
+    t, w, a = _tumbling_imu(1)
+    roll, pitch, yaw = np.radians([1.5, -2.0, 2.5])
+    rg = np.column_stack(rotate(tuple(w.T), roll, pitch, yaw))
+    ra = np.column_stack(rotate(tuple(a.T), roll, pitch, yaw))
+    out, _ = analyse_recordings(_imu_rec(t, w, a), _noisy(_imu_rec(t, rg, ra), 2))
+    rot = _named(out, 'imu_mounting_rotation')
+    assert rot, out['findings']
+    p = rot[0]['parameters']
+    assert np.degrees([p['roll'], p['pitch'], p['yaw']]) == pytest.approx([1.5, -2.0, 2.5],
+                                                                          abs=0.1)
+    # one whole-sensor effect, not a cross-axis term per channel
+    assert not _named(out, 'gyro_cross_axis')
+
+
+def test_lever_arm_recovered():
+    t, w, a = _tumbling_imu(3)
+    dt = t[1] - t[0]
+    wd = np.gradient(w, dt, axis=0)
+    r = np.array([0.05, -0.08, 0.03])
+    ra = a + np.cross(wd, r) + np.cross(w, np.cross(w, r))
+    out, _ = analyse_recordings(_imu_rec(t, w, a), _noisy(_imu_rec(t, w, ra), 4))
+    lev = _named(out, 'lever_arm')
+    assert lev, out['findings']
+    got = np.array([lev[0]['parameters'][k] for k in 'xyz'])
+    assert np.linalg.norm(got - r) < 0.1 * np.linalg.norm(r)
+
+
+def test_heteroscedastic_noise_does_not_hide_a_small_bias():
+    """Noise ten times louder while moving: the quiet stretches pin the bias."""
+    t, w, a = _tumbling_imu(5)
+    rng = np.random.default_rng(6)
+    moving = (np.sin(2 * np.pi * t / 30.0) > 0).astype(float)
+    real = _imu_rec(t, w, a)
+    for k in GYRO:
+        # white noise, and a slow wander, both only while moving (a reference's own errors)
+        loud = moving * (0.03 * rng.standard_normal(t.size) +
+                         0.02 * _smooth_noise(rng, t.size, 400))
+        real['/imu'].fields[k] = real['/imu'].fields[k] + 0.002 * rng.standard_normal(t.size) \
+            + loud
+    real['/imu'].fields['angular_velocity.y'] += 0.003
+    out, _ = analyse_recordings(_imu_rec(t, w, a), real)
+    b = [f for f in _named(out, 'gyro_bias') if f['channel'].endswith('.y')]
+    assert b and b[0]['parameters']['bias'] == pytest.approx(0.003, abs=0.0004)
+
+
+def test_physics_outside_the_library_is_unexplained_not_misnamed():
+    """A drag term (speed squared) on the odometry is not a radius error or slip."""
+    rng = np.random.default_rng(7)
+    t = np.arange(0.0, 180.0, 0.02)
+    v = 1.0 + 0.8 * np.sin(2 * np.pi * t / 23.0) + 0.3 * np.sin(2 * np.pi * t / 7.0)
+    w = 0.5 * np.sin(2 * np.pi * t / 17.0)
+    sim = {'/odom': Topic('/odom', ODOM_TYPE, t, dict(zip(ODOM_FIELDS, (v, w))))}
+    real_v = v - 0.06 * (v - 1.0) ** 3 + 0.003 * rng.standard_normal(t.size)
+    real = {'/odom': Topic('/odom', ODOM_TYPE, t, dict(zip(ODOM_FIELDS, (
+        real_v, w + 0.003 * rng.standard_normal(t.size)))))}
+    out, _ = analyse_recordings(sim, real)
+    left = [f for f in out['findings'] if f['effect'] == 'unexplained']
+    assert left, out['findings']
+    assert left[0]['parameters']['rms'] > 0
+    assert isinstance(left[0]['parameters']['correlates_with'], str)
+
+
+def test_implausible_fit_is_not_reported_as_physics():
+    """A real channel that does not follow the simulation gets no 40 % 'scale'."""
+    t, w, a = _tumbling_imu(9, duration=90.0)
+    rg = w.copy()
+    rg[:, 2] = 0.6 * w[:, 2]
+    out, _ = analyse_recordings(_imu_rec(t, w, a), _noisy(_imu_rec(t, rg, a), 10))
+    assert not [f for f in out['findings'] if f['effect'] == 'gyro_scale']
+    assert any(d['channel'].endswith('angular_velocity.z') for d in out['not_judged'])
+
+
+def test_small_significant_effect_is_listed_as_minor():
+    t, w, a = _tumbling_imu(11, duration=90.0)
+    rg = w.copy()
+    rg[:, 0] = 1.004 * w[:, 0]
+    out, _ = analyse_recordings(_imu_rec(t, w, a), _noisy(_imu_rec(t, rg, a), 12, sg=0.0005))
+    assert not [f for f in out['findings'] if f['effect'] == 'gyro_scale']
+    minor = [f for f in out['minor_findings'] if f['effect'] == 'gyro_scale']
+    assert minor and minor[0]['parameters']['scale'] == pytest.approx(0.004, rel=0.1)
+
+
+def test_drive_lag_told_from_a_delay():
+    rng = np.random.default_rng(13)
+    dt = 0.02
+    t = np.arange(0.0, 200.0, dt)
+    cmd = np.repeat(rng.uniform(-1.0, 1.0, t.size // 150 + 1), 150)[:t.size]
+    sim = {'/odom': Topic('/odom', ODOM_TYPE, t, dict(zip(ODOM_FIELDS, (cmd, 0.5 * cmd))))}
+    lagged = [L.lag_response(x, dt, 0.15) + 0.002 * rng.standard_normal(t.size)
+              for x in (cmd, 0.5 * cmd)]
+    real = {'/odom': Topic('/odom', ODOM_TYPE, t, dict(zip(ODOM_FIELDS, lagged)))}
+    out, _ = analyse_recordings(sim, real)
+    lag = _named(out, 'drive_lag')
+    assert lag, out['findings']
+    assert lag[0]['parameters']['tau'] == pytest.approx(0.15, rel=0.1)
+    assert not _named(out, 'time_offset')
+
+
+@pytest.mark.parametrize('noisy_sim', [False, True])
+def test_delay_estimate_unbiased_and_its_error_honest(noisy_sim):
+    rng = np.random.default_rng(17)
+    dt = 0.005
+    n = 24000
+    x = _smooth_noise(rng, n, 20) * 2.0
+    t = np.arange(n) * dt
+    f = np.fft.rfftfreq(n, dt)
+    errs = []
+    for tau in (0.0, 0.0137):
+        y = np.fft.irfft(np.fft.rfft(x) * np.exp(-2j * np.pi * f * tau), n)
+        s = x + (0.05 * rng.standard_normal(n) if noisy_sim else 0.0)
+        r = y + 0.05 * rng.standard_normal(n)
+        d = L.estimate_delay([s], [r], [np.ones(n, bool)], dt, R.block_edges(n, dt))
+        errs.append((d.tau - tau) / d.std)
+        assert abs(d.tau - tau) < 3e-4
+    assert np.all(np.abs(errs) < 5.0)  # the jackknife error covers the actual error
+    assert t.size == n
+
+
+def test_delay_of_a_single_manoeuvre_is_not_claimed():
+    """One turn in a long recording: a delay there is one observation, not forty."""
+    rate = 100.0
+    t = np.arange(0.0, 120.0, 1.0 / rate)
+    w = np.where((t > 50.0) & (t < 53.0), np.sin(np.pi * (t - 50.0) / 3.0), 0.0)
+    rng = np.random.default_rng(19)
+    zero = np.zeros_like(t)
+    sim = _imu_rec(t, np.column_stack((zero, zero, w)), np.column_stack((zero, zero, zero + G)))
+    shifted = np.interp(t - 0.02, t, w)
+    real = _imu_rec(t, np.column_stack((zero, zero, shifted)),
+                    np.column_stack((zero, zero, zero + G)))
+    real = _noisy(real, 20, sg=0.01)
+    out, _ = analyse_recordings(sim, real)
+    claimed = [f for f in out['findings'] if f['effect'] == 'time_offset']
+    assert not claimed or claimed[0]['evidence']['blocks'] >= L.MIN_BLOCKS
+    assert rng is not None
+
+
+def test_confidence_and_alternatives_on_every_finding():
+    t, w, a = _tumbling_imu(21, duration=90.0)
+    rg = w.copy()
+    rg[:, 1] += 0.01
+    out, _ = analyse_recordings(_imu_rec(t, w, a), _noisy(_imu_rec(t, rg, a), 22))
+    assert out['findings']
+    for f in out['findings']:
+        assert 0.0 <= f['confidence'] <= 1.0
+        assert 'fit' in f and 'explanation' in f
+        for alt in f.get('alternatives', []):
+            assert alt['separating_motion']
