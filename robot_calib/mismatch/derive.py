@@ -45,9 +45,10 @@ TRUTH_TYPES = ('geometry_msgs/msg/PoseStamped', 'geometry_msgs/msg/PoseWithCovar
 class IdealParams:
     """Parameters of the ideal-sensor derivation (``robot-calib ideal --set``)."""
 
-    imu_xyz: list = param([0.0, 0.0, 0.0], 'm', 'IMU position in the tracked body frame')
+    imu_xyz: list = param([0.0, 0.0, 0.0], 'm', 'IMU position in the tracked body frame',
+                          length=3)
     imu_rpy: list = param([0.0, 0.0, 0.0], 'rad', 'IMU orientation in the tracked body '
-                          'frame (roll, pitch, yaw)')
+                          'frame (roll, pitch, yaw)', length=3)
     gravity: float = param(G, 'm/s^2', 'gravity', minimum=0.0)
     rel_noise: float = param(0.02, '', 'largest noise of a derived channel as a fraction of '
                              'its RMS (chooses the differentiation windows)', minimum=0.0)
