@@ -35,7 +35,7 @@ from robot_calib.core import types as T
 from robot_calib.core.params import param
 from robot_calib.mismatch.channels import (ChannelError, encode_kernels, IMU_TYPE,
                                            JOINT_STATE_TYPE, KERNELS_KEY, ODOM_TYPE, Topic)
-from robot_calib.mismatch.ideal import _qmul, choose_half, G, ideal_imu
+from robot_calib.mismatch.ideal import choose_half, G, ideal_imu, quat_products
 
 TRUTH_TYPES = ('geometry_msgs/msg/PoseStamped', 'geometry_msgs/msg/PoseWithCovarianceStamped',
                'geometry_msgs/msg/TransformStamped', 'nav_msgs/msg/Odometry')
@@ -156,7 +156,7 @@ def derive_recording(t: np.ndarray, p: np.ndarray, q: np.ndarray,
     if len(prm.imu_xyz) != 3 or len(prm.imu_rpy) != 3:
         raise ChannelError('imu_xyz and imu_rpy take three numbers each')
     qm = _rpy_quat(*prm.imu_rpy)
-    q_imu = _qmul(q, np.broadcast_to(qm, q.shape))
+    q_imu = quat_products(q, np.broadcast_to(qm, q.shape))
     lever = np.asarray(prm.imu_xyz, float)
     w, x, y, z = q.T
     rot = np.stack((np.column_stack((1 - 2 * (y * y + z * z), 2 * (x * y - w * z),

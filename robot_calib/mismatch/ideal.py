@@ -31,17 +31,14 @@ from __future__ import annotations
 from typing import Optional
 
 import numpy as np
+from robot_calib.core.geometry import quat_multiply
 
 G = 9.80665  # standard gravity (m/s^2)
 
 
-def _qmul(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    w1, x1, y1, z1 = a.T
-    w2, x2, y2, z2 = b.T
-    return np.column_stack((w1 * w2 - x1 * x2 - y1 * y2 - z1 * z2,
-                            w1 * x2 + x1 * w2 + y1 * z2 - z1 * y2,
-                            w1 * y2 - x1 * z2 + y1 * w2 + z1 * x2,
-                            w1 * z2 + x1 * y2 - y1 * x2 + z1 * w2))
+def quat_products(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Return the Hamilton products a[i] * b[i] of quaternion rows (n, 4, [w x y z])."""
+    return quat_multiply(a.T, b.T).T
 
 
 def body_rate(t: np.ndarray, q: np.ndarray, h: int) -> np.ndarray:
@@ -51,7 +48,7 @@ def body_rate(t: np.ndarray, q: np.ndarray, h: int) -> np.ndarray:
     if n <= 2 * h:
         return out
     qn = q / np.linalg.norm(q, axis=1, keepdims=True)
-    dq = _qmul(qn[:-2 * h] * np.array([1.0, -1.0, -1.0, -1.0]), qn[2 * h:])
+    dq = quat_products(qn[:-2 * h] * np.array([1.0, -1.0, -1.0, -1.0]), qn[2 * h:])
     dq *= np.sign(dq[:, :1] + 1e-300)
     vn = np.linalg.norm(dq[:, 1:], axis=1)
     ang = 2.0 * np.arctan2(vn, dq[:, 0])

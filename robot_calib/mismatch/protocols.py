@@ -22,17 +22,9 @@ from __future__ import annotations
 import numpy as np
 
 from robot_calib.mismatch.channels import IMU_FIELDS, IMU_TYPE, Topic
+from robot_calib.mismatch.ideal import quat_products
 
 G = 9.81  # m/s^2, nominal gravity used by the simulated protocol
-
-
-def _qmul(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    w1, x1, y1, z1 = a.T
-    w2, x2, y2, z2 = b.T
-    return np.column_stack((w1 * w2 - x1 * x2 - y1 * y2 - z1 * z2,
-                            w1 * x2 + x1 * w2 + y1 * z2 - z1 * y2,
-                            w1 * y2 - x1 * z2 + y1 * w2 + z1 * x2,
-                            w1 * z2 + x1 * y2 - y1 * x2 + z1 * w2))
 
 
 def imu_from_orientation(t: np.ndarray, q: np.ndarray, g: float = G,
@@ -50,7 +42,7 @@ def imu_from_orientation(t: np.ndarray, q: np.ndarray, g: float = G,
     q = q / np.linalg.norm(q, axis=1, keepdims=True)
     qc = q * np.array([1.0, -1.0, -1.0, -1.0])
     h = max(1, int(half))
-    dq = _qmul(qc[:-2 * h], q[2 * h:])
+    dq = quat_products(qc[:-2 * h], q[2 * h:])
     dq *= np.sign(dq[:, :1] + 1e-300)
     vn = np.linalg.norm(dq[:, 1:], axis=1)
     ang = 2.0 * np.arctan2(vn, dq[:, 0])
