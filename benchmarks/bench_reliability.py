@@ -10,8 +10,9 @@ through the chosen nodes (default: every node) while sampling that process's
 resident memory every second. Reported: the peak, the resident memory at a
 quarter, half, three quarters and the end of the replay, and the growth per
 recorded hour between the first quarter and the end. Writes
-``docs/bench/10-reliability-memory.md``. Run from the repository root:
-``.venv/bin/python benchmarks/bench_reliability.py [--hours 1 4] [--nodes ...]``.
+``docs/bench/10-reliability-memory.md`` (``--out``); ``--per-node`` adds each node alone on
+the first length. Run from the repository root:
+``.venv/bin/python benchmarks/bench_reliability.py [--hours 1 4] [--nodes ...] [--per-node]``.
 """
 
 from __future__ import annotations
@@ -26,6 +27,8 @@ import tempfile
 import time
 
 REPO = Path(__file__).resolve().parents[1]
+NODES = ('tilt_detection', 'odometry_fusion', 'gyro_line_calibration',
+         'loop_closure_correction', 'wheel_odometry_calibration')
 
 CHILD = r"""
 import resource, sys, threading, time
@@ -56,19 +59,24 @@ def _rss_at(samples: list, fraction: float) -> float:
     return min(samples, key=lambda s: abs(s[0] - fraction * end))[1]
 
 
-def measure(hours: float, nodes: str, tmp: Path) -> dict:
-    """Simulate ``hours`` of driving and replay it in a child process; return the figures."""
+def simulate(hours: float, tmp: Path) -> tuple[Path, float]:
+    """Simulate ``hours`` of the ``drive`` scenario into ``tmp``; return the bag and its MB."""
     bag = tmp / f'drive_{hours:g}h'
     sim = subprocess.run([sys.executable, '-m', 'robot_calib.cli', 'simulate', 'drive',
                           '--out', str(bag), '--seed', '1', '--duration', str(hours * 3600)],
                          capture_output=True, text=True)
     if sim.returncode:
         raise SystemExit(f'simulation failed: {sim.stderr.strip()}')
-    size = sum(f.stat().st_size for f in bag.iterdir()) / 1e6
+    return bag, sum(f.stat().st_size for f in bag.iterdir()) / 1e6
+
+
+def replay_memory(bag: Path, nodes: str, tmp: Path) -> dict:
+    """Replay ``bag`` through ``nodes`` ('' = all) in a child process; return the figures."""
     t0 = time.monotonic()
     run = subprocess.run([sys.executable, '-c', CHILD, str(bag), str(tmp / 'out'), nodes],
                          capture_output=True, text=True)
     wall = time.monotonic() - t0
+    subprocess.run(['rm', '-rf', str(tmp / 'out')], check=False)
     if run.returncode:
         raise SystemExit(f'replay failed: {run.stderr.strip()[-500:]}')
     peak, samples = 0.0, []
@@ -78,12 +86,19 @@ def measure(hours: float, nodes: str, tmp: Path) -> dict:
             peak = float(parts[1])
         elif parts[0] == 'RSS':
             samples.append((float(parts[1]), float(parts[2])))
-    for path in (bag, tmp / 'out'):
-        subprocess.run(['rm', '-rf', str(path)], check=False)
-    quarter, end = _rss_at(samples, 0.25), _rss_at(samples, 0.95)
-    return {'hours': hours, 'bag_mb': size, 'wall': wall, 'peak': peak,
-            'at': [_rss_at(samples, f) for f in (0.25, 0.5, 0.75, 0.95)],
-            'growth_per_hour': (end - quarter) / (0.7 * hours)}
+    return {'wall': wall, 'peak': peak,
+            'at': [_rss_at(samples, f) for f in (0.25, 0.5, 0.75, 0.95)]}
+
+
+def _row(label: str, hours: float, bag_mb: float, r: dict) -> str:
+    growth = (r['at'][3] - r['at'][0]) / (0.7 * hours)
+    at = ' / '.join(f'{m:.0f}' for m in r['at'])
+    return (f'| {label} | {bag_mb:.0f} | {r["wall"]:.0f} | {at} | {r["peak"]:.0f} | '
+            f'{growth:+.0f} |')
+
+
+HEADER = ['| recording | bag (MB) | replay wall (s) | RSS at 25 / 50 / 75 / 95 % (MB) | peak (MB) '
+          '| growth per recorded hour, 25 % to 95 % (MB/h) |', '|---|---|---|---|---|---|']
 
 
 def main(argv=None) -> int:
@@ -91,34 +106,40 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.strip().splitlines()[0])
     ap.add_argument('--hours', type=float, nargs='+', default=[1.0, 4.0])
     ap.add_argument('--nodes', default='', help='comma-separated nodes (default: all)')
+    ap.add_argument('--per-node', action='store_true',
+                    help='also replay the first length through each node alone')
+    ap.add_argument('--out', default=str(REPO / 'docs' / 'bench' / '10-reliability-memory.md'))
     args = ap.parse_args(argv)
-    rows = []
+    rows, per_node = [], []
     with tempfile.TemporaryDirectory(dir=os.environ.get('TMPDIR')) as tmp:
         for hours in args.hours:
-            rows.append(measure(hours, args.nodes, Path(tmp)))
+            bag, size = simulate(hours, Path(tmp))
+            rows.append((hours, size, replay_memory(bag, args.nodes, Path(tmp))))
             print(rows[-1], flush=True)
+            if args.per_node and hours == args.hours[0]:
+                for node in NODES:
+                    per_node.append((node, hours, size, replay_memory(bag, node, Path(tmp))))
+                    print(per_node[-1], flush=True)
+            subprocess.run(['rm', '-rf', str(bag)], check=False)
     nodes = args.nodes or 'all five nodes'
     lines = ['# Reliability: replay memory against recording length (issue 14)', '',
              'Script: `benchmarks/bench_reliability.py`. The `drive` scenario (seed 1: IMU, '
              f'odometry, joint states, scans) simulated for each length and replayed through '
              f'{nodes} in a fresh process; resident memory sampled every second. Goal: the '
              'peak does not grow with the length of the bag (before this work: 153 MB to 836 MB '
-             'for 1 h through all nodes, about 0.7 GB per recorded hour).', '',
-             '| recording | bag (MB) | replay wall (s) | RSS at 25 / 50 / 75 / 95 % (MB) | peak '
-             '(MB) | growth per recorded hour, 25 % to 95 % (MB/h) |',
-             '|---|---|---|---|---|---|']
-    for r in rows:
-        at = ' / '.join(f'{m:.0f}' for m in r['at'])
-        lines.append(f'| {r["hours"]:g} h | {r["bag_mb"]:.0f} | {r["wall"]:.0f} | {at} | '
-                     f'{r["peak"]:.0f} | {r["growth_per_hour"]:+.0f} |')
+             'for 1 h through all nodes, about 0.7 GB per recorded hour).', '', *HEADER]
+    lines += [_row(f'{h:g} h', h, size, r) for h, size, r in rows]
     if len(rows) >= 2:
         a, b = rows[0], rows[-1]
-        lines += ['', f'Peak ratio {b["hours"]:g} h / {a["hours"]:g} h: '
-                  f'{b["peak"] / a["peak"]:.2f} (a bound independent of length gives 1.0).']
+        lines += ['', f'Peak ratio {b[0]:g} h / {a[0]:g} h: {b[2]["peak"] / a[2]["peak"]:.2f} '
+                  '(a bound independent of length gives 1.0).']
+    if per_node:
+        lines += ['', f'Each node alone on the {per_node[0][1]:g} h recording:', '',
+                  HEADER[0].replace('recording', 'node'), HEADER[1]]
+        lines += [_row(node, h, size, r) for node, h, size, r in per_node]
     lines += ['', f'Machine: {platform.machine()}, Python {platform.python_version()}, '
               f'{os.cpu_count()} cores (shared).', '']
-    out = REPO / 'docs' / 'bench' / '10-reliability-memory.md'
-    out.write_text('\n'.join(lines))
+    Path(args.out).write_text('\n'.join(lines))
     print('\n'.join(lines))
     return 0
 
