@@ -3,7 +3,8 @@
 """Bounded histories: evenly thinned series and a reservoir for percentiles."""
 
 import numpy as np
-from robot_calib.core.series import Reservoir, Thinned
+import pytest
+from robot_calib.core.series import Reservoir, Rows, Thinned
 
 
 def test_thinned_stays_bounded_even_and_ends_at_the_latest():
@@ -35,3 +36,20 @@ def test_reservoir_keeps_exact_count_and_sum_and_close_percentiles():
     assert len(r.values) == 5000
     assert abs(r.percentile(50) - np.percentile(values, 50)) < 0.05
     assert abs(r.percentile(99) - np.percentile(values, 99)) < 0.5
+
+
+def test_rows_read_like_a_list_of_arrays():
+    rows = Rows(3)
+    data = np.arange(30, dtype=float).reshape(10, 3) * 0.5
+    for r in data:
+        rows.append(r)
+    assert len(rows) == 10
+    assert np.array_equal(rows[0], data[0]) and np.array_equal(rows[-1], data[-1])
+    assert np.array_equal(rows[2:5], data[2:5]) and rows[7:3].shape == (0, 3)
+    assert np.array_equal(np.asarray(list(rows)), data)
+    rows[0][0] = 99.0  # a copy: the table is unchanged
+    assert rows[0][0] == 0.0
+    with pytest.raises(ValueError):
+        rows.append([1.0, 2.0])
+    with pytest.raises(IndexError):
+        rows[10]

@@ -7,11 +7,13 @@ A live node or a replay may run for hours; what it keeps for plots and
 statistics must not grow with the recording. :class:`Thinned` keeps an evenly
 thinned copy of a series (every 2^k-th item, k growing as needed) plus its
 latest item; :class:`Reservoir` keeps a uniform random sample of values (fixed
-seed) with their exact count and sum, for percentiles.
+seed) with their exact count and sum, for percentiles; :class:`Rows` stores a
+growing table of floats at 8 bytes a value (a list of small arrays costs ~20x).
 """
 
 from __future__ import annotations
 
+from array import array
 import random
 from typing import Any, Iterator, Optional
 
@@ -87,3 +89,41 @@ class Reservoir:
     def percentile(self, q: float) -> float:
         """Return the percentile ``q`` (0..100): exact up to ``capacity`` values, then sampled."""
         return float(np.percentile(self.values, q)) if self.values else float('nan')
+
+
+class Rows:
+    """A growable table of float rows (n, ``width``), 8 bytes a value, read like a list."""
+
+    def __init__(self, width: int):
+        """Create an empty table of rows of ``width`` floats."""
+        self.width = int(width)
+        self._buf = array('d')
+
+    def append(self, row: Any) -> None:
+        """Add one row (a sequence of ``width`` floats)."""
+        values = np.asarray(row, dtype=float).ravel()
+        if values.size != self.width:
+            raise ValueError(f'a row of {self.width} values expected, got {values.size}')
+        self._buf.frombytes(values.tobytes())
+
+    def __len__(self) -> int:
+        """Return the number of rows."""
+        return len(self._buf) // self.width
+
+    def __getitem__(self, index: Any) -> np.ndarray:
+        """Return a copy of one row (width,) or of a slice of rows (k, width)."""
+        w, n = self.width, len(self)
+        if isinstance(index, slice):
+            start, stop, step = index.indices(n)
+            rows = np.array(self._buf[start * w:max(stop, start) * w], dtype=float)
+            return rows.reshape(-1, w)[::step]
+        if index < 0:
+            index += n
+        if not 0 <= index < n:
+            raise IndexError('row index out of range')
+        return np.array(self._buf[index * w:(index + 1) * w], dtype=float)
+
+    def __iter__(self) -> Iterator[np.ndarray]:
+        """Iterate over the rows."""
+        for i in range(len(self)):
+            yield self[i]

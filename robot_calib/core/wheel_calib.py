@@ -47,6 +47,7 @@ Improved method (both drive types)
 
 from __future__ import annotations
 
+from array import array
 import bisect
 import dataclasses
 from dataclasses import dataclass, field
@@ -58,6 +59,7 @@ from robot_calib.core import drive_detect
 from robot_calib.core import kinematics as K
 from robot_calib.core.geometry import wrap_angle
 from robot_calib.core.params import param
+from robot_calib.core.series import Rows
 from scipy import optimize, stats
 
 DIFF_KEYS = ('left_wheel_radius', 'right_wheel_radius', 'track_width',
@@ -981,13 +983,7 @@ class WheelCalibrator:
         """Why the drive type is not known, or contradicts the joints ('' when fine)."""
         self.configured_drive = p.drive_type
         self.drive_source = 'configured' if p.drive_type != 'auto' else 'undecided'
-        self._t: list[float] = []
-        self._a: list[float] = []
-        self._b: list[float] = []
-        self._pose: list[np.ndarray] = []
-        self._last_raw: Optional[tuple] = None
         self._pending: list[Any] = []
-        self._kf: Optional[_KeyFrame] = None
         self.counts = {'wheel_samples': 0, 'scans': 0, 'match_attempts': 0, 'match_failed': 0,
                        'wheel_gaps': 0, 'encoder_unwraps': 0, 'stages': 0,
                        'stage_match_failed': 0, 'scans_without_wheel_data': 0,
@@ -1127,9 +1123,11 @@ class WheelCalibrator:
                                   f'{self.drive} (set drive_type: {found.drive_type}, or auto)')
 
     def _reset_wheels(self) -> None:
-        self._t, self._a, self._b, self._pose = [], [], [], []
-        self._last_raw = None
-        self._kf = None
+        # the whole drive is kept for the final re-deskew: compact storage (8 bytes a value)
+        self._t, self._a, self._b = array('d'), array('d'), array('d')
+        self._pose = Rows(3)
+        self._last_raw: Optional[tuple] = None
+        self._kf: Optional[_KeyFrame] = None
         self._stage, self._stage_start = [], None
 
     def add_odom(self, od: Any) -> bool:
