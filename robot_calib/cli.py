@@ -14,6 +14,7 @@ from __future__ import annotations
 import argparse
 import contextlib
 import importlib
+from pathlib import Path
 import signal
 import sys
 import threading
@@ -114,8 +115,17 @@ def _parse_sets(items: Sequence[str]) -> dict[str, str]:
     return out
 
 
+def _make_parent(path: str) -> None:
+    """Create the folder a bag will be written into (as replay does for its output)."""
+    try:
+        Path(path).parent.mkdir(parents=True, exist_ok=True)
+    except OSError:
+        pass  # the bag writer says what is wrong with it, in one line
+
+
 def _simulate(args: argparse.Namespace) -> int:
     from robot_calib import sim
+    _make_parent(args.out)
     truth = sim.simulate(args.scenario, args.out, seed=args.seed, duration=args.duration,
                          overrides=_parse_sets(args.overrides) or None, storage=args.storage)
     print(f'wrote {args.out} and {args.out}.truth.json (scenario {args.scenario}, '
@@ -188,6 +198,7 @@ def _ideal(args: argparse.Namespace) -> int:
         if key in sets:
             sets[key] = [v for v in sets[key].strip('[]').split(',') if v.strip()]
     params = from_flat(derive.IdealParams, sets)
+    _make_parent(args.out)
     try:
         info = derive.derive(args.truth, args.out, args.truth_topic, params)
     except ChannelError as exc:
