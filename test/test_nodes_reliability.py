@@ -154,16 +154,22 @@ def test_fusion_node_publishes_again_after_a_two_second_gap(ros):
     peer.destroy_node()
 
 
-def test_all_rejected_input_is_reported_on_diagnostics(ros, monkeypatch):
+def _tilt_node_with_diagnostics(monkeypatch, peer_name):
+    """Return (node, peer, executor, diagnostics received) with a fast health period."""
     monkeypatch.setattr(base, 'HEALTH_PERIOD', 0.1)
     node = PipelineNode(TiltPipeline)
-    peer = rclpy.create_node('nan_peer')
+    peer = rclpy.create_node(peer_name)
     diags = []
     peer.create_subscription(DiagnosticArray, '/diagnostics', diags.append, 50)
-    pub = peer.create_publisher(Imu, 'imu', qos_profile_sensor_data)
     ex = SingleThreadedExecutor()
     ex.add_node(node)
     ex.add_node(peer)
+    return node, peer, ex, diags
+
+
+def test_all_rejected_input_is_reported_on_diagnostics(ros, monkeypatch):
+    node, peer, ex, diags = _tilt_node_with_diagnostics(monkeypatch, 'nan_peer')
+    pub = peer.create_publisher(Imu, 'imu', qos_profile_sensor_data)
     spin_until(ex, lambda: pub.get_subscription_count())
 
     stamps = iter(50.0 + 0.01 * i for i in range(100000))
@@ -182,14 +188,7 @@ def test_all_rejected_input_is_reported_on_diagnostics(ros, monkeypatch):
 
 
 def test_waiting_node_says_so(ros, monkeypatch):
-    monkeypatch.setattr(base, 'HEALTH_PERIOD', 0.1)
-    node = PipelineNode(TiltPipeline)
-    peer = rclpy.create_node('wait_peer')
-    diags = []
-    peer.create_subscription(DiagnosticArray, '/diagnostics', diags.append, 50)
-    ex = SingleThreadedExecutor()
-    ex.add_node(node)
-    ex.add_node(peer)
+    node, peer, ex, diags = _tilt_node_with_diagnostics(monkeypatch, 'wait_peer')
     assert spin_until(ex, lambda: any(_level(s) == 1 and 'waiting for imu' in s.message
                                       for d in diags for s in d.status), 200, 0.01)
     node.destroy_node()
