@@ -8,8 +8,8 @@ after ``--remap``) in bag time order, through exactly the conversion code the
 live node uses. Static transforms (``/tf_static``) are delivered to every
 pipeline before any other message. The outputs land in ``DIR``:
 
-- ``output.mcap``: a ROS 2 bag in one mcap file (``ros2 bag play DIR/output.mcap``,
-  Foxglove, :func:`robot_calib.io.bags.read_messages`) of every published
+- ``output.mcap`` and ``metadata.yaml``: ``DIR`` is a ROS 2 bag (``ros2 bag info DIR``,
+  ``ros2 bag play DIR``, Foxglove, :func:`robot_calib.io.bags.read_messages`) of every published
   output topic, same names and types as live, each message stamped with the
   stamp of the input that produced it;
 - ``summary.json``: per node its pipeline summary (parameters, inputs read /
@@ -593,8 +593,10 @@ def _run(bagset: BagSet, bag_list: list, runs: list[_Node], skipped: dict[str, s
             except Exception as exc:  # noqa: B902 - counted, never fatal
                 run.error('finish', exc)
             finish_times[run.name] = perf() - t0
-    if storage == 'mcap':  # one self-contained file (rosbag2 metadata is inside the mcap)
+    if storage == 'mcap':  # the output folder is itself a ROS 2 bag: metadata.yaml + the mcap
         os.replace(bag_dir / f'{bag_dir.name}.mcap', tmp / OUTPUT_BAG)
+        meta = (bag_dir / 'metadata.yaml').read_text()
+        (tmp / 'metadata.yaml').write_text(meta.replace(f'{bag_dir.name}.mcap', OUTPUT_BAG))
         shutil.rmtree(bag_dir)
     else:
         os.replace(bag_dir, tmp / OUTPUT_BAG)

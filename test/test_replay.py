@@ -186,7 +186,14 @@ def test_replay_end_to_end(tmp_path, storage):
     summary = replay([path], out, nodes=[ECHO], overrides=['echo.gain=2', 'echo.offset.x=0.5'],
                      progress=False)
     assert sorted(p.name for p in out.iterdir()) == [
-        'echo_result.yaml', 'output.mcap', 'plots', 'report.md', 'summary.json']
+        'echo_result.yaml', 'metadata.yaml', 'output.mcap', 'plots', 'report.md',
+        'summary.json']
+    # the output folder opens as a ROS 2 bag, with rosbags as with our reader
+    from rosbags.rosbag2 import Reader
+    with Reader(out) as reader:
+        count = reader.message_count
+    assert count == sum(summary['output']['topics'].values()) > 0
+    assert sum(1 for _ in bags.read_messages([out])) == count
     on_disk = json.loads((out / 'summary.json').read_text())
     assert on_disk == summary
     node = summary['nodes']['echo']
