@@ -21,3 +21,12 @@ def without_input_health(append: Callable[[object], None]) -> Callable[[object],
         if not any(s.name.endswith(': inputs') for s in msg.status):
             append(msg)
     return callback
+
+
+def executor_with(*nodes):
+    """Return a single-threaded rclpy executor spinning ``nodes``."""
+    from rclpy.executors import SingleThreadedExecutor
+    executor = SingleThreadedExecutor()
+    for node in nodes:
+        executor.add_node(node)
+    return executor

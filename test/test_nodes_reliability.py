@@ -17,7 +17,6 @@ rclpy = pytest.importorskip('rclpy')
 
 from diagnostic_msgs.msg import DiagnosticArray  # noqa: E402, I100
 from nav_msgs.msg import Odometry  # noqa: E402
-from rclpy.executors import SingleThreadedExecutor  # noqa: E402
 from rclpy.parameter import Parameter  # noqa: E402
 from rclpy.qos import qos_profile_sensor_data  # noqa: E402
 from robot_calib.core import types as T  # noqa: E402
@@ -30,7 +29,7 @@ from robot_calib.pipelines.odometry_fusion import FusionPipeline  # noqa: E402
 from robot_calib.pipelines.tilt_detection import TiltPipeline  # noqa: E402
 from robot_calib.pipelines.wheel_odometry_calibration import \
     WheelCalibrationPipeline  # noqa: E402
-from ros_helpers import spin_until  # noqa: E402
+from ros_helpers import executor_with, spin_until  # noqa: E402
 from sensor_msgs.msg import Imu  # noqa: E402
 
 
@@ -78,9 +77,7 @@ def test_node_keeps_publishing_when_its_pipeline_logs_at_several_severities(ros)
     echoes = []
     peer.create_subscription(Imu, 'chatty/imu', echoes.append, 50)
     pub = peer.create_publisher(Imu, 'imu', qos_profile_sensor_data)
-    ex = SingleThreadedExecutor()
-    ex.add_node(node)
-    ex.add_node(peer)
+    ex = executor_with(node, peer)
     spin_until(ex, lambda: pub.get_subscription_count() and
                node._pubs['echo'].get_subscription_count())
     for i in range(20):
@@ -125,9 +122,7 @@ def test_fusion_node_publishes_again_after_a_two_second_gap(ros):
     peer.create_subscription(Odometry, 'odometry/fused', fused.append, 100)
     imu_pub = peer.create_publisher(Imu, 'imu', qos_profile_sensor_data)
     odom_pub = peer.create_publisher(Odometry, 'odom', qos_profile_sensor_data)
-    ex = SingleThreadedExecutor()
-    ex.add_node(node)
-    ex.add_node(peer)
+    ex = executor_with(node, peer)
     spin_until(ex, lambda: imu_pub.get_subscription_count() and odom_pub.get_subscription_count()
                and node._pubs['odom'].get_subscription_count())
 
@@ -161,9 +156,7 @@ def _tilt_node_with_diagnostics(monkeypatch, peer_name):
     peer = rclpy.create_node(peer_name)
     diags = []
     peer.create_subscription(DiagnosticArray, '/diagnostics', diags.append, 50)
-    ex = SingleThreadedExecutor()
-    ex.add_node(node)
-    ex.add_node(peer)
+    ex = executor_with(node, peer)
     return node, peer, ex, diags
 
 
