@@ -3,10 +3,15 @@
 """Package set-up for robot_calib (ament_python)."""
 
 from glob import glob
+from pathlib import Path
 
 from setuptools import find_packages, setup
 
 package_name = 'robot_calib'
+HERE = Path(__file__).resolve().parent
+# One executable per method folder that has a node (robot_calib/methods/<executable>/node.py).
+NODE_SCRIPTS = [f'{node.parent.name} = {package_name}.methods.{node.parent.name}.node:main'
+                for node in sorted((HERE / package_name / 'methods').glob('*/node.py'))]
 
 setup(
     name=package_name,
@@ -25,13 +30,6 @@ setup(
     license='Apache-2.0',
     tests_require=['pytest'],
     entry_points={
-        'console_scripts': [
-            'gyro_line_calibration = robot_calib.nodes.gyro_line_calibration:main',
-            'loop_closure_correction = robot_calib.nodes.loop_closure_correction:main',
-            'tilt_detection = robot_calib.nodes.tilt_detection:main',
-            'odometry_fusion = robot_calib.nodes.odometry_fusion:main',
-            'wheel_odometry_calibration = robot_calib.nodes.wheel_odometry_calibration:main',
-            'robot-calib = robot_calib.cli:main',
-        ],
+        'console_scripts': NODE_SCRIPTS + ['robot-calib = robot_calib.cli:main'],
     },
 )

@@ -49,8 +49,8 @@ HUSKY_IMU_RPY = [math.pi / 2, 0.0, -math.pi / 2]
 
 sys.path.insert(0, str(REPO))
 
-from robot_calib.core import fusion as F  # noqa: E402
 from robot_calib.core.geometry import wrap_angle  # noqa: E402
+from robot_calib.methods.odometry_fusion import estimator as F  # noqa: E402
 
 
 # ---------------------------------------------------------------------------------------
@@ -273,7 +273,7 @@ def real_gps_data(lines: list) -> None:
 # ---------------------------------------------------------------------------------------
 def speed(lines: list, seq: list) -> None:
     """Pipeline throughput, full replay throughput and node callback p99."""
-    from robot_calib.pipelines.odometry_fusion import FusionPipeline
+    from robot_calib.methods.odometry_fusion.pipeline import FusionPipeline
     keys = {'imu': 'imu', 'odom': 'odom'}
     rates, cpu_rates = [], []
     for _ in range(3):
@@ -327,8 +327,8 @@ def node_p99(seq: list):
     try:
         import rclpy
         from robot_calib.io import convert
+        from robot_calib.methods.odometry_fusion.pipeline import FusionPipeline
         from robot_calib.nodes.base import PipelineNode
-        from robot_calib.pipelines.odometry_fusion import FusionPipeline
     except ImportError:
         return None
     rclpy.init(args=['--ros-args', '-p', f'imu_rpy:={HUSKY_IMU_RPY}'])

@@ -57,8 +57,8 @@ REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 
 from robot_calib.core.geometry import se2_between, se2_compose, se2_inverse  # noqa: E402
-from robot_calib.core.gyro_line import Correction, GyroLineCalibrator  # noqa: E402
-from robot_calib.core.gyro_line import GyroLineParams  # noqa: E402
+from robot_calib.methods.gyro_line_calibration.estimator import (  # noqa: E402
+    Correction, GyroLineCalibrator, GyroLineParams)
 from robot_calib.sim import run_scenario  # noqa: E402
 
 DATA = REPO.parent / 'shared' / 'data'

@@ -103,9 +103,11 @@ def _false_closures(reports, tg, truth, wrap_angle):
 def simulated(args, out_lines):
     """Run the simulated part; append markdown to ``out_lines``; return the goal rows."""
     from robot_calib.core.geometry import se2_between, wrap_angle
-    from robot_calib.core.loop_closure import LoopClosureParams
-    from robot_calib.core.pose_graph import GraphCorrector, optimise  # noqa: F401
-    from robot_calib.pipelines.loop_closure_correction import heading_rmse, LoopClosurePipeline
+    from robot_calib.methods.loop_closure_correction.estimator import LoopClosureParams
+    from robot_calib.methods.loop_closure_correction.pipeline import (heading_rmse,
+                                                                      LoopClosurePipeline)
+    from robot_calib.methods.loop_closure_correction.pose_graph import (  # noqa: F401
+        GraphCorrector, optimise)
     from robot_calib.sim import run_scenario
 
     rows, lat, cpu, ratios = [], [], [], []
@@ -257,9 +259,9 @@ def render_simulated(data, out_lines):
 
 def mit_csail(out_lines):
     """Run the real part on mit-csail.clf; append markdown."""
-    from robot_calib.core.loop_closure import LoopClosureParams
+    from robot_calib.methods.loop_closure_correction.estimator import LoopClosureParams
     from robot_calib.io.datasets import carmen
-    from robot_calib.pipelines.loop_closure_correction import LoopClosurePipeline
+    from robot_calib.methods.loop_closure_correction.pipeline import LoopClosurePipeline
 
     path = DATA / 'carmen' / 'mit-csail.clf'
     log = carmen.read_log(path)

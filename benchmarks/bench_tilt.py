@@ -45,7 +45,7 @@ sys.path.insert(0, str(REPO))
 DATA = REPO.parent / 'shared' / 'data'
 OUT = REPO / 'docs' / 'bench' / '3-tilt.md'
 
-from robot_calib.core import tilt as TL  # noqa: E402
+from robot_calib.methods.tilt_detection import estimator as TL  # noqa: E402
 
 DEG = 180.0 / math.pi
 FALL = math.pi / 4
@@ -243,7 +243,7 @@ def broad_section() -> None:
 def bags_section() -> None:
     """Run the pipeline over the three imu_tools bags."""
     from robot_calib.io.datasets import imu_tools
-    from robot_calib.pipelines.tilt_detection import TiltPipeline
+    from robot_calib.methods.tilt_detection.pipeline import TiltPipeline
     lines = ['## imu_tools bags (real IMUs, ROS 1)', '',
              "Pipeline with default parameters over the bag's Imu topic. 'Accel tilt' is the "
              'tilt of the mean accelerometer reading over the first 0.5 s.', '',
@@ -281,7 +281,7 @@ def bags_section() -> None:
 
 # -- simulation -------------------------------------------------------------------------------
 def _run_pipeline(messages: list, params: TL.TiltParams) -> tuple:
-    from robot_calib.pipelines.tilt_detection import fall_alert_onsets, TiltPipeline
+    from robot_calib.methods.tilt_detection.pipeline import fall_alert_onsets, TiltPipeline
     pipe = TiltPipeline(params)
     return pipe, fall_alert_onsets(pipe, messages)
 
@@ -342,7 +342,7 @@ def speed_section(duration: float = 300.0) -> None:
     """Replay throughput of a 200 Hz IMU bag and the node callback time."""
     from robot_calib.io import convert
     from robot_calib.io.bags import BagWriter, read_messages
-    from robot_calib.pipelines.tilt_detection import TiltPipeline
+    from robot_calib.methods.tilt_detection.pipeline import TiltPipeline
     from robot_calib.replay import replay
     from robot_calib.sim import run_scenario
     r = run_scenario('bumpy_drive', seed=1, duration=duration, overrides={'lidar.rate': 0.2})

@@ -33,7 +33,7 @@ sys.path.insert(0, str(REPO))
 DATA = REPO.parent / 'shared' / 'data'
 OUT = REPO / 'docs' / 'bench' / '7-wheel-calib.md'
 
-from robot_calib.core import wheel_calib as W  # noqa: E402
+from robot_calib.methods.wheel_odometry_calibration import estimator as W  # noqa: E402
 
 MM = 1e3
 DEG = 180.0 / math.pi

@@ -6,10 +6,10 @@ import math
 
 import numpy as np
 import pytest
-from robot_calib.core import fusion as F
 from robot_calib.core import types as T
 from robot_calib.core.geometry import quat_from_rpy, quat_to_matrix, wrap_angle
-from robot_calib.pipelines.odometry_fusion import FusionPipeline
+from robot_calib.methods.odometry_fusion import estimator as F
+from robot_calib.methods.odometry_fusion.pipeline import FusionPipeline
 
 HUSKY_RPY = [math.pi / 2, 0.0, -math.pi / 2]
 

@@ -12,8 +12,8 @@ from diagnostic_msgs.msg import DiagnosticArray  # noqa: E402, I100
 from nav_msgs.msg import Odometry  # noqa: E402
 from rclpy.executors import SingleThreadedExecutor  # noqa: E402
 from rclpy.qos import qos_profile_sensor_data  # noqa: E402
+from robot_calib.methods.odometry_fusion.pipeline import FusionPipeline  # noqa: E402
 from robot_calib.nodes.base import PipelineNode  # noqa: E402
-from robot_calib.pipelines.odometry_fusion import FusionPipeline  # noqa: E402
 from ros_helpers import spin_until, without_input_health  # noqa: E402
 from sensor_msgs.msg import Imu  # noqa: E402
 

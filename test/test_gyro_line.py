@@ -8,11 +8,11 @@ import numpy as np
 import pytest
 
 from robot_calib.core import types as T
-from robot_calib.core.gyro_line import (condition2, condition2_many, GyroLineCalibrator,
-                                        GyroLineParams, MatchParams, seed_calibrated_angle,
-                                        seed_heading_correction)
 from robot_calib.core.lines import line_from_endpoints
-from robot_calib.pipelines.gyro_line_calibration import GyroLinePipeline
+from robot_calib.methods.gyro_line_calibration.estimator import (
+    condition2, condition2_many, GyroLineCalibrator, GyroLineParams, MatchParams,
+    seed_calibrated_angle, seed_heading_correction)
+from robot_calib.methods.gyro_line_calibration.pipeline import GyroLinePipeline
 from robot_calib.sim import run_scenario
 
 DEG = math.pi / 180.0

@@ -14,8 +14,8 @@ from diagnostic_msgs.msg import DiagnosticArray  # noqa: E402, I100
 from nav_msgs.msg import Odometry  # noqa: E402
 from rclpy.executors import SingleThreadedExecutor  # noqa: E402
 from rclpy.qos import qos_profile_sensor_data  # noqa: E402
+from robot_calib.methods.gyro_line_calibration.pipeline import GyroLinePipeline  # noqa: E402
 from robot_calib.nodes.base import PipelineNode  # noqa: E402
-from robot_calib.pipelines.gyro_line_calibration import GyroLinePipeline  # noqa: E402
 from robot_calib.sim.world import World  # noqa: E402
 from ros_helpers import spin_until, without_input_health  # noqa: E402
 from sensor_msgs.msg import Imu, LaserScan  # noqa: E402

@@ -423,7 +423,7 @@ def test_list_parameters_are_checked_on_a_live_node(ros):
     from rclpy.parameter import Parameter
     from robot_calib.core.params import ParamError
     from robot_calib.nodes.base import PipelineNode
-    from robot_calib.pipelines.tilt_detection import TiltPipeline
+    from robot_calib.methods.tilt_detection.pipeline import TiltPipeline
     for value, message in (([math.nan, 0.0, 0.0], 'finite'), ([0.0, 0.0], 'list of 3')):
         with pytest.raises(ParamError, match=message):
             PipelineNode(TiltPipeline,

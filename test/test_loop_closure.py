@@ -6,11 +6,11 @@ import math
 
 import numpy as np
 import pytest
-from robot_calib.core import loop_closure as lc
 from robot_calib.core import types as T
 from robot_calib.core.geometry import se2_apply, se2_inverse, wrap_angle
 from robot_calib.core.scan_match import MatchResult
-from robot_calib.pipelines.loop_closure_correction import heading_rmse, LoopClosurePipeline
+from robot_calib.methods.loop_closure_correction import estimator as lc
+from robot_calib.methods.loop_closure_correction.pipeline import heading_rmse, LoopClosurePipeline
 from scipy.spatial import cKDTree
 
 
@@ -325,8 +325,8 @@ def test_voxel_thin_and_deskew():
 
 
 def test_pose_graph_baseline_closes_a_loop():
-    from robot_calib.core import pose_graph as pg
     from robot_calib.core.geometry import se2_between, se2_compose
+    from robot_calib.methods.loop_closure_correction import pose_graph as pg
     # a square of 4 x 4 m driven with a heading error of 2 deg per side
     truth = [np.array([0.0, 0.0, 0.0])]
     for k in range(8):

@@ -15,8 +15,8 @@ from diagnostic_msgs.msg import DiagnosticArray  # noqa: E402, I100
 from nav_msgs.msg import Odometry  # noqa: E402
 from rclpy.executors import SingleThreadedExecutor  # noqa: E402
 from rclpy.qos import qos_profile_sensor_data  # noqa: E402
+from robot_calib.methods.loop_closure_correction.pipeline import LoopClosurePipeline  # noqa: E402
 from robot_calib.nodes.base import PipelineNode  # noqa: E402
-from robot_calib.pipelines.loop_closure_correction import LoopClosurePipeline  # noqa: E402
 from ros_helpers import spin_until, without_input_health  # noqa: E402
 from sensor_msgs.msg import Imu, LaserScan  # noqa: E402
 
@@ -119,7 +119,7 @@ def revisit_bag(tmp_path_factory):
 def test_replay_of_the_simulated_revisit_scenario(revisit_bag, tmp_path):
     from robot_calib.cli import main
     from robot_calib.io.bags import read_messages
-    from robot_calib.pipelines.loop_closure_correction import heading_rmse
+    from robot_calib.methods.loop_closure_correction.pipeline import heading_rmse
     out = tmp_path / 'replay'
     assert main(['replay', str(revisit_bag), '--out', str(out),
                  '--nodes', 'loop_closure_correction']) == 0

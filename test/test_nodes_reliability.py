@@ -21,14 +21,14 @@ from rclpy.parameter import Parameter  # noqa: E402
 from rclpy.qos import qos_profile_sensor_data  # noqa: E402
 from robot_calib.core import types as T  # noqa: E402
 from robot_calib.core.params import param  # noqa: E402
+from robot_calib.methods.odometry_fusion.pipeline import FusionPipeline  # noqa: E402
+from robot_calib.methods.tilt_detection.pipeline import TiltPipeline  # noqa: E402
+from robot_calib.methods.wheel_odometry_calibration.pipeline import \
+    WheelCalibrationPipeline  # noqa: E402
 from robot_calib.nodes import base  # noqa: E402
 from robot_calib.nodes.base import PipelineNode  # noqa: E402
 from robot_calib.nodes.health import NodeLog  # noqa: E402
 from robot_calib.pipelines.base import InputSpec, OutputSpec, Pipeline  # noqa: E402
-from robot_calib.pipelines.odometry_fusion import FusionPipeline  # noqa: E402
-from robot_calib.pipelines.tilt_detection import TiltPipeline  # noqa: E402
-from robot_calib.pipelines.wheel_odometry_calibration import \
-    WheelCalibrationPipeline  # noqa: E402
 from ros_helpers import executor_with, spin_until  # noqa: E402
 from sensor_msgs.msg import Imu  # noqa: E402
 

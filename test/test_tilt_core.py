@@ -1,14 +1,14 @@
 # Copyright 2026 robot_calib contributors
 # SPDX-License-Identifier: Apache-2.0
-"""Tests of robot_calib.core.tilt: seed filter steps, attitude estimator, fall detector."""
+"""Tests of the tilt estimator: seed filter steps, attitude estimator, fall detector."""
 
 import math
 
 import numpy as np
 import pytest
 
-from robot_calib.core import tilt as TL
 from robot_calib.core.geometry import quat_multiply, quat_to_matrix
+from robot_calib.methods.tilt_detection import estimator as TL
 
 G = 9.80665
 

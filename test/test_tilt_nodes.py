@@ -9,8 +9,8 @@ import numpy as np
 import pytest
 
 from robot_calib.core import types as T
-from robot_calib.core.tilt import TiltParams
-from robot_calib.pipelines.tilt_detection import fall_alert_onsets, TiltPipeline
+from robot_calib.methods.tilt_detection.estimator import TiltParams
+from robot_calib.methods.tilt_detection.pipeline import fall_alert_onsets, TiltPipeline
 from ros_helpers import spin_until
 
 G = 9.80665
@@ -211,7 +211,7 @@ def test_phidgets_upside_down_bag_alerts_at_once(shared_data):
 
 
 def test_broad_slice_accuracy(shared_data):
-    from robot_calib.core.tilt import run
+    from robot_calib.methods.tilt_detection.estimator import run
     from robot_calib.io.datasets import broad
     tr = broad.load_trial(shared_data / 'broad' / '10_undisturbed_slow_translation_A.npz')
     n = 20000

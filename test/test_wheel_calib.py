@@ -7,7 +7,7 @@ import math
 import numpy as np
 import pytest
 from robot_calib.core import kinematics as K
-from robot_calib.core import wheel_calib as W
+from robot_calib.methods.wheel_odometry_calibration import estimator as W
 import yaml
 
 DIFF_TRUTH = {'left_wheel_radius': 0.0504, 'right_wheel_radius': 0.0497, 'track_width': 0.306,

@@ -7,8 +7,8 @@ import math
 import numpy as np
 import pytest
 from robot_calib.core import types as T
-from robot_calib.core.wheel_calib import WheelCalibParams
-from robot_calib.pipelines.wheel_odometry_calibration import WheelCalibrationPipeline
+from robot_calib.methods.wheel_odometry_calibration.estimator import WheelCalibParams
+from robot_calib.methods.wheel_odometry_calibration.pipeline import WheelCalibrationPipeline
 from ros_helpers import spin_until
 import yaml
 
@@ -35,7 +35,7 @@ def _feed(pipe, messages, topics=('joint_states', 'scan', 'tf_static')):
 
 
 def test_plan_prints_and_exits_zero(capsys):
-    from robot_calib.nodes.wheel_odometry_calibration import main
+    from robot_calib.methods.wheel_odometry_calibration.node import main
     with pytest.raises(SystemExit) as exc:
         main(['--plan'])
     assert exc.value.code == 0

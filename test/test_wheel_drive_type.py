@@ -5,9 +5,9 @@
 import json
 
 import pytest
-from robot_calib.core import drive_detect as D
-from robot_calib.core.wheel_calib import WheelCalibParams
-from robot_calib.pipelines.wheel_odometry_calibration import WheelCalibrationPipeline
+from robot_calib.methods.wheel_odometry_calibration import drive_detect as D
+from robot_calib.methods.wheel_odometry_calibration.estimator import WheelCalibParams
+from robot_calib.methods.wheel_odometry_calibration.pipeline import WheelCalibrationPipeline
 from test_wheel_calib_nodes import _feed, _sim
 import yaml
 

@@ -27,6 +27,8 @@ a constant steering angle or wheel-speed ratio).
 
 from __future__ import annotations
 
+from dataclasses import dataclass, field
+
 import numpy as np
 
 
@@ -121,3 +123,20 @@ def base_motion_from_sensor(sensor_motion_: np.ndarray, sensor_pose) -> np.ndarr
     """Return the base motion ``l (+) s (+) l^-1`` from sensor motions ``s`` [..., 3]."""
     lp = np.broadcast_to(np.asarray(sensor_pose, dtype=float), np.shape(sensor_motion_))
     return compose(lp, compose(sensor_motion_, inverse(lp)))
+
+
+@dataclass
+class Segment:
+    """
+    Wheel steps between two key frames and the sensor motion measured between them.
+
+    ``steps`` is (K, 2): differential ``(dphi_l, dphi_r)`` rad; steered wheel
+    ``(dphi, reading)`` (traction rotation rad, steering reading rad).
+    ``sensor_motion`` is (x m, y m, yaw rad) of the sensor in its own frame at ``t0``.
+    """
+
+    t0: float
+    t1: float
+    steps: np.ndarray
+    sensor_motion: np.ndarray
+    info: dict = field(default_factory=dict)

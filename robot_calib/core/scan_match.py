@@ -199,14 +199,6 @@ def clean_points(points: np.ndarray) -> np.ndarray:
     return np.ascontiguousarray(pts[np.all(np.isfinite(pts), axis=1)])
 
 
-def scan_points(scan, max_range: Optional[float] = None) -> np.ndarray:
-    """Return the valid beams of a ``ScanSample`` as (N, 2) points (m), capped at ``max_range``."""
-    pts = scan.points()
-    if max_range is not None and len(pts):
-        pts = pts[np.hypot(pts[:, 0], pts[:, 1]) <= max_range]
-    return pts
-
-
 def _to3d(points: np.ndarray) -> np.ndarray:
     return np.column_stack((points, np.zeros(len(points))))
 

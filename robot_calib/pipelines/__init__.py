@@ -1,20 +1,16 @@
 # Copyright 2026 robot_calib contributors
 # SPDX-License-Identifier: Apache-2.0
-"""Registry of the method pipelines, by executable name (imported lazily)."""
+"""Registry of the method pipelines by executable name, derived from the method folders."""
 
 from __future__ import annotations
 
 import importlib
 import importlib.util
 
-REGISTRY = {
-    'gyro_line_calibration': 'robot_calib.pipelines.gyro_line_calibration:GyroLinePipeline',
-    'loop_closure_correction': 'robot_calib.pipelines.loop_closure_correction:LoopClosurePipeline',
-    'tilt_detection': 'robot_calib.pipelines.tilt_detection:TiltPipeline',
-    'odometry_fusion': 'robot_calib.pipelines.odometry_fusion:FusionPipeline',
-    'wheel_odometry_calibration':
-        'robot_calib.pipelines.wheel_odometry_calibration:WheelCalibrationPipeline',
-}
+from robot_calib import methods
+
+REGISTRY = {name: methods.pipeline_target(name) for name in methods.names()}
+"""Executable name -> ``module:attribute`` of its pipeline class (imported lazily)."""
 
 
 def available() -> list[str]:

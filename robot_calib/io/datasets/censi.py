@@ -22,7 +22,7 @@ from typing import Optional, Union
 
 import numpy as np
 
-from robot_calib.core.wheel_calib import Segment
+from robot_calib.core.kinematics import Segment
 
 FILES = ('l90', 'l90_0', 'l90_1', 'l90_2', 'lmov', 'lmov_0', 'lmov_1', 'lmov_2',
          'lstraight', 'lstraight_0', 'lstraight_1', 'lstraight_2')

@@ -31,7 +31,7 @@ from typing import Union
 import numpy as np
 
 from robot_calib.core import kinematics as K
-from robot_calib.core.wheel_calib import Segment
+from robot_calib.core.kinematics import Segment
 
 _NUM = r'([-+0-9.eE]+)'
 _LINE = re.compile(rf'time:\s*{_NUM}\s+ticks:\s*{_NUM}\s+{_NUM}\s+model_pose:\s*{_NUM}\s+{_NUM}'

@@ -3,7 +3,7 @@
 """
 The ``gyro_line_calibration`` node: ``imu`` + ``odom`` + ``scan`` -> ``gyro_line/odom``.
 
-A thin wrapper of :class:`robot_calib.pipelines.gyro_line_calibration.GyroLinePipeline`
+A thin wrapper of :class:`robot_calib.methods.gyro_line_calibration.pipeline.GyroLinePipeline`
 through :mod:`robot_calib.nodes.base`; it also publishes ``/diagnostics`` and,
 in seed mode, listens to ``gyro_line/edge_following`` (std_msgs/Bool).
 """
@@ -11,8 +11,8 @@ in seed mode, listens to ``gyro_line/edge_following`` (std_msgs/Bool).
 import sys
 from typing import Optional
 
+from robot_calib.methods.gyro_line_calibration.pipeline import GyroLinePipeline
 from robot_calib.nodes.base import run
-from robot_calib.pipelines.gyro_line_calibration import GyroLinePipeline
 
 
 def main(args: Optional[list] = None) -> None:

@@ -3,15 +3,15 @@
 """
 The ``odometry_fusion`` node: ``imu`` + ``odom`` (or ``joint_states``) -> ``odometry/fused``.
 
-A thin wrapper of :class:`robot_calib.pipelines.odometry_fusion.FusionPipeline`
+A thin wrapper of :class:`robot_calib.methods.odometry_fusion.pipeline.FusionPipeline`
 through :mod:`robot_calib.nodes.base`; it also publishes ``/diagnostics``.
 """
 
 import sys
 from typing import Optional
 
+from robot_calib.methods.odometry_fusion.pipeline import FusionPipeline
 from robot_calib.nodes.base import run
-from robot_calib.pipelines.odometry_fusion import FusionPipeline
 
 
 def main(args: Optional[list] = None) -> None:

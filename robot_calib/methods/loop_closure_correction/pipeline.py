@@ -3,7 +3,8 @@
 """
 Pipeline of ``loop_closure_correction``: imu, odom, scan in; corrected odometry out.
 
-Thin glue around :class:`robot_calib.core.loop_closure.LoopClosureCorrector`:
+Thin glue around
+:class:`robot_calib.methods.loop_closure_correction.estimator.LoopClosureCorrector`:
 the gyro (rotated into base_link by the ``/tf_static`` mounting when present)
 drives the heading, the wheel odometry the distance, and the scans (moved
 into base_link the same way) the keyframes and loop closures. Every odometry
@@ -20,9 +21,10 @@ from typing import Any
 import numpy as np
 from robot_calib.core import types as T
 from robot_calib.core.geometry import quat_to_matrix, se2_apply, yaw_from_quat
-from robot_calib.core.loop_closure import (ClosureReport, deskew, LoopClosureCorrector,
-                                           LoopClosureParams)
 from robot_calib.core.series import Thinned
+from robot_calib.methods.loop_closure_correction.estimator import (ClosureReport, deskew,
+                                                                   LoopClosureCorrector,
+                                                                   LoopClosureParams)
 from robot_calib.pipelines.base import InputSpec, OutputSpec, Pipeline
 
 NAME = 'loop_closure_correction'
@@ -195,3 +197,6 @@ def heading_rmse(t_est: np.ndarray, yaw_est: np.ndarray, t_true: np.ndarray,
     ref = np.interp(t_est, t_true, unwrapped)
     err = np.angle(np.exp(1j * (np.asarray(yaw_est) - ref)))
     return float(math.sqrt(np.mean(err ** 2))) if len(err) else float('nan')
+
+
+PIPELINE = LoopClosurePipeline

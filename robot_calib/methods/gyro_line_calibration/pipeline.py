@@ -3,7 +3,8 @@
 """
 Pipeline of the ``gyro_line_calibration`` node: imu + odom + scan -> ``gyro_line/odom``.
 
-Glue only: samples go to :class:`robot_calib.core.gyro_line.GyroLineCalibrator`.
+Glue only: samples go to
+:class:`robot_calib.methods.gyro_line_calibration.estimator.GyroLineCalibrator`.
 On every accepted odometry sample the pose with the corrected heading is
 published on ``gyro_line/odom`` (nav_msgs/Odometry, same stamp and frames as
 the input odometry; pose covariance of x, y, yaw from the filter). A
@@ -26,8 +27,8 @@ from typing import Any
 import numpy as np
 
 from robot_calib.core import types as T
-from robot_calib.core.gyro_line import GyroLineCalibrator, GyroLineParams
 from robot_calib.core.series import Thinned
+from robot_calib.methods.gyro_line_calibration.estimator import GyroLineCalibrator, GyroLineParams
 from robot_calib.pipelines.base import InputSpec, Output, OutputSpec, Pipeline
 
 
@@ -184,3 +185,6 @@ class GyroLinePipeline(Pipeline):
         fig.savefig(Path(out_dir) / name, dpi=90)
         plt.close(fig)
         return [name]
+
+
+PIPELINE = GyroLinePipeline

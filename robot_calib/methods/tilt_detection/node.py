@@ -3,9 +3,9 @@
 """
 The ``tilt_detection`` node: ``imu`` in; ``tilt/imu``, ``tilt/fall_alert``, ``/diagnostics``.
 
-A thin wrapper of :class:`robot_calib.pipelines.tilt_detection.TiltPipeline`
+A thin wrapper of :class:`robot_calib.methods.tilt_detection.pipeline.TiltPipeline`
 through :mod:`robot_calib.nodes.base` (parameters from
-:class:`robot_calib.core.tilt.TiltParams`).
+:class:`robot_calib.methods.tilt_detection.estimator.TiltParams`).
 """
 
 from __future__ import annotations
@@ -17,7 +17,7 @@ from typing import Optional
 def main(args: Optional[list[str]] = None) -> None:
     """Run the node until shutdown."""
     from robot_calib.nodes.base import run
-    from robot_calib.pipelines.tilt_detection import TiltPipeline
+    from robot_calib.methods.tilt_detection.pipeline import TiltPipeline
     sys.exit(run(TiltPipeline, args))
 
 

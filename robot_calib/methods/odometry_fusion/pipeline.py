@@ -3,8 +3,8 @@
 """
 Pipeline of the ``odometry_fusion`` node: IMU + wheel odometry -> ``odometry/fused``.
 
-Glue only: samples go to :mod:`robot_calib.core.fusion`, estimates come back as
-nav_msgs/Odometry samples stamped with the input that produced them, and a
+Glue only: samples go to :mod:`robot_calib.methods.odometry_fusion.estimator`, estimates
+come back as nav_msgs/Odometry samples stamped with the input that produced them, and a
 diagnostic_msgs/DiagnosticArray on ``/diagnostics`` reports the NIS, the noise
 adaptation, the bias estimates, rejections and re-initialisations once per
 ``diagnostics_period`` of sensor time.
@@ -21,9 +21,9 @@ from typing import Any
 
 import numpy as np
 
-from robot_calib.core import fusion as F
 from robot_calib.core import types as T
 from robot_calib.core.series import Thinned
+from robot_calib.methods.odometry_fusion import estimator as F
 from robot_calib.pipelines.base import InputSpec, Output, OutputSpec, Pipeline
 
 
@@ -265,3 +265,6 @@ class FusionPipeline(Pipeline):
             plt.close(fig)
             names.append('odometry_fusion_nis.png')
         return names
+
+
+PIPELINE = FusionPipeline

@@ -37,7 +37,7 @@ from typing import Any, Optional
 import numpy as np
 
 from robot_calib.core import types as T
-from robot_calib.core.tilt import TiltEstimator, TiltParams, TiltState
+from robot_calib.methods.tilt_detection.estimator import TiltEstimator, TiltParams, TiltState
 from robot_calib.pipelines.base import InputSpec, Output, OutputSpec, Pipeline
 
 STATUS_NAME = 'tilt_detection'
@@ -255,3 +255,6 @@ def fall_alert_onsets(pipeline: TiltPipeline, messages: list) -> list[float]:
                 if key == 'fall_alert' and out.value:
                     onsets.append(out.t)
     return onsets
+
+
+PIPELINE = TiltPipeline

@@ -38,7 +38,7 @@ def main(args: Optional[list[str]] = None) -> None:
         print(PLAN)
         sys.exit(0)
     from robot_calib.nodes.base import run
-    from robot_calib.pipelines.wheel_odometry_calibration import WheelCalibrationPipeline
+    from robot_calib.methods.wheel_odometry_calibration.pipeline import WheelCalibrationPipeline
     sys.exit(run(WheelCalibrationPipeline, args))
 
 

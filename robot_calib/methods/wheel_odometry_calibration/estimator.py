@@ -55,11 +55,12 @@ import math
 from typing import Any, Callable, Iterable, Optional
 
 import numpy as np
-from robot_calib.core import drive_detect
 from robot_calib.core import kinematics as K
 from robot_calib.core.geometry import wrap_angle
+from robot_calib.core.kinematics import Segment
 from robot_calib.core.params import param
 from robot_calib.core.series import Rows
+from robot_calib.methods.wheel_odometry_calibration import drive_detect
 from scipy import optimize, stats
 
 DIFF_KEYS = ('left_wheel_radius', 'right_wheel_radius', 'track_width',
@@ -212,23 +213,6 @@ def keys_of(drive_type: str) -> tuple[str, ...]:
 # ------------------------------------------------------------------------------------------
 # data
 # ------------------------------------------------------------------------------------------
-@dataclass
-class Segment:
-    """
-    Wheel steps between two key frames and the sensor motion measured between them.
-
-    ``steps`` is (K, 2): differential ``(dphi_l, dphi_r)`` rad; steered wheel
-    ``(dphi, reading)`` (traction rotation rad, steering reading rad).
-    ``sensor_motion`` is (x m, y m, yaw rad) of the sensor in its own frame at ``t0``.
-    """
-
-    t0: float
-    t1: float
-    steps: np.ndarray
-    sensor_motion: np.ndarray
-    info: dict = field(default_factory=dict)
-
-
 @dataclass
 class CalibResult:
     """A calibration result: estimates, standard deviations, segments used and a verdict."""

@@ -22,7 +22,9 @@ from typing import Any, Optional
 
 from robot_calib.core import types as T
 from robot_calib.core.geometry import yaw_from_quat
-from robot_calib.core.wheel_calib import CalibResult, WheelCalibParams, WheelCalibrator
+from robot_calib.methods.wheel_odometry_calibration.estimator import (CalibResult,
+                                                                      WheelCalibParams,
+                                                                      WheelCalibrator)
 from robot_calib.pipelines.base import InputSpec, Output, OutputSpec, Pipeline
 
 STATUS_NAME = 'wheel_odometry_calibration'
@@ -144,3 +146,6 @@ class WheelCalibrationPipeline(Pipeline):
         """Return ``{'wheel_calibration.yaml': text}`` (the contract's flat YAML)."""
         res = self.result or self.calib.solve(final=True)
         return {'wheel_calibration.yaml': res.to_yaml()}
+
+
+PIPELINE = WheelCalibrationPipeline

@@ -5,9 +5,9 @@ Gyro heading (and pose) correction by loop closure with ICP against keyframes (s
 
 A cheap robot integrates its gyro for heading and its wheels for distance;
 the heading drifts (bias, bias drift). Instead of a global pose-graph
-optimisation after each loop closure (see :mod:`robot_calib.core.pose_graph`
-for that baseline), the seed corrects the current pose directly from ICP
-against stored keyframes, in milliseconds.
+optimisation after each loop closure (see
+:mod:`robot_calib.methods.loop_closure_correction.pose_graph` for that baseline), the seed
+corrects the current pose directly from ICP against stored keyframes, in milliseconds.
 
 Pipeline of one update (:class:`LoopClosureCorrector`):
 

@@ -11,7 +11,7 @@ loop closures' registrations; :func:`optimise` solves the nonlinear least
 squares problem with ``scipy.optimize.least_squares`` (trust-region
 reflective, sparse finite-difference Jacobian), the first node fixed.
 
-:class:`GraphCorrector` is a :class:`~robot_calib.core.loop_closure.
+:class:`GraphCorrector` is a :class:`~robot_calib.methods.loop_closure_correction.estimator.
 LoopClosureCorrector` that, instead of the seed's direct correction, adds each
 accepted closure to the graph, re-optimises all of it, and continues from the
 optimised pose of the current frame (the global-optimisation way).
@@ -26,7 +26,8 @@ from typing import Optional
 
 import numpy as np
 from robot_calib.core.geometry import se2_between, se2_compose, se2_inverse, wrap_angle
-from robot_calib.core.loop_closure import Candidate, LoopClosureCorrector, LoopClosureParams
+from robot_calib.methods.loop_closure_correction.estimator import (Candidate, LoopClosureCorrector,
+                                                                   LoopClosureParams)
 from scipy.optimize import least_squares
 from scipy.sparse import lil_matrix
 

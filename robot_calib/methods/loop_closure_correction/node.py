@@ -4,7 +4,7 @@
 The ``loop_closure_correction`` node: ``imu``, ``odom``, ``scan`` -> ``loop_closure/odom``.
 
 A thin wrapper of
-:class:`robot_calib.pipelines.loop_closure_correction.LoopClosurePipeline`
+:class:`robot_calib.methods.loop_closure_correction.pipeline.LoopClosurePipeline`
 through :mod:`robot_calib.nodes.base`: it publishes the corrected pose
 (nav_msgs/Odometry, the stamp of the odometry input) and one
 ``/diagnostics`` array per loop-closure attempt (keyframes tried, scores,
@@ -14,8 +14,8 @@ correction, time taken).
 import sys
 from typing import Optional
 
+from robot_calib.methods.loop_closure_correction.pipeline import LoopClosurePipeline
 from robot_calib.nodes.base import run
-from robot_calib.pipelines.loop_closure_correction import LoopClosurePipeline
 
 
 def main(args: Optional[list] = None) -> None:
