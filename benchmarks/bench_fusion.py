@@ -326,7 +326,7 @@ def node_p99(seq: list):
     """Return the p99 (s) of the node's message callback over the serialized bag samples."""
     try:
         import rclpy
-        from robot_calib.io import convert
+        from robot_calib import codec
         from robot_calib.methods.odometry_fusion.pipeline import FusionPipeline
         from robot_calib.nodes.base import PipelineNode
     except ImportError:
@@ -336,7 +336,7 @@ def node_p99(seq: list):
         node = PipelineNode(FusionPipeline)
         msgs = []
         for kind, s in seq:
-            msgtype, raw = convert.serialize(s)
+            msgtype, raw = codec.serialize(s)
             msgs.append((kind, msgtype, raw))
         cpu = []
         for kind, msgtype, raw in msgs:

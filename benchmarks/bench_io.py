@@ -11,7 +11,7 @@ temporary folder and times, as medians of several runs in the same process:
 - ``rosbags deserialize``: rosbags' AnyReader plus ``deserialize`` (what rosbags
   alone gives, without any conversion);
 - ``generic read+convert``: rosbags deserialize plus
-  :func:`robot_calib.io.convert.from_msg` into :class:`ImuSample`;
+  :func:`robot_calib.codec.from_msg` into :class:`ImuSample`;
 - ``fast read+convert``: :class:`robot_calib.io.bags.BagSet` with the direct CDR
   decoder (what replay uses);
 - ``replay end to end``: :func:`robot_calib.replay.replay` with a trivial
@@ -37,8 +37,9 @@ import time
 
 import numpy as np
 
+from robot_calib import codec
 from robot_calib.core import types as T
-from robot_calib.io import bags, convert
+from robot_calib.io import bags
 from robot_calib.pipelines.base import InputSpec, Pipeline
 from robot_calib.replay import replay
 
@@ -70,8 +71,7 @@ def write_imu_bag(path: Path, storage: str, n: int = N_MSGS) -> None:
     rng = np.random.default_rng(0)
     gyro = rng.normal(0.0, 0.05, (n, 3))
     accel = rng.normal(0.0, 0.1, (n, 3)) + (0.0, 0.0, 9.81)
-    msgtype, template = convert.serialize(T.ImuSample(0.0, np.zeros(3), np.zeros(3),
-                                                      'imu_link'))
+    msgtype, template = codec.serialize(T.ImuSample(0.0, np.zeros(3), np.zeros(3), 'imu_link'))
     buf = bytearray(template)
     # Offsets of the stamp and the gyro/accel vectors in this CDR message.
     off = 4 + ((12 + struct.unpack_from('<I', buf, 12)[0] + 7) & ~7)
@@ -96,7 +96,7 @@ def _rosbags_raw(path: Path) -> int:
 def _rosbags_deserialize(path: Path) -> int:
     from rosbags.highlevel import AnyReader
     n = 0
-    with AnyReader([path], default_typestore=convert.typestore()) as reader:
+    with AnyReader([path], default_typestore=codec.typestore()) as reader:
         for conn, _, raw in reader.messages():
             reader.deserialize(raw, conn.msgtype)
             n += 1
@@ -232,15 +232,15 @@ def _markdown(rows, runs: int, load: list[float]) -> str:
               'reading the file, no decoding).',
               '- *rosbags deserialize*: rosbags `AnyReader` + `deserialize` (rosbags alone, '
               'no conversion).',
-              '- *generic read+convert*: rosbags deserialize + `convert.from_msg` into '
+              '- *generic read+convert*: rosbags deserialize + `codec.from_msg` into '
               '`ImuSample` (the path before the fast decoder).',
               '- *fast read+convert*: `BagSet.messages()` + the direct CDR decoder '
-              '(`bags.imu_from_cdr`: header stamp, frame_id, then 37 doubles with '
+              '(`cdr.imu_from_cdr`: header stamp, frame_id, then 37 doubles with '
               '`numpy.frombuffer`), checked equal to the generic path in '
               '`test/test_io_bags.py`.',
               '- *batched read+convert*: `BagSet.decoded()`, what replay uses: messages read '
               '512 at a time, the IMU messages of one topic decoded together '
-              '(`bags.imu_batch_from_cdr`: stamps, doubles and covariance flags vectorized, '
+              '(`cdr.imu_batch_from_cdr`: stamps, doubles and covariance flags vectorized, '
               'each sample a view into one array), equal to the per-message decoder '
               '(tested); other types, and batches whose layouts differ, one by one.',
               '- *replay end to end*: the whole `robot_calib.replay.replay()` call with a '
@@ -253,7 +253,7 @@ def _markdown(rows, runs: int, load: list[float]) -> str:
               '- the rosbags deserializer plus building the core sample costs more than the '
               'whole 20 us/message budget; decoding sensor_msgs/Imu and nav_msgs/Odometry '
               'straight from the CDR bytes (stamp, frame_id, then fixed doubles) is about 2x '
-              'faster than deserialize + convert. Big-endian CDR and every other type take '
+              'faster than deserialize + codec. Big-endian CDR and every other type take '
               'the generic path.',
               '- For mcap, the per-record loop of rosbags (a BytesIO read per field) was a '
               'third of the remaining time. `robot_calib.io.mcap.messages` keeps its index '

@@ -340,7 +340,7 @@ def sim_section(hours: float = 1.0, seeds: int = 10) -> None:
 # -- speed ------------------------------------------------------------------------------------
 def speed_section(duration: float = 300.0) -> None:
     """Replay throughput of a 200 Hz IMU bag and the node callback time."""
-    from robot_calib.io import convert
+    from robot_calib import codec
     from robot_calib.io.bags import BagWriter, read_messages
     from robot_calib.methods.tilt_detection.pipeline import TiltPipeline
     from robot_calib.replay import replay
@@ -369,7 +369,7 @@ def speed_section(duration: float = 300.0) -> None:
     # node callback, in-process through rclpy (no subscribers: publish cost included)
     import rclpy
     from robot_calib.nodes.base import PipelineNode
-    raws = [convert.serialize(s)[1] for s in imu[:20000]]
+    raws = [codec.serialize(s)[1] for s in imu[:20000]]
     rclpy.init()
     try:
         node = PipelineNode(TiltPipeline)

@@ -45,23 +45,20 @@ from typing import Any, Iterable, Mapping, Optional, Sequence, Union
 
 import numpy as np
 
-from robot_calib import pipelines
+from robot_calib import codec, pipelines
 from robot_calib.core import types as T
 from robot_calib.core.jsonable import jsonable
 from robot_calib.core.params import describe, flatten_nested, from_flat, ParamError
 from robot_calib.core.series import Reservoir, Thinned
-from robot_calib.io import convert
-from robot_calib.io.bags import BagError, BagSet, BagWriter, normalize_topic, serialize
-from robot_calib.pipelines.base import KINDS, Pipeline
+from robot_calib.io.bags import BagError, BagSet, BagWriter, normalize_topic
+from robot_calib.pipelines.base import Pipeline
 
 OUTPUT_BAG = 'output.mcap'
 SUMMARY = 'summary.json'
 REPORT = 'report.md'
 GROUND_TRUTH = '/ground_truth/odom'
 TF_STATIC = '/tf_static'
-_ODOM_TYPE = 'nav_msgs/msg/Odometry'
-# Types a sample kind accepts in a bag besides its own (convert reads both).
-_ALSO_ACCEPTED = {'cmd_vel': ('geometry_msgs/msg/TwistStamped',)}
+_ODOM_TYPE = codec.KINDS['odom'].msgtype
 
 
 class ReplayError(ValueError):
@@ -229,10 +226,6 @@ class _Node:
                                      f'{" ".join(str(exc).split())}')
 
 
-def _accepts(kind: str, msgtype: str) -> bool:
-    return msgtype == KINDS[kind][0] or msgtype in _ALSO_ACCEPTED.get(kind, ())
-
-
 def _check_inputs(cls: type, topic_of: Any, bag_topics: dict[str, tuple[str, int]]
                   ) -> tuple[Optional[str], dict[str, str], list[str]]:
     """Return (reason it cannot run or None, {key: topic} of inputs present, notes)."""
@@ -242,14 +235,14 @@ def _check_inputs(cls: type, topic_of: Any, bag_topics: dict[str, tuple[str, int
         if spec.kind == 'tf_static':
             continue
         topic = topic_of(spec.topic)
-        expected = KINDS[spec.kind][0]
+        expected = codec.KINDS[spec.kind].msgtype
         have = bag_topics.get(topic)
         if have is None:
             if not spec.optional:
                 return (f'needs {topic} ({expected}), not in the bag(s)', present, notes)
             notes.append(f'optional input {topic} ({expected}) not in the bag(s)')
             continue
-        if not _accepts(spec.kind, have[0]):
+        if not codec.accepts(spec.kind, have[0]):
             msg = f'{topic} is {have[0]} in the bag(s), expected {expected}'
             if not spec.optional:
                 return (msg, present, notes)
@@ -449,7 +442,7 @@ def replay(bags: Union[str, os.PathLike, Sequence[Union[str, os.PathLike]]],
                 if spec.kind == 'tf_static':
                     run.tf_key = spec.key
             for spec in cls.outputs:
-                run.outputs[spec.key] = (topic_of(spec.topic), KINDS[spec.kind][0],
+                run.outputs[spec.key] = (topic_of(spec.topic), codec.KINDS[spec.kind].msgtype,
                                          spec.qos == 'latched')
             runs.append(run)
 
@@ -529,10 +522,10 @@ def _run(bagset: BagSet, bag_list: list, runs: list[_Node], skipped: dict[str, s
                 try:
                     if spec is None:
                         raise KeyError(f'output {out_key!r} is not declared in outputs')
-                    msgtype, data = serialize(sample)
+                    msgtype, data = codec.serialize(sample)
                     if msgtype != spec[1]:
                         raise TypeError(f'output {out_key!r} is {msgtype}, declared {spec[1]}')
-                    writer.write_raw(spec[0], msgtype, data, convert.sample_time_ns(
+                    writer.write_raw(spec[0], msgtype, data, codec.sample_time_ns(
                         sample if not isinstance(sample, list) else sample[0]))
                 except Exception as exc:  # noqa: B902 - counted, never fatal
                     run.error('output', exc)

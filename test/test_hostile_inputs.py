@@ -19,6 +19,7 @@ import numpy as np
 import pytest
 
 from robot_calib.cli import main
+from robot_calib.codec import cdr
 from robot_calib.core import types as T
 from robot_calib.io import bags
 from robot_calib.pipelines import validation as V
@@ -198,7 +199,7 @@ def test_a_simulated_2_khz_imu_is_kept(tmp_path):
 # -- absurd and non-finite values ------------------------------------------------------------
 def _odom_raw(sample, quaternion):
     """Serialize an odometry sample with its quaternion (x, y, z, w) replaced."""
-    raw = bytearray(bags.odom_to_cdr(sample))
+    raw = bytearray(cdr.odom_to_cdr(sample))
     struct.pack_into('<4d', raw, len(raw) - 85 * 8 + 3 * 8, *quaternion)
     return bytes(raw)
 

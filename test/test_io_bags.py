@@ -9,9 +9,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from robot_calib import codec
+from robot_calib.codec import cdr
 from robot_calib.core import types as T
 from robot_calib.core.geometry import quat_from_rpy, quat_to_matrix
-from robot_calib.io import bags, convert, mcap
+from robot_calib.io import bags, mcap
 from robot_calib.io.convert_bag import convert_bag, main as convert_main, static_transform
 
 
@@ -83,7 +85,7 @@ def test_round_trip_every_type(tmp_path, storage):
     assert not list(tmp_path.glob('.*partial*'))
     topics = bags.list_topics([path])
     for topic, sample, _ in items:
-        assert topics[topic] == (convert.msgtype_of(sample), 1)
+        assert topics[topic] == (codec.msgtype_of(sample), 1)
     got = {m.topic: m for m in bags.read_messages([path])}
     assert set(got) == {t for t, _, _ in items}
     for topic, sample, ns in items:
@@ -121,7 +123,7 @@ def test_compressed_mcap_reads_back(tmp_path):
 
 
 def _imu_msgs():
-    ty = convert.typestore().types
+    ty = codec.typestore().types
     out = []
     rng = np.random.default_rng(4)
     for n, frame in enumerate(['', 'a', 'ab', 'abc', 'imu', 'imu_l', 'imu_lnk', 'imu_link']):
@@ -140,7 +142,7 @@ def _imu_msgs():
 
 
 def _odom_msgs():
-    ty = convert.typestore().types
+    ty = codec.typestore().types
     rng = np.random.default_rng(5)
     out = []
     for frame in ['', 'o', 'odom', 'odom_x']:
@@ -159,20 +161,20 @@ def _odom_msgs():
 
 
 @pytest.mark.parametrize('msgtype,make,fast', [
-    ('sensor_msgs/msg/Imu', _imu_msgs, bags.imu_from_cdr),
-    ('nav_msgs/msg/Odometry', _odom_msgs, bags.odom_from_cdr)])
+    ('sensor_msgs/msg/Imu', _imu_msgs, cdr.imu_from_cdr),
+    ('nav_msgs/msg/Odometry', _odom_msgs, cdr.odom_from_cdr)])
 def test_fast_cdr_decoder_equals_generic(msgtype, make, fast):
-    store = convert.typestore()
+    store = codec.typestore()
     msgs = make()
     assert len(msgs) >= 16
     for msg in msgs:
         raw = bytes(store.serialize_cdr(msg, msgtype))
-        assert_same(fast(raw), convert.from_msg(msgtype, msg)[0])
+        assert_same(fast(raw), codec.from_msg(msgtype, msg)[0])
 
 
 @pytest.mark.parametrize('msgtype,make,fast', [
-    ('sensor_msgs/msg/Imu', _imu_msgs, bags.imu_from_ros1),
-    ('nav_msgs/msg/Odometry', _odom_msgs, bags.odom_from_ros1)])
+    ('sensor_msgs/msg/Imu', _imu_msgs, cdr.imu_from_ros1),
+    ('nav_msgs/msg/Odometry', _odom_msgs, cdr.odom_from_ros1)])
 def test_fast_ros1_decoder_equals_generic(msgtype, make, fast):
     from rosbags.typesys import get_typestore, Stores
     ros1 = get_typestore(Stores.ROS1_NOETIC)
@@ -185,24 +187,24 @@ def test_fast_ros1_decoder_equals_generic(msgtype, make, fast):
         fields['header'] = ros1_header(17, ros1.types['builtin_interfaces/msg/Time'](
             hdr.stamp.sec, hdr.stamp.nanosec), hdr.frame_id)
         raw = bytes(ros1.serialize_ros1(ros1.types[msgtype](**fields), msgtype))
-        generic = convert.from_msg(msgtype, ros1.deserialize_ros1(raw, msgtype))[0]
+        generic = codec.from_msg(msgtype, ros1.deserialize_ros1(raw, msgtype))[0]
         assert_same(fast(raw), generic)
 
 
 def test_bigendian_cdr_takes_generic_path(tmp_path):
     msg = _imu_msgs()[5]
-    store = convert.typestore()
+    store = codec.typestore()
     raw = bytes(store.serialize_cdr(msg, 'sensor_msgs/msg/Imu', little_endian=False))
     path = tmp_path / 'be'
     with bags.BagWriter(path) as w:
         w.write_raw('/imu', 'sensor_msgs/msg/Imu', raw, 5)
     got = next(bags.read_messages([path]))
-    assert_same(got.samples[0], convert.from_msg('sensor_msgs/msg/Imu', msg)[0])
+    assert_same(got.samples[0], codec.from_msg('sensor_msgs/msg/Imu', msg)[0])
 
 
 def test_fast_path_agrees_on_a_whole_bag(tmp_path):
     path = tmp_path / 'fast'
-    store = convert.typestore()
+    store = codec.typestore()
     with bags.BagWriter(path, storage='sqlite3') as w:
         for i, m in enumerate(_imu_msgs()):
             w.write_raw('/imu', 'sensor_msgs/msg/Imu', bytes(store.serialize_cdr(
@@ -382,9 +384,9 @@ def test_fast_encoders_are_byte_identical():
             'base_link'[:i % 10], c, _cov(i + 3), *rng.normal(size=3),
             stamp_ns=-1 if i % 3 else int(rng.integers(0, 2**60))))
     for s in samples:
-        assert bags.serialize(s) == convert.serialize(s)
+        assert codec.serialize(s) == codec.serialize(s)
     twist = T.TwistSample(1.0, 0.5)
-    assert bags.serialize(twist) == convert.serialize(twist)  # other types: generic path
+    assert codec.serialize(twist) == codec.serialize(twist)  # other types: generic path
 
 
 def test_bare_mcap_file(tmp_path):
@@ -409,25 +411,25 @@ def test_bare_mcap_file(tmp_path):
 
 
 def test_batch_decoder_equals_per_message(tmp_path):
-    store = convert.typestore()
+    store = codec.typestore()
     msgs = _imu_msgs()
     raws = [bytes(store.serialize_cdr(m, 'sensor_msgs/msg/Imu')) for m in msgs]
     # Same layout (same frame id): decoded together, equal to one by one.
     same = [r for m, r in zip(msgs, raws) if m.header.frame_id == 'imu_link']
     assert len(same) == 2
-    for got, raw in zip(bags.imu_batch_from_cdr(same * 5), same * 5):
-        assert_same(got, [bags.imu_from_cdr(raw)])
+    for got, raw in zip(cdr.imu_batch_from_cdr(same * 5), same * 5):
+        assert_same(got, [cdr.imu_from_cdr(raw)])
     # Empty frame id, covariances marked unknown (-1), with and without orientation.
     unknown = [r for m, r in zip(msgs, raws) if m.header.frame_id == '']
-    assert len(unknown) == 2 and np.isnan(bags.imu_from_cdr(unknown[0]).gyro_cov).all()
-    for got, raw in zip(bags.imu_batch_from_cdr(unknown * 3), unknown * 3):
-        assert_same(got, [bags.imu_from_cdr(raw)])
-        assert_same(got, convert.deserialize('sensor_msgs/msg/Imu', raw))
+    assert len(unknown) == 2 and np.isnan(cdr.imu_from_cdr(unknown[0]).gyro_cov).all()
+    for got, raw in zip(cdr.imu_batch_from_cdr(unknown * 3), unknown * 3):
+        assert_same(got, [cdr.imu_from_cdr(raw)])
+        assert_same(got, codec.deserialize('sensor_msgs/msg/Imu', raw))
     with pytest.raises(ValueError):
-        bags.imu_batch_from_cdr(raws)  # frame ids differ: the caller decodes one by one
+        cdr.imu_batch_from_cdr(raws)  # frame ids differ: the caller decodes one by one
     be = bytes(store.serialize_cdr(msgs[15], 'sensor_msgs/msg/Imu', little_endian=False))
     with pytest.raises(ValueError):
-        bags.imu_batch_from_cdr([raws[15], be])
+        cdr.imu_batch_from_cdr([raws[15], be])
     # Through a bag: mixed layouts, a big-endian and a cut message, small blocks.
     path = tmp_path / 'mixed'
     with bags.BagWriter(path) as w:

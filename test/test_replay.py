@@ -11,11 +11,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from robot_calib import pipelines
+from robot_calib import codec, pipelines
 from robot_calib.core import types as T
 from robot_calib.core.params import param, ParamError
 from robot_calib.io import bags
-from robot_calib.pipelines.base import InputSpec, KINDS, OutputSpec, Pipeline
+from robot_calib.pipelines.base import InputSpec, OutputSpec, Pipeline
 from robot_calib.replay import parse_overrides, parse_remaps, replay, ReplayError
 
 ECHO = f'{__name__}:EchoPipeline'
@@ -312,7 +312,7 @@ def test_undecodable_messages_are_counted(tmp_path):
     with bags.BagWriter(path) as w:
         for i in range(20):
             ns = 10**9 + i * 10**7
-            _, raw = __import__('robot_calib.io.convert', fromlist=['x']).serialize(_imu(ns))
+            _, raw = __import__('robot_calib.codec', fromlist=['x']).serialize(_imu(ns))
             if i in (3, 7):
                 raw = raw[:30]  # cut short: cannot be decoded
             w.write_raw('/imu', 'sensor_msgs/msg/Imu', raw, ns)
@@ -393,7 +393,7 @@ def test_registered_pipelines_on_simulated_bag(tmp_path):
         for spec in cls.outputs:
             topic = '/' + spec.topic.lstrip('/')
             if topic in out_topics:  # same type as the live node publishes
-                assert out_topics[topic][0] == KINDS[spec.kind][0], topic
+                assert out_topics[topic][0] == codec.KINDS[spec.kind].msgtype, topic
     assert s['topics']['/ground_truth/odom']['read'] > 0
     assert 'plots/trajectories.png' in s['plots']
     if 'wheel_odometry_calibration' in s['nodes']:

@@ -11,9 +11,9 @@ import rclpy
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 
-from robot_calib import live
+from robot_calib import codec, live
 from robot_calib.core import types as T
-from robot_calib.io import bags, convert
+from robot_calib.io import bags
 
 
 def _write(path, n=50):
@@ -90,7 +90,7 @@ def test_live_publishes_bag_with_clock(tmp_path):
     assert len(got['imu']) == 50 and len(got['cmd']) == 10
     assert len(got['tf']) == (0 if tf_cls is None else 1)
     # Bytes went through unchanged: decode with the shared conversion layer.
-    first = convert.from_msg('sensor_msgs/msg/Imu', got['imu'][7])[0]
+    first = codec.from_msg('sensor_msgs/msg/Imu', got['imu'][7])[0]
     assert first.stamp_ns == 10**9 + 7 * 10_000_000 and first.gyro[2] == pytest.approx(0.07)
     stamps = [c.clock.sec * 10**9 + c.clock.nanosec for c in got['clock']]
     assert stamps == sorted(stamps) and stamps[0] == 10**9 and len(stamps) >= 40

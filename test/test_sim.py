@@ -8,8 +8,8 @@ import math
 import numpy as np
 import pytest
 
+from robot_calib import codec
 from robot_calib.core.geometry import wrap_angle
-from robot_calib.io import convert
 from robot_calib.io.bags import read_messages
 from robot_calib.sim import run_scenario, run_setup, SCENARIOS, Setup, SimError, simulate
 from robot_calib.sim.engine import encoded_streams, make_params, truth_path
@@ -289,7 +289,7 @@ def test_bag_round_trip_and_truth_json(tmp_path, storage):
 def test_fast_encoder_is_byte_identical_to_rosbags():
     r = run_scenario('drive', seed=2, duration=2.0)
     for topic, msgtype, ns, data in encoded_streams(r):
-        ref = [convert.serialize(s)[1] for tp, s in r.messages if tp == topic]
+        ref = [codec.serialize(s)[1] for tp, s in r.messages if tp == topic]
         assert len(ref) == len(data)
         assert all(a == b for a, b in zip(ref, data)), topic
 

@@ -234,7 +234,7 @@ def test_node_in_process_latched_alert_and_late_subscriber():
     from sensor_msgs.msg import Imu
     from std_msgs.msg import Bool
 
-    from robot_calib.io import convert
+    from robot_calib import codec
     from robot_calib.nodes.base import PipelineNode
     latched = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1,
                          reliability=ReliabilityPolicy.RELIABLE,
@@ -255,7 +255,7 @@ def test_node_in_process_latched_alert_and_late_subscriber():
         for k in range(60):
             acc = (0.0, 0.0, G) if k < 20 else (0.0, 0.0, -G)   # upright, then on its back
             s = _imu(1.0 + k * DT, acc=acc)
-            pub.publish(convert.serialize(s)[1])
+            pub.publish(codec.serialize(s)[1])
             ex.spin_once(timeout_sec=0.05)
         spin_until(ex, lambda: got_alert and got_alert[-1].data and len(got_imu) >= 20, 50)
         assert len(got_imu) >= 20

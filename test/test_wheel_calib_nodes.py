@@ -82,7 +82,7 @@ def test_node_in_process_publishes_status_and_writes_yaml(tmp_path):
     from rclpy.executors import SingleThreadedExecutor
     from rclpy.parameter import Parameter
     from rclpy.qos import qos_profile_sensor_data
-    from robot_calib.io import convert
+    from robot_calib import codec
     from robot_calib.nodes.base import PipelineNode
     from sensor_msgs.msg import JointState, LaserScan
     res = _sim('diff_segments', 8.0)
@@ -105,7 +105,7 @@ def test_node_in_process_publishes_status_and_writes_yaml(tmp_path):
         for topic, sample in res.messages:
             key = topic.lstrip('/')
             if key in pubs:
-                pubs[key].publish(convert.serialize(sample)[1])
+                pubs[key].publish(codec.serialize(sample)[1])
                 ex.spin_once(timeout_sec=0.0)
         spin_until(ex, lambda: got)
         assert got, 'no status received'

@@ -65,8 +65,8 @@ def convert_bag(src: Union[str, os.PathLike], dst: Union[str, os.PathLike],
     """
     rename = {normalize_topic(k): normalize_topic(v) for k, v in (renames or {}).items()}
     keep = None if topics is None else {normalize_topic(t) for t in topics}
-    from robot_calib.io import convert
-    store = convert.typestore()
+    from robot_calib import codec
+    store = codec.typestore()
     counts: dict[str, int] = {}
     with BagSet([src]) as bags:
         missing = set(rename) - set(bags.topics())

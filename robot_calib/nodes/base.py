@@ -30,12 +30,12 @@ from rclpy.node import Node
 from rclpy.qos import (DurabilityPolicy, HistoryPolicy, qos_profile_sensor_data, QoSProfile,
                        ReliabilityPolicy)
 
+from robot_calib import codec
 from robot_calib.core import types as T
 from robot_calib.core.params import ParamError
-from robot_calib.io import bags, convert
 from robot_calib.nodes.health import input_health, NodeLog
 from robot_calib.nodes.ros_params import declare_params
-from robot_calib.pipelines.base import KINDS, Pipeline
+from robot_calib.pipelines.base import Pipeline
 
 HEALTH_PERIOD = 1.0
 """Seconds between two input-health statuses on /diagnostics."""
@@ -83,12 +83,12 @@ class PipelineNode(Node):
         self._errors = 0
         self._pubs = {}
         for spec in pipeline_cls.outputs:
-            msgtype = KINDS[spec.kind][0]
+            msgtype = codec.KINDS[spec.kind].msgtype
             cls = message_class(msgtype)
             self._pubs[spec.key] = self.create_publisher(cls, spec.topic, _QOS[spec.qos])
         self._subs = []
         for spec in pipeline_cls.inputs:
-            msgtype = KINDS[spec.kind][0]
+            msgtype = codec.KINDS[spec.kind].msgtype
             cls = message_class(msgtype)
             if cls is None:
                 self.log('warn', f'{msgtype} is not installed: not subscribing to '
@@ -96,8 +96,9 @@ class PipelineNode(Node):
                 continue
             qos = LATCHED_QOS if spec.kind == 'tf_static' else qos_profile_sensor_data
             self._subs.append(self.create_subscription(
-                cls, spec.topic, partial(self._on_message, spec.key, msgtype), qos, raw=True))
-        self._health_pub = self.create_publisher(message_class(KINDS['diagnostics'][0]),
+                cls, spec.topic, partial(self._on_message, spec.key, msgtype,
+                                         decode=codec.decoder(msgtype)), qos, raw=True))
+        self._health_pub = self.create_publisher(message_class(codec.KINDS['diagnostics'].msgtype),
                                                  '/diagnostics', DEFAULT_QOS)
         self._health_prev: dict = {}
         self._last_input: dict[str, float] = {}
@@ -140,21 +141,19 @@ class PipelineNode(Node):
         status = T.DiagnosticStatus(f'{self.get_fully_qualified_name()}: inputs', level, message,
                                     '', tuple(values))
         try:
-            _, raw = bags.serialize(T.DiagnosticSample(stamp * 1e-9, (status,), stamp))
+            _, raw = codec.serialize(T.DiagnosticSample(stamp * 1e-9, (status,), stamp))
             self._health_pub.publish(raw)
         except Exception as exc:  # noqa: B902 - health reporting must never stop the node
             self.log('error', f'cannot publish input health: {exc}', throttle_s=30.0,
                      key='health')
 
-    def _on_message(self, key: str, msgtype: str, data: bytes) -> None:
+    def _on_message(self, key: str, msgtype: str, data: bytes,
+                    decode: Optional[codec.Decode] = None) -> None:
         start = time.perf_counter()
         self._last_input[key] = time.monotonic()
         try:
-            fast = bags.FAST_DECODERS.get(msgtype)
-            if fast is not None and len(data) > 1 and data[1] == 1:  # little-endian CDR
-                samples = [fast(data)]
-            else:
-                samples = convert.deserialize(msgtype, data, self.get_clock().now().nanoseconds)
+            decode = decode or codec.decoder(msgtype)
+            samples = decode(data, self.get_clock().now().nanoseconds)
         except Exception as exc:  # noqa: B902 - a bad message must never stop the node
             self.undecodable += 1
             self.pipeline.reject(key, 'undecodable')
@@ -176,7 +175,7 @@ class PipelineNode(Node):
     def publish(self, outputs: list) -> None:
         """Serialize and publish pipeline outputs."""
         for key, sample in outputs:
-            _, raw = bags.serialize(sample)
+            _, raw = codec.serialize(sample)
             self._pubs[key].publish(raw)
 
     def callback_p99(self) -> float:

@@ -7,7 +7,7 @@ A :class:`Pipeline` names its inputs (default topic and sample kind), its
 outputs (topic, message type, QoS), and turns input samples into output
 samples. It never imports rclpy or message types: the live node
 (:mod:`robot_calib.nodes.base`) and offline replay (:mod:`robot_calib.replay`)
-both convert messages with :mod:`robot_calib.io.convert` and drive the very
+both convert messages with :mod:`robot_calib.codec` and drive the very
 same pipeline object, so a bag replayed offline gives the messages the node
 would publish live.
 
@@ -32,19 +32,6 @@ from robot_calib.pipelines.validation import RateGuard, sample_problem
 
 CLOCK_JUMP_SAMPLES = 5
 """Samples in a row continuing from a stamp far off the time line that mean the clock jumped."""
-
-# Sample kind -> (ROS message type, core type)
-KINDS = {
-    'imu': ('sensor_msgs/msg/Imu', T.ImuSample),
-    'odom': ('nav_msgs/msg/Odometry', T.OdomSample),
-    'scan': ('sensor_msgs/msg/LaserScan', T.ScanSample),
-    'joint_states': ('sensor_msgs/msg/JointState', T.JointStateSample),
-    'cmd_vel': ('geometry_msgs/msg/Twist', T.TwistSample),
-    'fix': ('sensor_msgs/msg/NavSatFix', T.NavSatSample),
-    'bool': ('std_msgs/msg/Bool', T.BoolSample),
-    'diagnostics': ('diagnostic_msgs/msg/DiagnosticArray', T.DiagnosticSample),
-    'tf_static': ('tf2_msgs/msg/TFMessage', T.StaticTransform),
-}
 
 
 @dataclass(frozen=True)

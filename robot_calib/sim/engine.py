@@ -31,11 +31,11 @@ from typing import Any, Iterable, Mapping, Optional, Union
 
 import numpy as np
 
+from robot_calib.codec import templates as C
 from robot_calib.core import types as T
 from robot_calib.core.geometry import quat_from_rpy, wrap_angle
 from robot_calib.core.jsonable import jsonable
 from robot_calib.core.params import from_flat, ParamError, to_flat
-from robot_calib.sim import cdr as C
 from robot_calib.sim import sensors as S
 from robot_calib.sim.motion import State, TipOver
 from robot_calib.sim.params import SimParams, VECTOR_PARAMS
@@ -414,10 +414,10 @@ def encoded_streams(result: SimResult) -> list[tuple[str, str, np.ndarray, list]
     """
     Return per topic (topic, msgtype, receive times ns, CDR bytes) of a result (fast path).
 
-    Every topic but ``/tf_static`` is encoded by :func:`robot_calib.sim.cdr.encode_stream`
+    Every topic but ``/tf_static`` is encoded by :func:`robot_calib.codec.templates.encode_stream`
     from the arrays; a topic whose template cannot be patched falls back to rosbags.
     """
-    from robot_calib.io import convert
+    from robot_calib import codec
     sens, p = result.sensors, result.params
     t0 = p.start_time
     out = []
@@ -431,16 +431,16 @@ def encoded_streams(result: SimResult) -> list[tuple[str, str, np.ndarray, list]
     def add(topic: str, times: np.ndarray, patches_fn) -> None:
         ns, sn = C.stamps(times + t0)
         sample = first(topic)
-        msgtype, msg = convert.to_msg(sample)
+        msgtype, msg = codec.to_msg(sample)
         try:
             data = C.encode_stream(msgtype, msg, patches_fn(sn))
         except C.TemplateError:
-            data = [convert.serialize(s)[1] for tp, s in result.messages if tp == topic]
+            data = [codec.serialize(s)[1] for tp, s in result.messages if tp == topic]
         out.append((topic, msgtype, ns, data))
 
     tf = _static_transforms(p, t0)
     ns = np.array([int(round(t0 * 1e9))], dtype=np.int64)
-    out.append(('/tf_static', 'tf2_msgs/msg/TFMessage', ns, [convert.serialize(tf)[1]]))
+    out.append(('/tf_static', 'tf2_msgs/msg/TFMessage', ns, [codec.serialize(tf)[1]]))
     zeros = np.zeros((sens['cmd_t'].size, 1))
     add('/cmd_vel', sens['cmd_t'], lambda sn: [
         ('linear', 'xyz', np.column_stack((sens['cmd_v'], zeros, zeros))),

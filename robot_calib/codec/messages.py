@@ -1,12 +1,12 @@
 # Copyright 2026 robot_calib contributors
 # SPDX-License-Identifier: Apache-2.0
 """
-Message <-> core sample conversion, shared by the nodes, replay and the simulator.
+The generic converters between ROS messages and core samples, one pair per message type.
 
-``from_msg`` reads any object with the ROS field names (rosbags messages from
-ROS 1 or ROS 2 bags, and rclpy messages alike). ``to_msg`` builds rosbags
-messages of the ROS 2 Jazzy typestore; ``serialize``/``deserialize`` turn them
-into CDR bytes, which rclpy publishes and receives as they are (``raw=True``).
+``*_from_msg`` read any object with the ROS field names (rosbags messages from
+ROS 1 or ROS 2 bags, and rclpy messages alike); ``*_to_msg`` build rosbags
+messages of the ROS 2 Jazzy typestore. The table that names them, and the
+fast paths beside them, is :mod:`robot_calib.codec`.
 """
 
 from __future__ import annotations
@@ -20,7 +20,7 @@ import numpy as np
 from robot_calib.core import types as T
 from robot_calib.core.geometry import quat_from_rpy, quat_normalize, quat_to_rpy
 
-_POSE_IDX = np.ix_([0, 1, 5], [0, 1, 5])
+POSE_IDX = np.ix_([0, 1, 5], [0, 1, 5])
 """Rows/columns (x, y, yaw) of a ROS 6x6 pose covariance; (vx, vy, wz) for a twist."""
 
 
@@ -36,7 +36,8 @@ def stamp_ns(header_stamp: Any) -> int:
     return int(header_stamp.sec) * 1_000_000_000 + int(header_stamp.nanosec)
 
 
-def _cov3(values: Any) -> np.ndarray:
+def cov3(values: Any) -> np.ndarray:
+    """Return a 3x3 covariance from 9 values, NaN-filled when not provided (-1 in [0])."""
     cov = np.asarray(values, dtype=float).reshape(3, 3)
     if cov[0, 0] < 0:  # REP-145 / sensor_msgs: -1 in [0] means "not provided"
         return np.full((3, 3), np.nan)
@@ -61,8 +62,8 @@ def imu_from_msg(msg: Any) -> T.ImuSample:
     return T.ImuSample(ns * 1e-9, _vec(msg.angular_velocity), _vec(msg.linear_acceleration),
                        msg.header.frame_id, orientation,
                        None if orientation is None else ocov.reshape(3, 3),
-                       _cov3(msg.angular_velocity_covariance),
-                       _cov3(msg.linear_acceleration_covariance), ns)
+                       cov3(msg.angular_velocity_covariance),
+                       cov3(msg.linear_acceleration_covariance), ns)
 
 
 def odom_from_msg(msg: Any) -> T.OdomSample:
@@ -73,8 +74,8 @@ def odom_from_msg(msg: Any) -> T.OdomSample:
     quat = (float(q.w), float(q.x), float(q.y), float(q.z))
     roll, pitch, yaw = quat_to_rpy(quat_normalize(quat))
     lin, ang = msg.twist.twist.linear, msg.twist.twist.angular
-    pcov = np.asarray(msg.pose.covariance, dtype=float).reshape(6, 6)[_POSE_IDX]
-    tcov = np.asarray(msg.twist.covariance, dtype=float).reshape(6, 6)[_POSE_IDX]
+    pcov = np.asarray(msg.pose.covariance, dtype=float).reshape(6, 6)[POSE_IDX]
+    tcov = np.asarray(msg.twist.covariance, dtype=float).reshape(6, 6)[POSE_IDX]
     return T.OdomSample(ns * 1e-9, float(p.x), float(p.y), yaw, float(lin.x), float(lin.y),
                         float(ang.z), msg.header.frame_id, msg.child_frame_id, pcov, tcov,
                         float(p.z), roll, pitch, ns, math.hypot(*quat))
@@ -153,44 +154,6 @@ def diagnostics_from_msg(msg: Any) -> T.DiagnosticSample:
     return T.DiagnosticSample(ns * 1e-9, statuses, ns)
 
 
-_FROM = {
-    'sensor_msgs/msg/Imu': imu_from_msg,
-    'nav_msgs/msg/Odometry': odom_from_msg,
-    'sensor_msgs/msg/LaserScan': scan_from_msg,
-    'sensor_msgs/msg/JointState': joint_state_from_msg,
-    'sensor_msgs/msg/NavSatFix': navsat_from_msg,
-    'diagnostic_msgs/msg/DiagnosticArray': diagnostics_from_msg,
-}
-_FROM_BAGTIME = {
-    'geometry_msgs/msg/Twist': twist_from_msg,
-    'geometry_msgs/msg/TwistStamped': twist_from_msg,
-    'std_msgs/msg/Bool': bool_from_msg,
-}
-
-
-def normalize_type(msgtype: str) -> str:
-    """Return the ROS 2 form ``pkg/msg/Name`` of a ROS 1 (``pkg/Name``) or ROS 2 type name."""
-    parts = msgtype.split('/')
-    if len(parts) == 2:
-        return f'{parts[0]}/msg/{parts[1]}'
-    return msgtype
-
-
-SUPPORTED_TYPES = frozenset(_FROM) | frozenset(_FROM_BAGTIME) | {'tf2_msgs/msg/TFMessage'}
-
-
-def from_msg(msgtype: str, msg: Any, bag_time_ns: Optional[int] = None) -> list:
-    """Convert a message of type ``msgtype`` into a list of core samples (TF gives several)."""
-    msgtype = normalize_type(msgtype)
-    if msgtype in _FROM:
-        return [_FROM[msgtype](msg)]
-    if msgtype in _FROM_BAGTIME:
-        return [_FROM_BAGTIME[msgtype](msg, bag_time_ns)]
-    if msgtype == 'tf2_msgs/msg/TFMessage':
-        return transforms_from_msg(msg)
-    raise KeyError(f'unsupported message type {msgtype}; supported: {sorted(SUPPORTED_TYPES)}')
-
-
 # ---------------------------------------------------------------------------------------
 # core -> message (rosbags, ROS 2 Jazzy)
 # ---------------------------------------------------------------------------------------
@@ -227,7 +190,7 @@ def _cov6(cov3: np.ndarray, fill: float) -> np.ndarray:
     out = np.zeros((6, 6))
     out[2, 2] = out[3, 3] = out[4, 4] = fill
     c = np.where(np.isfinite(cov3), cov3, 0.0)
-    out[_POSE_IDX] = c
+    out[POSE_IDX] = c
     return out.reshape(36)
 
 
@@ -322,47 +285,3 @@ def clock_to_msg(t: float) -> Any:
     ns = int(round(t * 1e9))
     return ty['rosgraph_msgs/msg/Clock'](ty['builtin_interfaces/msg/Time'](
         ns // 1_000_000_000, ns % 1_000_000_000))
-
-
-_TO = {
-    T.ImuSample: ('sensor_msgs/msg/Imu', imu_to_msg),
-    T.OdomSample: ('nav_msgs/msg/Odometry', odom_to_msg),
-    T.ScanSample: ('sensor_msgs/msg/LaserScan', scan_to_msg),
-    T.JointStateSample: ('sensor_msgs/msg/JointState', joint_state_to_msg),
-    T.TwistSample: ('geometry_msgs/msg/Twist', twist_to_msg),
-    T.BoolSample: ('std_msgs/msg/Bool', bool_to_msg),
-    T.DiagnosticSample: ('diagnostic_msgs/msg/DiagnosticArray', diagnostics_to_msg),
-    T.NavSatSample: ('sensor_msgs/msg/NavSatFix', navsat_to_msg),
-}
-
-
-def msgtype_of(sample: Any) -> str:
-    """Return the ROS 2 message type a core sample converts to."""
-    if isinstance(sample, list):
-        return 'tf2_msgs/msg/TFMessage'
-    return _TO[type(sample)][0]
-
-
-def to_msg(sample: Any) -> tuple[str, Any]:
-    """Convert a core sample (or a list of static transforms) into (msgtype, rosbags message)."""
-    if isinstance(sample, list):
-        return 'tf2_msgs/msg/TFMessage', transforms_to_msg(sample)
-    msgtype, fn = _TO[type(sample)]
-    return msgtype, fn(sample)
-
-
-def serialize(sample: Any) -> tuple[str, bytes]:
-    """Convert a core sample into (msgtype, CDR bytes) as rclpy publishes them."""
-    msgtype, msg = to_msg(sample)
-    return msgtype, bytes(typestore().serialize_cdr(msg, msgtype))
-
-
-def deserialize(msgtype: str, data: bytes, bag_time_ns: Optional[int] = None) -> list:
-    """Convert CDR bytes of ``msgtype`` into core samples."""
-    msgtype = normalize_type(msgtype)
-    return from_msg(msgtype, typestore().deserialize_cdr(data, msgtype), bag_time_ns)
-
-
-def sample_time_ns(sample: Any) -> int:
-    """Return the stamp (ns) a core sample carries."""
-    return T.stamp_of(sample.t, sample.stamp_ns)

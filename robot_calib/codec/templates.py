@@ -1,7 +1,7 @@
 # Copyright 2026 robot_calib contributors
 # SPDX-License-Identifier: Apache-2.0
 """
-Fast CDR encoding of uniform message streams by template patching.
+Fast CDR encoding of uniform message streams by template patching (the simulator writes these).
 
 All messages of one simulated topic have the same layout (same frame ids,
 same array lengths), so their CDR bytes differ only in a few numeric fields.
@@ -20,7 +20,7 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from robot_calib.io import convert
+from robot_calib.codec.messages import typestore
 
 
 class TemplateError(RuntimeError):
@@ -83,7 +83,7 @@ def encode_stream(msgtype: str, msg: Any, patches: Sequence[tuple[str, str, np.n
         else:
             raise TemplateError(f'unknown patch kind {kind!r}')
         located.append((pattern, kind, dtype, width, values))
-    data = bytes(convert.typestore().serialize_cdr(msg, msgtype))
+    data = bytes(typestore().serialize_cdr(msg, msgtype))
     buf = np.empty((n, len(data)), dtype=np.uint8)
     buf[:] = np.frombuffer(data, dtype=np.uint8)
     for pattern, kind, dtype, width, values in located:
