@@ -26,9 +26,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from robot_calib.core.constants import GRAVITY
 from robot_calib.mismatch.channels import (IMU_FIELDS, IMU_TYPE, ODOM_FIELDS, ODOM_TYPE,
                                            Topic)
-from robot_calib.mismatch.effects import G, tilt_rotate
+from robot_calib.mismatch.effects import tilt_rotate
 
 EFFECTS = ('gyro_bias', 'gyro_scale', 'gyro_bias_drift', 'time_offset', 'accel_bias',
            'centripetal_acceleration', 'imu_mounting_tilt', 'wheel_radius_scale',
@@ -182,7 +183,7 @@ def _imu(m: Motion, t: np.ndarray, centripetal: bool) -> dict:
     v, w, a = (_sample(m, t, x) for x in (m.v, m.w, m.a))
     f = dict(zip(IMU_FIELDS, (_sample(m, t, m.gx), _sample(m, t, m.gy), w, a,
                               v * w if centripetal else np.zeros_like(t),
-                              G + _sample(m, t, m.az_bump))))
+                              GRAVITY + _sample(m, t, m.az_bump))))
     return f
 
 

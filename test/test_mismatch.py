@@ -8,11 +8,12 @@ import sys
 import numpy as np
 import pytest
 
+from robot_calib.core.constants import GRAVITY
 from robot_calib.mismatch import analyse_recordings
 from robot_calib.mismatch.align import xcorr_lag
 from robot_calib.mismatch.channels import (IMU_FIELDS, IMU_TYPE, loo_derivative, ODOM_FIELDS,
                                            ODOM_TYPE, regressor_signal, Topic)
-from robot_calib.mismatch.effects import G, tilt_rotate
+from robot_calib.mismatch.effects import tilt_rotate
 from robot_calib.mismatch.locate import active_windows, noise_level, scan_window
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / 'benchmarks'))
@@ -27,7 +28,7 @@ def _smooth_run(duration=120.0, rate=100.0, odom_rate=50.0):
     a = np.gradient(v, t)
     imu = {IMU_FIELDS[0]: 0.05 * np.sin(1.7 * t), IMU_FIELDS[1]: 0.04 * np.cos(1.3 * t),
            IMU_FIELDS[2]: w, IMU_FIELDS[3]: a, IMU_FIELDS[4]: np.zeros_like(t),
-           IMU_FIELDS[5]: G + 0.2 * np.sin(2.1 * t)}
+           IMU_FIELDS[5]: GRAVITY + 0.2 * np.sin(2.1 * t)}
     to = np.arange(0.0, duration, 1.0 / odom_rate)
     odom = {ODOM_FIELDS[0]: np.interp(to, t, v), ODOM_FIELDS[1]: np.interp(to, t, w)}
     tc = np.arange(0.0, duration, 0.1)
@@ -196,7 +197,7 @@ def test_indistinguishable_effects_are_reported_as_alternatives():
     rng = np.random.default_rng(5)
     fields = {f: np.zeros_like(t) for f in IMU_FIELDS}
     fields['angular_velocity.z'] = w
-    fields['linear_acceleration.z'] = np.full_like(t, G)
+    fields['linear_acceleration.z'] = np.full_like(t, GRAVITY)
     sim = {'/imu': Topic('/imu', IMU_TYPE, t, fields)}
     real = _copy(sim)
     for f in IMU_FIELDS:

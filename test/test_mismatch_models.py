@@ -12,11 +12,12 @@ refuses to name.
 import numpy as np
 import pytest
 
+from robot_calib.core.constants import GRAVITY
 from robot_calib.mismatch import analyse_recordings
 from robot_calib.mismatch import latency as L
 from robot_calib.mismatch import robust as R
 from robot_calib.mismatch.channels import IMU_FIELDS, IMU_TYPE, ODOM_FIELDS, ODOM_TYPE, Topic
-from robot_calib.mismatch.effects import G, rotate
+from robot_calib.mismatch.effects import rotate
 
 GYRO, ACC = IMU_FIELDS[:3], IMU_FIELDS[3:]
 
@@ -37,11 +38,11 @@ def _tumbling_imu(seed=0, duration=120.0, rate=200.0):
     w = np.column_stack([1.2 * _smooth_noise(rng, n, int(0.3 * rate)) for _ in range(3)])
     # gravity direction in the sensor frame, integrated from the rates (dR/dt = -w x R)
     g = np.zeros((n, 3))
-    g[0] = (0.0, 0.0, G)
+    g[0] = (0.0, 0.0, GRAVITY)
     dt = 1.0 / rate
     for i in range(1, n):
         v = g[i - 1] - np.cross(w[i - 1], g[i - 1]) * dt
-        g[i] = v * (G / np.linalg.norm(v))
+        g[i] = v * (GRAVITY / np.linalg.norm(v))
     lin = np.column_stack([1.0 * _smooth_noise(rng, n, int(0.4 * rate)) for _ in range(3)])
     return t, w, g + lin
 
@@ -189,10 +190,11 @@ def test_delay_of_a_single_manoeuvre_is_not_claimed():
     w = np.where((t > 50.0) & (t < 53.0), np.sin(np.pi * (t - 50.0) / 3.0), 0.0)
     rng = np.random.default_rng(19)
     zero = np.zeros_like(t)
-    sim = _imu_rec(t, np.column_stack((zero, zero, w)), np.column_stack((zero, zero, zero + G)))
+    sim = _imu_rec(t, np.column_stack((zero, zero, w)),
+                   np.column_stack((zero, zero, zero + GRAVITY)))
     shifted = np.interp(t - 0.02, t, w)
     real = _imu_rec(t, np.column_stack((zero, zero, shifted)),
-                    np.column_stack((zero, zero, zero + G)))
+                    np.column_stack((zero, zero, zero + GRAVITY)))
     real = _noisy(real, 20, sg=0.01)
     out, _ = analyse_recordings(sim, real)
     claimed = [f for f in out['findings'] if f['effect'] == 'time_offset']

@@ -17,12 +17,13 @@ from typing import Any, Callable, Optional
 
 from robot_calib.codec import cdr as _cdr  # noqa: F401 - registers the fast paths
 from robot_calib.codec.messages import clock_to_msg, header, typestore
-from robot_calib.codec.table import BY_SAMPLE, Decode, KINDS, MessageType, TYPES
+from robot_calib.codec.table import BY_SAMPLE, Decode, KINDS, MessageType, ROWS, TYPES
 from robot_calib.core import types as T
 
-__all__ = ['BY_SAMPLE', 'Decode', 'KINDS', 'MessageType', 'TYPES', 'accepts', 'batch_decoder',
-           'clock_to_msg', 'decoder', 'deserialize', 'from_msg', 'header', 'msgtype_of',
-           'normalize_type', 'sample_time_ns', 'serialize', 'supported', 'to_msg', 'typestore']
+__all__ = ['BY_SAMPLE', 'Decode', 'KINDS', 'MessageType', 'ROWS', 'TYPES', 'accepts',
+           'batch_decoder', 'clock_to_msg', 'decoder', 'deserialize', 'from_msg', 'header',
+           'msgtype_of', 'normalize_type', 'sample_time_ns', 'serialize', 'supported', 'to_msg',
+           'typestore']
 
 
 def normalize_type(msgtype: str) -> str:

@@ -19,16 +19,17 @@ import os
 from typing import Optional
 
 import numpy as np
+from robot_calib import codec
 
-IMU_TYPE = 'sensor_msgs/msg/Imu'
-ODOM_TYPE = 'nav_msgs/msg/Odometry'
-TWIST_TYPES = ('geometry_msgs/msg/Twist', 'geometry_msgs/msg/TwistStamped')
+IMU_TYPE = codec.KINDS['imu'].msgtype
+ODOM_TYPE = codec.KINDS['odom'].msgtype
+TWIST_TYPES = tuple(row.msgtype for row in codec.ROWS if row.kind == 'cmd_vel')
 
 IMU_FIELDS = ('angular_velocity.x', 'angular_velocity.y', 'angular_velocity.z',
               'linear_acceleration.x', 'linear_acceleration.y', 'linear_acceleration.z')
 ODOM_FIELDS = ('twist.twist.linear.x', 'twist.twist.angular.z')
 TWIST_FIELDS = ('linear.x', 'angular.z')
-JOINT_STATE_TYPE = 'sensor_msgs/msg/JointState'
+JOINT_STATE_TYPE = codec.KINDS['joint_states'].msgtype
 COMPARED_TYPES = (IMU_TYPE, ODOM_TYPE, JOINT_STATE_TYPE)
 
 

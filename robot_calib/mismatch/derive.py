@@ -32,10 +32,11 @@ from typing import Optional
 import numpy as np
 
 from robot_calib.core import types as T
+from robot_calib.core.constants import GRAVITY
 from robot_calib.core.params import param
 from robot_calib.mismatch.channels import (ChannelError, encode_kernels, IMU_TYPE,
                                            JOINT_STATE_TYPE, KERNELS_KEY, ODOM_TYPE, Topic)
-from robot_calib.mismatch.ideal import choose_half, G, ideal_imu, quat_products
+from robot_calib.mismatch.ideal import choose_half, ideal_imu, quat_products
 
 TRUTH_TYPES = ('geometry_msgs/msg/PoseStamped', 'geometry_msgs/msg/PoseWithCovarianceStamped',
                'geometry_msgs/msg/TransformStamped', 'nav_msgs/msg/Odometry')
@@ -49,7 +50,7 @@ class IdealParams:
                           length=3)
     imu_rpy: list = param([0.0, 0.0, 0.0], 'rad', 'IMU orientation in the tracked body '
                           'frame (roll, pitch, yaw)', length=3)
-    gravity: float = param(G, 'm/s^2', 'gravity', minimum=0.0)
+    gravity: float = param(GRAVITY, 'm/s^2', 'gravity', minimum=0.0)
     rel_noise: float = param(0.02, '', 'largest noise of a derived channel as a fraction of '
                              'its RMS (chooses the differentiation windows)', minimum=0.0)
     max_window: float = param(0.1, 's', 'largest half width of a differentiation window',

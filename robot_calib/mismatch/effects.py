@@ -48,7 +48,6 @@ import numpy as np
 
 from robot_calib.mismatch.channels import IMU_TYPE, JOINT_STATE_TYPE, ODOM_TYPE, PairedTopic
 
-G = 9.80665  # standard gravity (m/s^2)
 _UID = itertools.count(1)
 
 

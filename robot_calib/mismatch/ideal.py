@@ -31,9 +31,8 @@ from __future__ import annotations
 from typing import Optional
 
 import numpy as np
+from robot_calib.core.constants import GRAVITY
 from robot_calib.core.geometry import quat_multiply
-
-G = 9.80665  # standard gravity (m/s^2)
 
 
 def quat_products(a: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -59,7 +58,7 @@ def body_rate(t: np.ndarray, q: np.ndarray, h: int) -> np.ndarray:
 
 
 def specific_force(t: np.ndarray, q: np.ndarray, p: Optional[np.ndarray], h: int,
-                   g: float = G) -> np.ndarray:
+                   g: float = GRAVITY) -> np.ndarray:
     """Return ``R^T (p'' + g)`` (n, 3) m/s^2, ``p''`` over +-h samples (gravity only without p)."""
     n = t.size
     acc = np.zeros((n, 3))
@@ -108,7 +107,7 @@ def choose_half(derive, t: np.ndarray, rel_noise: float, max_half_s: float) -> i
     return h
 
 
-def ideal_imu(t: np.ndarray, q: np.ndarray, p: Optional[np.ndarray] = None, g: float = G,
+def ideal_imu(t: np.ndarray, q: np.ndarray, p: Optional[np.ndarray] = None, g: float = GRAVITY,
               rel_noise: float = 0.02, max_half_s: float = 0.1) -> dict:
     """
     Return the ideal IMU of a ground-truth motion and the kernel of each of its channels.

@@ -21,13 +21,12 @@ from __future__ import annotations
 
 import numpy as np
 
+from robot_calib.core.constants import GRAVITY
 from robot_calib.mismatch.channels import IMU_FIELDS, IMU_TYPE, Topic
 from robot_calib.mismatch.ideal import quat_products
 
-G = 9.81  # m/s^2, nominal gravity used by the simulated protocol
 
-
-def imu_from_orientation(t: np.ndarray, q: np.ndarray, g: float = G,
+def imu_from_orientation(t: np.ndarray, q: np.ndarray, g: float = GRAVITY,
                          half: int = 5) -> tuple[np.ndarray, np.ndarray]:
     """
     Return (gyro (N, 3) rad/s, specific force (N, 3) m/s^2) of sensor-to-world quaternions.
@@ -118,7 +117,7 @@ def ferraris_pair(rec, turn: float = -2.0 * np.pi) -> tuple[dict, dict]:
         if name in POSE_AXIS:
             ax, sgn = POSE_AXIS[name]
             acc = np.zeros((n, 3))
-            acc[:, ax] = sgn * G
+            acc[:, ax] = sgn * GRAVITY
         elif name in ROT_AXIS:
             ax = ROT_AXIS[name]
             mag = np.linalg.norm(rec.gyro[a:b] - b_rest, axis=1)

@@ -33,6 +33,7 @@ from typing import Any, Callable, Optional, Sequence
 
 import numpy as np
 
+from robot_calib.core.constants import GRAVITY
 from robot_calib.core.geometry import wrap_angle
 
 TWIST = 'twist'
@@ -113,7 +114,7 @@ class TipOver:
         theta = np.zeros(n)
         rate = self.start_rate
         th = 0.0
-        g_l = 9.80665 / max(self.length, 1e-3)
+        g_l = GRAVITY / max(self.length, 1e-3)
         for k in range(1, n):
             acc = g_l * math.sin(th)
             rate += acc * dt

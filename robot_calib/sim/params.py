@@ -21,6 +21,7 @@ import dataclasses
 from dataclasses import dataclass
 from typing import Any
 
+from robot_calib.core.constants import GRAVITY
 from robot_calib.core.params import describe, param
 
 
@@ -114,7 +115,7 @@ class ImuParams:
                                      'density', minimum=0.0)
     centripetal: bool = param(True, '', 'include the centripetal acceleration v * omega in the '
                               'accelerometer (False mimics simulators that leave it out)')
-    gravity: float = param(9.80665, 'm/s^2', 'gravity magnitude', minimum=0.0)
+    gravity: float = param(GRAVITY, 'm/s^2', 'gravity magnitude', minimum=0.0)
     x: float = param(0.0, 'm', 'imu_link position in base_link, x')
     y: float = param(0.0, 'm', 'imu_link position in base_link, y')
     z: float = param(0.05, 'm', 'imu_link position in base_link, z')
