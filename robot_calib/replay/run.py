@@ -1,0 +1,213 @@
+# Copyright 2026 robot_calib contributors
+# SPDX-License-Identifier: Apache-2.0
+"""
+The replay loop: static transforms first, then every message in bag time order, then finish.
+
+Each sample goes to the pipelines that read its topic (through exactly the
+code the live node runs), their outputs are serialized with the codec and
+written to the output bag stamped with the input that produced them. Errors
+are counted per node and stage, never fatal.
+"""
+
+from __future__ import annotations
+
+from collections import defaultdict
+from dataclasses import dataclass, field
+import gc
+import os
+from pathlib import Path
+import shutil
+import sys
+import time
+from typing import Any, Optional
+
+from robot_calib import codec
+from robot_calib.core import types as T
+from robot_calib.core.series import Thinned
+from robot_calib.io.bags import BagSet, BagWriter
+from robot_calib.replay.config import OUTPUT_BAG
+from robot_calib.replay.select import NodeRun, Plan
+
+GROUND_TRUTH = '/ground_truth/odom'
+TF_STATIC = '/tf_static'
+_ODOM_TYPE = codec.KINDS['odom'].msgtype
+
+
+@dataclass
+class RunStats:
+    """What the loop saw: messages read, undecodable, trajectories drawn, outputs written."""
+
+    read: dict[str, int] = field(default_factory=lambda: defaultdict(int))
+    undecodable: dict[str, int] = field(default_factory=lambda: defaultdict(int))
+    trajectories: dict[str, Thinned] = field(default_factory=lambda: defaultdict(Thinned))
+    """Input odometry topics (and the ground truth): (t, x, y, yaw) for the plots."""
+    out_traj: dict[str, Thinned] = field(default_factory=lambda: defaultdict(Thinned))
+    out_counts: dict[str, int] = field(default_factory=lambda: defaultdict(int))
+    n_msgs: int = 0
+    n_static: int = 0
+    finish_times: dict[str, float] = field(default_factory=dict)
+    seconds: float = 0.0
+
+
+def _routes(plan: Plan) -> dict[str, list]:
+    """Return topic -> [(process, input key, run, add_time)] of the nodes reading it."""
+    routes: dict[str, list] = defaultdict(list)
+    for run in plan.runs:
+        for key, topic in run.inputs.items():
+            routes[topic].append((run.pipeline.process, key, run, run.times.append))
+    return routes
+
+
+def _deliver_static(bagset: BagSet, plan: Plan, stats: RunStats) -> None:
+    """Hand every static transform of ``/tf_static`` to every node before anything else."""
+    static = [s for s in bagset.streams if plan.topic_of_stream[id(s)] == TF_STATIC
+              and s.msgtype == codec.KINDS['tf_static'].msgtype]
+    for stream, time_ns, raw in bagset.messages(static) if static else ():
+        try:
+            samples = stream.decode(raw, time_ns)
+        except Exception:  # noqa: B902 - counted, never fatal
+            stats.undecodable[TF_STATIC] += 1
+            continue
+        stats.read[TF_STATIC] += 1
+        for tf in samples:
+            stats.n_static += 1
+            for run in plan.runs:
+                try:
+                    run.pipeline.process(run.tf_key, tf)
+                except Exception as exc:  # noqa: B902 - counted, never fatal
+                    run.error('tf_static', exc)
+
+
+class _Emitter:
+    """Serialize a node's outputs into the output bag; count them, keep odometry tracks."""
+
+    def __init__(self, writer: BagWriter, stats: RunStats):
+        self.writer = writer
+        self.stats = stats
+
+    def __call__(self, run: NodeRun, outs: list) -> None:
+        """Write outputs ``(key, sample)`` of ``run``; a bad one is counted, never fatal."""
+        for out_key, sample in outs:
+            spec = run.outputs.get(out_key)
+            try:
+                if spec is None:
+                    raise KeyError(f'output {out_key!r} is not declared in outputs')
+                msgtype, data = codec.serialize(sample)
+                if msgtype != spec[1]:
+                    raise TypeError(f'output {out_key!r} is {msgtype}, declared {spec[1]}')
+                self.writer.write_raw(spec[0], msgtype, data, codec.sample_time_ns(
+                    sample if not isinstance(sample, list) else sample[0]))
+            except Exception as exc:  # noqa: B902 - counted, never fatal
+                run.error('output', exc)
+                continue
+            self.stats.out_counts[spec[0]] += 1
+            if isinstance(sample, T.OdomSample):
+                self.stats.out_traj[spec[0]].append((sample.t, sample.x, sample.y, sample.yaw))
+
+
+def _progress_bar(total: int, progress: Optional[bool]) -> Any:
+    show = sys.stderr.isatty() if progress is None else bool(progress)
+    if not (show and total):
+        return None
+    from tqdm import tqdm
+    return tqdm(total=total, unit='msg', unit_scale=True, file=sys.stderr, desc='replay',
+                dynamic_ncols=True)
+
+
+def _loop(bagset: BagSet, streams: list, stream_info: dict, emit: _Emitter, stats: RunStats,
+          window: tuple[float, Optional[float]], bar: Any) -> None:
+    """Feed every message of ``streams`` inside ``window`` (s from the start, length)."""
+    perf = time.perf_counter
+    t_lo = bagset.start_ns + int(round(window[0] * 1e9))
+    t_hi = None if window[1] is None else t_lo + int(round(window[1] * 1e9))
+    clip = window[0] > 0 or t_hi is not None
+    for stream, time_ns, _, samples in bagset.decoded(streams) if streams else ():
+        if clip:
+            if time_ns < t_lo:
+                continue
+            if t_hi is not None and time_ns > t_hi:
+                break
+        topic, targets, traj = stream_info[id(stream)]
+        if samples is None:  # undecodable: counted, never fatal
+            stats.undecodable[topic] += 1
+            continue
+        stats.n_msgs += 1
+        stats.read[topic] += 1
+        for sample in samples:
+            for process, key, run, add_time in targets:
+                t0 = perf()
+                try:
+                    outs = process(key, sample)
+                except Exception as exc:  # noqa: B902 - counted, never fatal
+                    run.error('process', exc)
+                    run.pipeline.reject(key, 'processing_error')
+                    outs = None
+                add_time(perf() - t0)
+                if outs:
+                    emit(run, outs)
+            if traj is not None:
+                stats.trajectories[traj].append((sample.t, sample.x, sample.y, sample.yaw))
+        if bar is not None and not stats.n_msgs % 2000:
+            bar.update(2000)
+    if bar is not None:
+        bar.update(stats.n_msgs % 2000)
+        bar.close()
+
+
+def _finish(plan: Plan, emit: _Emitter, stats: RunStats) -> None:
+    for run in plan.runs:
+        t0 = time.perf_counter()
+        try:
+            emit(run, run.pipeline.finish())
+        except Exception as exc:  # noqa: B902 - counted, never fatal
+            run.error('finish', exc)
+        stats.finish_times[run.name] = time.perf_counter() - t0
+
+
+def _place_output_bag(bag_dir: Path, tmp: Path, storage: str) -> None:
+    """Make ``tmp`` itself a ROS 2 bag: its metadata.yaml beside ``output.mcap``."""
+    if storage == 'mcap':
+        os.replace(bag_dir / f'{bag_dir.name}.mcap', tmp / OUTPUT_BAG)
+        meta = (bag_dir / 'metadata.yaml').read_text()
+        (tmp / 'metadata.yaml').write_text(meta.replace(f'{bag_dir.name}.mcap', OUTPUT_BAG))
+        shutil.rmtree(bag_dir)
+    else:
+        os.replace(bag_dir, tmp / OUTPUT_BAG)
+
+
+def run(bagset: BagSet, plan: Plan, tmp: Path, progress: Optional[bool], storage: str,
+        window: tuple[float, Optional[float]] = (0.0, None)) -> RunStats:
+    """Run the planned nodes over the bags; write the output bag into ``tmp``."""
+    wall0 = time.perf_counter()
+    stats = RunStats()
+    routes = _routes(plan)
+    traj_topics = {t for t in routes if plan.bag_topics[t][0] == _ODOM_TYPE}
+    if plan.bag_topics.get(GROUND_TRUTH, ('',))[0] == _ODOM_TYPE:
+        traj_topics.add(GROUND_TRUTH)
+    topic_of = plan.topic_of_stream
+    streams = [s for s in bagset.streams
+               if topic_of[id(s)] in routes or topic_of[id(s)] in traj_topics]
+    _deliver_static(bagset, plan, stats)
+    # id(stream) -> (topic, routes, trajectory topic or None)
+    stream_info = {id(s): (topic_of[id(s)], routes.get(topic_of[id(s)], ()),
+                           topic_of[id(s)] if topic_of[id(s)] in traj_topics else None)
+                   for s in streams}
+    bar = _progress_bar(sum(s.count for s in streams), progress)
+    bag_dir = tmp / Path(OUTPUT_BAG).stem  # a ROS 2 bag folder, flattened below
+    latched = [t for r in plan.runs for (t, _, is_latched) in r.outputs.values() if is_latched]
+    with BagWriter(bag_dir, storage=storage, latched=latched) as writer:
+        emit = _Emitter(writer, stats)
+        # Fewer, cheaper garbage collections while samples are created at a high rate
+        # (restored below): existing objects are frozen out of the collector's scans.
+        gc_threshold = gc.get_threshold()
+        gc.freeze()
+        gc.set_threshold(max(gc_threshold[0], 20000), *gc_threshold[1:])
+        try:
+            _loop(bagset, streams, stream_info, emit, stats, window, bar)
+        finally:
+            gc.set_threshold(*gc_threshold)
+            gc.unfreeze()
+        _finish(plan, emit, stats)
+    _place_output_bag(bag_dir, tmp, storage)
+    stats.seconds = time.perf_counter() - wall0
+    return stats
