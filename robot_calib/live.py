@@ -16,7 +16,7 @@ from __future__ import annotations
 
 import os
 import time
-from typing import Any, Iterable, Mapping, Optional, Sequence, Union
+from typing import Any, Iterable, Iterator, Mapping, Optional, Sequence, Union
 
 from robot_calib.io.bags import BagError, BagSet, normalize_topic
 
@@ -25,7 +25,7 @@ _NS = 1_000_000_000
 
 def _bag_remaps(remaps: Union[None, Mapping[str, str], Iterable[str]],
                 bag_topics: Iterable[str]) -> dict[str, str]:
-    from robot_calib.replay import parse_remaps, ReplayError
+    from robot_calib.replay.config import parse_remaps, ReplayError
     known = set(bag_topics)
     out = {}
     for src, dst in parse_remaps(remaps):
@@ -34,6 +34,115 @@ def _bag_remaps(remaps: Union[None, Mapping[str, str], Iterable[str]],
                               f'({", ".join(sorted(known)) or "none"})')
         out[src] = dst
     return out
+
+
+def _choose(bagset: BagSet, rename: dict[str, str], wanted: Optional[set[str]],
+            message_class: Any) -> tuple[list, dict[str, str]]:
+    """Return the (stream, topic, message class) to publish and the topics skipped (reason)."""
+    skipped: dict[str, str] = {}
+    chosen = []
+    for s in bagset.streams:
+        topic = rename.get(s.topic, s.topic)
+        if wanted is not None and topic not in wanted:
+            continue
+        cls = message_class(s.msgtype) if s.msgtype.count('/') == 2 else None
+        if cls is None:
+            skipped[topic] = f'message type {s.msgtype} is not installed'
+            continue
+        chosen.append((s, topic, cls))
+    if wanted is not None:
+        missing = wanted - {t for _, t, _ in chosen} - set(skipped)
+        if missing:
+            raise BagError(f'topic(s) {sorted(missing)} not in the bag(s); bag topics: '
+                           f'{", ".join(sorted(bagset.topics()))}')
+    return chosen, skipped
+
+
+class _Player:
+    """The player node: one publisher per (topic, type), ``/clock``, paced publishing."""
+
+    def __init__(self, node: Any, chosen: list, clock: bool, clock_period: float):
+        from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+        from robot_calib.nodes.base import LATCHED_QOS
+        reliable = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=100,
+                              reliability=ReliabilityPolicy.RELIABLE,
+                              durability=DurabilityPolicy.VOLATILE)
+        self.pubs = {}
+        for s, topic, cls in chosen:
+            key = (topic, s.msgtype)
+            if key not in self.pubs:
+                qos = LATCHED_QOS if (s.latched or topic == '/tf_static') else reliable
+                self.pubs[key] = node.create_publisher(cls, topic, qos)
+        self.by_stream = {id(s): (self.pubs[(topic, s.msgtype)], topic, s)
+                          for s, topic, _ in chosen}
+        self.clock_pub = None
+        self.clock_period_ns = int(clock_period * _NS)
+        self._next_clock: Optional[int] = None
+        if clock:
+            from builtin_interfaces.msg import Time
+            from rosgraph_msgs.msg import Clock
+            self.clock_pub = node.create_publisher(Clock, '/clock', 10)
+            self._clock_msg, self._time_msg = Clock, Time
+        self.counts: dict[str, int] = {}
+        self.n = 0
+
+    def wait_for_subscribers(self, timeout: float) -> None:
+        """Wait up to ``timeout`` s until every publisher (``/clock`` too) has a subscriber."""
+        deadline = time.monotonic() + max(timeout, 0.0)
+        waited = list(self.pubs.values()) + ([self.clock_pub] if self.clock_pub else [])
+        while time.monotonic() < deadline and any(
+                p.get_subscription_count() == 0 for p in waited):
+            time.sleep(0.01)
+
+    def publish(self, stream: Any, time_ns: int, raw: bytes, skipped: dict[str, str]) -> None:
+        """Publish ``/clock`` when due, then the message as ROS 2 CDR bytes."""
+        if self.clock_pub is not None and (self._next_clock is None
+                                           or time_ns >= self._next_clock):
+            self.clock_pub.publish(self._clock_msg(clock=self._time_msg(
+                sec=time_ns // _NS, nanosec=time_ns % _NS)))
+            self._next_clock = time_ns + self.clock_period_ns
+        pub, topic, s = self.by_stream[id(stream)]
+        try:
+            data = s.to_cdr(raw)
+        except Exception:  # noqa: B902 - an undecodable ROS 1 message is skipped
+            skipped[topic] = 'some messages could not be converted'
+            return
+        pub.publish(data)
+        self.counts[topic] = self.counts.get(topic, 0) + 1
+        self.n += 1
+
+
+def _check_play_args(rate: float, start_offset: float, duration: Optional[float]) -> None:
+    if not rate > 0:
+        raise ValueError(f'bad rate {rate}: expected a positive factor')
+    if not start_offset >= 0 or (duration is not None and not duration > 0):
+        raise ValueError(f'bad time window: start offset {start_offset} s, duration '
+                         f'{duration} s; expected a start >= 0 and a duration > 0')
+
+
+def _paced(bagset: BagSet, streams: list, rate: float, start_offset: float,
+           duration: Optional[float], span: list) -> Iterator[tuple]:
+    """
+    Yield ``(stream, time_ns, raw)`` at the recorded pace divided by ``rate``.
+
+    ``span`` is filled with the bag times (ns) of the first and last message
+    played; latched messages from before the start go out at once.
+    """
+    wall0 = time.monotonic()
+    t_lo = bagset.start_ns + int(round(start_offset * _NS))
+    t_hi = None if duration is None else t_lo + int(round(duration * _NS))
+    for stream, time_ns, raw in bagset.messages(streams):
+        if time_ns < t_lo and not (stream.latched or stream.topic == '/tf_static'):
+            continue
+        if t_hi is not None and time_ns > t_hi:
+            break
+        if not span:
+            span[:] = [max(time_ns, t_lo)] * 2
+        span[1] = max(time_ns, span[0])
+        wait = wall0 + (span[1] - span[0]) / _NS / rate - time.monotonic()
+        if wait > 0:
+            time.sleep(wait)
+        yield stream, time_ns, raw
 
 
 def play(bags: Union[str, os.PathLike, Sequence[Union[str, os.PathLike]]], rate: float = 1.0,
@@ -61,103 +170,36 @@ def play(bags: Union[str, os.PathLike, Sequence[Union[str, os.PathLike]]], rate:
         'wall_seconds', 'bag_seconds', 'corrupt_chunks': [...]}`` (the mcap chunks
         skipped as corrupt, see :attr:`robot_calib.io.bags.BagSet.corrupt_chunks`).
     """
-    if not rate > 0:
-        raise ValueError(f'bad rate {rate}: expected a positive factor')
-    if not start_offset >= 0 or (duration is not None and not duration > 0):
-        raise ValueError(f'bad time window: start offset {start_offset} s, duration '
-                         f'{duration} s; expected a start >= 0 and a duration > 0')
+    _check_play_args(rate, start_offset, duration)
     bag_list = [bags] if isinstance(bags, (str, os.PathLike)) else list(bags)
     import rclpy
-    from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
-    from robot_calib.nodes.base import LATCHED_QOS, message_class
-
-    reliable = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=100,
-                          reliability=ReliabilityPolicy.RELIABLE,
-                          durability=DurabilityPolicy.VOLATILE)
+    from robot_calib.nodes.base import message_class
     with BagSet(bag_list) as bagset:
         rename = _bag_remaps(remaps, bagset.topics())
         wanted = None if topics is None else {normalize_topic(t) for t in topics}
-        skipped: dict[str, str] = {}
-        chosen = []
-        for s in bagset.streams:
-            topic = rename.get(s.topic, s.topic)
-            if wanted is not None and topic not in wanted:
-                continue
-            cls = message_class(s.msgtype) if s.msgtype.count('/') == 2 else None
-            if cls is None:
-                skipped[topic] = f'message type {s.msgtype} is not installed'
-                continue
-            chosen.append((s, topic, cls))
-        if wanted is not None:
-            missing = wanted - {t for _, t, _ in chosen} - set(skipped)
-            if missing:
-                raise BagError(f'topic(s) {sorted(missing)} not in the bag(s); bag topics: '
-                               f'{", ".join(sorted(bagset.topics()))}')
+        chosen, skipped = _choose(bagset, rename, wanted, message_class)
         own_context = not rclpy.ok()
         if own_context:
             rclpy.init()
-        node = None
-        counts: dict[str, int] = {}
-        n = 0
+        node = player = None
+        span: list[int] = []
         wall0 = time.monotonic()
-        first = last = None
         try:
             node = rclpy.create_node(node_name)
-            pubs = {}
-            for s, topic, cls in chosen:
-                key = (topic, s.msgtype)
-                if key not in pubs:
-                    qos = LATCHED_QOS if (s.latched or topic == '/tf_static') else reliable
-                    pubs[key] = node.create_publisher(cls, topic, qos)
-            by_stream = {id(s): (pubs[(topic, s.msgtype)], topic, s) for s, topic, _ in chosen}
-            clock_pub = clock_msg = time_msg = None
-            if clock:
-                from builtin_interfaces.msg import Time
-                from rosgraph_msgs.msg import Clock
-                clock_pub = node.create_publisher(Clock, '/clock', 10)
-                clock_msg, time_msg = Clock, Time
-            deadline = time.monotonic() + max(wait_for_subscribers, 0.0)
-            waited = list(pubs.values()) + ([clock_pub] if clock_pub is not None else [])
-            while time.monotonic() < deadline and any(
-                    p.get_subscription_count() == 0 for p in waited):
-                time.sleep(0.01)
+            player = _Player(node, chosen, clock, clock_period)
+            player.wait_for_subscribers(wait_for_subscribers)
             if delay > 0:
                 time.sleep(delay)
             wall0 = time.monotonic()
-            next_clock = None
-            t_lo = bagset.start_ns + int(round(start_offset * _NS))
-            t_hi = None if duration is None else t_lo + int(round(duration * _NS))
-            for stream, time_ns, raw in bagset.messages([s for s, _, _ in chosen]):
-                if time_ns < t_lo and not (stream.latched or stream.topic == '/tf_static'):
-                    continue
-                if t_hi is not None and time_ns > t_hi:
-                    break
-                if first is None:  # latched messages from before the start go out at once
-                    first = max(time_ns, t_lo)
-                last = max(time_ns, first)
-                target = wall0 + (last - first) / _NS / rate
-                wait = target - time.monotonic()
-                if wait > 0:
-                    time.sleep(wait)
-                if clock_pub is not None and (next_clock is None or time_ns >= next_clock):
-                    clock_pub.publish(clock_msg(clock=time_msg(sec=time_ns // _NS,
-                                                               nanosec=time_ns % _NS)))
-                    next_clock = time_ns + int(clock_period * _NS)
-                pub, topic, s = by_stream[id(stream)]
-                try:
-                    data = s.to_cdr(raw)
-                except Exception:  # noqa: B902 - an undecodable ROS 1 message is skipped
-                    skipped[topic] = 'some messages could not be converted'
-                    continue
-                pub.publish(data)
-                counts[topic] = counts.get(topic, 0) + 1
-                n += 1
+            for stream, time_ns, raw in _paced(bagset, [s for s, _, _ in chosen], rate,
+                                               start_offset, duration, span):
+                player.publish(stream, time_ns, raw, skipped)
         finally:
             if node is not None:
                 node.destroy_node()
             if own_context:
                 rclpy.try_shutdown()
-    return {'messages': n, 'topics': counts, 'skipped': skipped,
-            'wall_seconds': time.monotonic() - wall0,
-            'bag_seconds': 0.0 if first is None else (last - first) / _NS,
+    return {'messages': player.n if player else 0, 'topics': player.counts if player else {},
+            'skipped': skipped, 'wall_seconds': time.monotonic() - wall0,
+            'bag_seconds': (span[1] - span[0]) / _NS if span else 0.0,
             'corrupt_chunks': bagset.corrupt_chunks}
