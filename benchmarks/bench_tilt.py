@@ -45,7 +45,8 @@ sys.path.insert(0, str(REPO))
 DATA = REPO.parent / 'shared' / 'data'
 OUT = REPO / 'docs' / 'bench' / '3-tilt.md'
 
-from robot_calib.methods.tilt_detection import estimator as TL  # noqa: E402
+from robot_calib.methods.tilt_detection import params as TL  # noqa: E402
+from robot_calib.methods.tilt_detection.estimator import track  # noqa: E402
 
 DEG = 180.0 / math.pi
 FALL = math.pi / 4
@@ -166,7 +167,7 @@ def broad_section() -> None:
         n_total += tr.t.size
         for mode in ('seed', 'improved'):
             t0 = time.perf_counter()
-            out = TL.run(tr.t, tr.gyr, tr.acc, TL.TiltParams(mode=mode))
+            out = track(tr.t, tr.gyr, tr.acc, TL.TiltParams(mode=mode))
             us[mode] += time.perf_counter() - t0
             rmse[mode].append(broad.inclination_rmse(out['quat'], tr) * DEG)
             alerts[mode].append(score_alerts(tr.t, tr.true_tilt(), out['alert']))

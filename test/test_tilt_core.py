@@ -8,7 +8,10 @@ import numpy as np
 import pytest
 
 from robot_calib.core.geometry import quat_multiply, quat_to_matrix
-from robot_calib.methods.tilt_detection import estimator as TL
+from robot_calib.methods.tilt_detection.common import FallDetector
+from robot_calib.methods.tilt_detection.estimator import make_estimator, track
+from robot_calib.methods.tilt_detection.params import ImprovedFilterParams, TiltParams
+from robot_calib.methods.tilt_detection.seed import SeedKalmanAxis
 
 G = 9.80665
 
@@ -59,7 +62,7 @@ def incl_err_deg(q_est, q_true):
 
 # -- seed filter --------------------------------------------------------------------------------
 def test_seed_axis_first_step_by_hand():
-    f = TL.SeedKalmanAxis(0.001, 0.0005, 0.03, angle0=0.0)
+    f = SeedKalmanAxis(0.001, 0.0005, 0.03, angle0=0.0)
     angle = f.step(rate=1.0, z_angle=0.05, dt=0.01)
     # predict: angle 0.01, P = Q; K0 = 0.001 / 0.031; update with innovation 0.04
     assert angle == pytest.approx(0.01 + 0.001 / 0.031 * 0.04, abs=1e-12)
@@ -71,7 +74,7 @@ def test_seed_axis_first_step_by_hand():
 def test_seed_axis_matches_matrix_equations():
     rng = np.random.default_rng(3)
     qa, qg, r = 0.001, 0.0005, 0.03
-    f = TL.SeedKalmanAxis(qa, qg, r, angle0=0.2)
+    f = SeedKalmanAxis(qa, qg, r, angle0=0.2)
     x = np.array([0.2, 0.0])
     P = np.zeros((2, 2))
     H = np.array([[1.0, 0.0]])
@@ -94,7 +97,7 @@ def test_seed_axis_matches_matrix_equations():
 
 
 def test_seed_bias_state_converges():
-    f = TL.SeedKalmanAxis(0.001, 0.0005, 0.03, angle0=0.0)
+    f = SeedKalmanAxis(0.001, 0.0005, 0.03, angle0=0.0)
     for _ in range(5000):
         f.step(rate=0.05, z_angle=0.0, dt=0.01)   # level, gyro reads a 0.05 rad/s bias
     assert f.x[1] == pytest.approx(0.05, abs=0.005)
@@ -102,11 +105,11 @@ def test_seed_bias_state_converges():
 
 
 def test_seed_mode_fall_is_angle_outside_range():
-    p = TL.TiltParams(mode='seed')
-    est = TL.TiltEstimator(p, 0.01)
+    p = TiltParams(mode='seed')
+    est = make_estimator(p, 0.01)
     roll = math.radians(50.0)
     acc = (0.0, G * math.sin(roll), G * math.cos(roll))
-    states = [est.update(k * 0.01, (0.0, 0.0, 0.0), acc) for k in range(10)]
+    states = [est.step(k * 0.01, (0.0, 0.0, 0.0), acc) for k in range(10)]
     assert states[-1].alert
     assert states[-1].roll == pytest.approx(roll, abs=1e-6)
 
@@ -123,7 +126,7 @@ def test_improved_tracks_whole_sphere_rotation():
             return (0.0, 1.2, -0.2)
         return (0.0, 0.0, 0.0)
     t, gyro, acc, q = synth(rate, 20.0, gyro_bias=(0.002, -0.003, 0.001))
-    out = TL.run(t, gyro, acc)
+    out = track(t, gyro, acc)
     err = incl_err_deg(out['quat'], q)
     true_tilt = np.degrees(np.arccos(np.clip(1 - 2 * (q[:, 1] ** 2 + q[:, 2] ** 2), -1, 1)))
     assert true_tilt.max() > 165.0          # really went (nearly) upside down
@@ -139,7 +142,7 @@ def test_improved_at_rest_estimates_gyro_bias():
     rng = np.random.default_rng(0)
     gyro = gyro + rng.normal(0, 0.002, gyro.shape)
     acc = acc + rng.normal(0, 0.02, acc.shape)
-    out = TL.run(t, gyro, acc)
+    out = track(t, gyro, acc)
     np.testing.assert_allclose(out['bias'][-1], bias, atol=math.radians(0.05))
 
 
@@ -148,7 +151,7 @@ def test_improved_rejects_linear_acceleration():
     def lin(t):
         return (3.0 * math.sin(2 * math.pi * 0.5 * t), 2.0 * math.sin(2 * math.pi * 0.3 * t), 0.0)
     t, gyro, acc, q = synth(lambda t: (0.0, 0.0, 0.5 * math.sin(t)), 60.0, lin_acc_fn=lin)
-    out = TL.run(t, gyro, acc)
+    out = track(t, gyro, acc)
     err = incl_err_deg(out['quat'], q)
     assert np.max(err[t > 10.0]) < 2.0
     assert np.sqrt(np.mean(err[t > 10.0] ** 2)) < 1.0
@@ -160,35 +163,35 @@ def test_improved_rejects_linear_acceleration():
 
 def test_improved_starts_upside_down_and_on_the_side():
     for acc0, expect in (((0.0, 0.0, -G), 180.0), ((G, 0.0, 0.0), 90.0)):
-        est = TL.TiltEstimator(TL.TiltParams(), 0.005)
-        s = [est.update(k * 0.005, (0.0, 0.0, 0.0), acc0) for k in range(10)]
+        est = make_estimator(TiltParams(), 0.005)
+        s = [est.step(k * 0.005, (0.0, 0.0, 0.0), acc0) for k in range(10)]
         assert math.degrees(s[0].tilt) == pytest.approx(expect, abs=1e-6)
         assert s[-1].alert
         assert s[-1].t <= 0.05
 
 
 def test_gap_restarts_filter_and_keeps_alert():
-    est = TL.TiltEstimator(TL.TiltParams(), 0.005)
+    est = make_estimator(TiltParams(), 0.005)
     for k in range(100):
-        est.update(k * 0.005, (0.0, 0.0, 0.0), (0.0, 0.0, -G))
-    assert est.detector.alert
-    s = est.update(5.0, (0.0, 0.0, 0.0), (0.0, 0.0, -G))   # a 4.5 s gap
-    assert est.restarts == 1
+        est.step(k * 0.005, (0.0, 0.0, 0.0), (0.0, 0.0, -G))
+    assert est.result().state.alert
+    s = est.step(5.0, (0.0, 0.0, 0.0), (0.0, 0.0, -G))   # a 4.5 s gap
+    assert est.result().restarts == 1
     assert s.alert
 
 
 def test_mounting_rotation_is_applied():
     # IMU mounted upside down (roll pi) on an upright robot: no alert
-    p = TL.TiltParams(mounting_rpy=[math.pi, 0.0, 0.0])
-    est = TL.TiltEstimator(p, 0.005)
-    s = [est.update(k * 0.005, (0.0, 0.0, 0.0), (0.0, 0.0, -G)) for k in range(50)]
+    p = TiltParams(mounting_rpy=[math.pi, 0.0, 0.0])
+    est = make_estimator(p, 0.005)
+    s = [est.step(k * 0.005, (0.0, 0.0, 0.0), (0.0, 0.0, -G)) for k in range(50)]
     assert math.degrees(s[-1].tilt) < 1e-6
     assert not s[-1].alert
 
 
 # -- fall detector --------------------------------------------------------------------------
 def test_fall_detector_duration_hysteresis_and_clear():
-    d = TL.FallDetector(fall_angle=0.8, min_duration=0.02, clear_angle=0.7, clear_duration=1.0)
+    d = FallDetector(fall_angle=0.8, min_duration=0.02, clear_angle=0.7, clear_duration=1.0)
     assert d.update(0.000, 0.9) is None          # above, but not yet for 20 ms
     assert d.update(0.010, 0.9) is None
     assert d.update(0.015, 0.5) is None          # dips below: timer restarts
@@ -204,25 +207,25 @@ def test_fall_detector_duration_hysteresis_and_clear():
 
 
 def test_params_clear_angle_default_and_validation():
-    p = TL.TiltParams()
+    p = TiltParams()
     assert p.effective_clear_angle() == pytest.approx(math.pi / 4 - 0.0873)
-    assert TL.TiltParams(fall_angle=1.0).effective_clear_angle() == pytest.approx(1.0 - 0.0873)
+    assert TiltParams(fall_angle=1.0).effective_clear_angle() == pytest.approx(1.0 - 0.0873)
     with pytest.raises(ValueError):
-        TL.TiltParams(fall_angle=0.5, clear_angle=0.6)
+        TiltParams(fall_angle=0.5, clear_angle=0.6)
     with pytest.raises(ValueError):
-        TL.TiltParams(mounting_rpy=[0.0, 0.0])
+        TiltParams(mounting_rpy=[0.0, 0.0])
 
 
 def test_rest_snap_recovers_after_missed_rotation():
     # the gyro missed a 90 deg roll (e.g. saturated): the accelerometer alone must fix it
     def tilt_after(snap_deg):
-        p = TL.TiltParams(improved=TL.ImprovedFilterParams(rest_snap_angle=snap_deg))
-        est = TL.TiltEstimator(p, 0.005)
+        p = TiltParams(improved=ImprovedFilterParams(rest_snap_angle=snap_deg))
+        est = make_estimator(p, 0.005)
         for k in range(1000):                                    # 5 s upright at rest
-            est.update(k * 0.005, (0.0, 0.0, 0.0), (0.0, 0.0, G))
+            est.step(k * 0.005, (0.0, 0.0, 0.0), (0.0, 0.0, G))
         s = None
         for k in range(800):                                     # 4 s on its side
-            s = est.update(5.0 + k * 0.005, (0.0, 0.0, 0.0), (0.0, G, 0.0))
+            s = est.step(5.0 + k * 0.005, (0.0, 0.0, 0.0), (0.0, G, 0.0))
         return math.degrees(s.tilt), est.att.snaps
     tilt, snaps = tilt_after(5.0)
     assert snaps >= 1 and tilt == pytest.approx(90.0, abs=1.0)

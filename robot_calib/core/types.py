@@ -242,3 +242,12 @@ class Pose2D:
 
 Sample = Union[ImuSample, OdomSample, ScanSample, JointStateSample, TwistSample,
                NavSatSample, StaticTransform, BoolSample, DiagnosticSample]
+
+
+def imu_samples(t: np.ndarray, gyro: np.ndarray, accel: np.ndarray,
+                frame_id: str = 'imu_link') -> list[ImuSample]:
+    """Return IMU samples from arrays: times (N,) s, rates (N, 3) rad/s, force (N, 3) m/s^2."""
+    g = np.asarray(gyro, dtype=float)
+    a = np.asarray(accel, dtype=float)
+    return [ImuSample(tk, g[k], a[k], frame_id)
+            for k, tk in enumerate(np.asarray(t, dtype=float).tolist())]

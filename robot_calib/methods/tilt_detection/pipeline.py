@@ -37,19 +37,14 @@ from typing import Any, Optional
 import numpy as np
 
 from robot_calib.core import types as T
-from robot_calib.methods.tilt_detection.estimator import TiltEstimator, TiltParams, TiltState
+from robot_calib.core.geometry import quat_to_matrix
+from robot_calib.methods.tilt_detection.common import TiltState
+from robot_calib.methods.tilt_detection.estimator import make_estimator
+from robot_calib.methods.tilt_detection.params import TiltParams
 from robot_calib.pipelines.base import InputSpec, Output, OutputSpec, Pipeline
 
 STATUS_NAME = 'tilt_detection'
 _IDENTITY = (1.0, 0.0, 0.0, 0.0)
-
-
-def _rotate(q: tuple, v: np.ndarray) -> np.ndarray:
-    w, x, y, z = q
-    m = np.array([[1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
-                  [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
-                  [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)]])
-    return m @ v
 
 
 class TiltPipeline(Pipeline):
@@ -69,12 +64,11 @@ class TiltPipeline(Pipeline):
         """Create the estimator from ``params`` (defaults when None)."""
         super().__init__(params, log)
         p = self.params
-        self.est = TiltEstimator(p)
-        self.mounting = tuple(float(v) for v in self.est.mount)
+        self.est = make_estimator(p)
+        self.mounting = self.est.result().mounting
         self.mount_source = 'parameter' if any(p.mounting_rpy) else 'none'
         self.imu_frame: Optional[str] = None
         self.alerts: list[list[float]] = []
-        self.last: Optional[TiltState] = None
         self._first = True
         self._last_diag: Optional[float] = None
         self._rejected_at_diag = 0
@@ -103,8 +97,8 @@ class TiltPipeline(Pipeline):
         q = tuple(float(v) for v in tf.rotation)
         if q == self.mounting and self.mount_source == '/tf_static':
             return
-        self.est.set_mounting(q)
-        self.mounting = tuple(float(v) for v in self.est.mount)
+        self.est.set_mounting(tf)
+        self.mounting = self.est.result().mounting
         self.mount_source = '/tf_static'
         self.log('info', f'IMU mounting from /tf_static {p.base_frame} -> {frame}: '
                  f'q = ({", ".join(f"{v:.4f}" for v in self.mounting)})')
@@ -129,13 +123,10 @@ class TiltPipeline(Pipeline):
         if self.imu_frame is None:
             self.imu_frame = sample.frame_id
             self._apply_tf(sample.frame_id)
-        restarts = self.est.restarts
-        last_t = self.est.last_t
-        s = self.est.update(sample.t, (gx, gy, gz), (ax, ay, az))
-        if self.est.restarts != restarts:
-            self.log('warn', f'IMU gap of {sample.t - last_t:.2f} s (> max_dt {p.max_dt} s): '
+        s = self.est.update(sample)
+        if s.restart_gap:
+            self.log('warn', f'IMU gap of {s.restart_gap:.2f} s (> max_dt {p.max_dt} s): '
                      'attitude filter restarted from the accelerometer')
-        self.last = s
         stamp = T.stamp_of(sample.t, sample.stamp_ns)
         outs: list[Output] = [('imu', self._imu_out(sample, s, stamp))]
         if s.changed or self._first:
@@ -158,9 +149,9 @@ class TiltPipeline(Pipeline):
             return T.ImuSample(sample.t, sample.gyro, sample.accel, sample.frame_id,
                                np.array(s.quat), self._cov, sample.gyro_cov, sample.accel_cov,
                                stamp)
-        m = self.mounting
-        return T.ImuSample(sample.t, _rotate(m, np.asarray(sample.gyro, dtype=float)),
-                           _rotate(m, np.asarray(sample.accel, dtype=float)),
+        rotation = quat_to_matrix(self.mounting)
+        return T.ImuSample(sample.t, rotation @ np.asarray(sample.gyro, dtype=float),
+                           rotation @ np.asarray(sample.accel, dtype=float),
                            self.params.base_frame, np.array(s.quat), self._cov,
                            None, None, stamp)
 
@@ -184,9 +175,10 @@ class TiltPipeline(Pipeline):
         p = self.params
         rejected = self.counts['imu'].get('rejected', 0)
         new_rejects = rejected - self._rejected_at_diag
-        new_restarts = self.est.restarts - self._restarts_at_diag
+        result = self.est.result()
+        new_restarts = result.restarts - self._restarts_at_diag
         self._rejected_at_diag = rejected
-        self._restarts_at_diag = self.est.restarts
+        self._restarts_at_diag = result.restarts
         if s.alert:
             level, message = 2, self._reason
         elif new_restarts:
@@ -207,11 +199,11 @@ class TiltPipeline(Pipeline):
             ('clear_angle_deg', f'{deg(p.effective_clear_angle()):.2f}'),
             ('margin_to_fall_deg', f'{deg(p.fall_angle - s.tilt):.2f}'),
             ('margin_to_clear_deg', f'{deg(p.effective_clear_angle() - s.tilt):.2f}'),
-            ('alert_episodes', str(self.est.detector.episodes)),
+            ('alert_episodes', str(result.alert_episodes)),
             ('gyro_bias_rad_s', ' '.join(f'{b:.5f}' for b in s.bias)),
             ('at_rest', str(s.rest).lower()),
             ('mounting', self.mount_source),
-            ('filter_restarts', str(self.est.restarts)),
+            ('filter_restarts', str(result.restarts)),
             ('samples_rejected', str(rejected)),
         )
         return T.DiagnosticSample(s.t, (T.DiagnosticStatus(STATUS_NAME, level, message,
@@ -221,7 +213,8 @@ class TiltPipeline(Pipeline):
     # -- results ---------------------------------------------------------------------------
     def method_summary(self) -> dict[str, Any]:
         """Return alert episodes, final state, restarts and the gyro bias for summary.json."""
-        last = self.last
+        result = self.est.result()
+        last = result.state
         return {
             'mode': self.params.mode,
             'alerts': len(self.alerts),
@@ -229,10 +222,10 @@ class TiltPipeline(Pipeline):
                                for a, b in self.alerts],
             'alert_active': bool(last.alert) if last else False,
             'final_tilt_deg': math.degrees(last.tilt) if last else None,
-            'max_tilt_deg': math.degrees(self.est.max_tilt),
+            'max_tilt_deg': math.degrees(result.max_tilt),
             'gyro_bias': list(last.bias) if last else None,
-            'gyro_scale': list(self.est.att.scale) if self.est.att is not None else None,
-            'filter_restarts': self.est.restarts,
+            'gyro_scale': None if result.gyro_scale is None else list(result.gyro_scale),
+            'filter_restarts': result.restarts,
             'mounting': self.mount_source,
             'mounting_quat': list(self.mounting),
         }

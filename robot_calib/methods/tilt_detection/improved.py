@@ -1,0 +1,465 @@
+# Copyright 2026 robot_calib contributors
+# SPDX-License-Identifier: Apache-2.0
+"""
+The improved tilt estimator (the default): a whole-sphere attitude filter.
+
+A whole-sphere attitude estimator (unit quaternions only, no Euler angles,
+so a robot on its side or back is an ordinary state). The structure follows
+the ideas published for VQF (Laidig & Seel, *Information Fusion* 2023):
+the gyroscope is integrated into an almost-inertial frame ``I``; the
+accelerometer is rotated into ``I`` and low-pass filtered there (linear
+accelerations of a robot that does not drift away average out, gravity
+does not); a separate inclination correction ``q_inc`` (``I`` -> earth)
+makes the filtered acceleration point up. The correction is therefore
+blind to bumps, vibration and braking shorter than the filter time
+constant. The gyro bias is estimated by a small Kalman filter, from the
+mean rate while the IMU is at rest and, in motion, from the inclination
+corrections the accelerometer asks for. Beyond VQF, the same Kalman
+filter also estimates the three gyro scale factors (MEMS gyros carry
+0.5-2 % sensitivity errors; while turning fast they, not the bias,
+dominate the drift): the gyro error is modelled as ``b + diag(s) w``.
+Written from the published description, not from VQF's code.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Optional
+
+import numpy as np
+
+from robot_calib.methods.tilt_detection.common import align_up, qmul, qnorm, qrot, TiltBase
+from robot_calib.methods.tilt_detection.params import ImprovedFilterParams
+
+
+def _butter2(tau: float, ts: float) -> tuple:
+    """
+    Return (b0, b1, b2, a1, a2) of a 2nd-order Butterworth low-pass, fc = sqrt(2)/(2 pi tau).
+
+    Bilinear transform with pre-warping (Laidig & Seel 2023 choose the cut-off
+    this way so that the filter's step response has time constant ``tau``).
+    """
+    fc = math.sqrt(2.0) / (2.0 * math.pi * tau)
+    c = math.tan(math.pi * min(fc * ts, 0.49))
+    d = c * c + math.sqrt(2.0) * c + 1.0
+    b0 = c * c / d
+    return (b0, 2.0 * b0, b0, 2.0 * (c * c - 1.0) / d, (1.0 - math.sqrt(2.0) * c + c * c) / d)
+
+
+class _LowPass:
+    """
+    A bank of 2nd-order Butterworth low-pass filters (direct form I).
+
+    Direct form I keeps past inputs and outputs as its state, so a new
+    sampling period changes the coefficients without a jump. Until
+    ``tau`` seconds of samples have been seen, the output is the running mean
+    of the inputs (a fast, unbiased start).
+    """
+
+    __slots__ = ('n', 'tau', 'coef', 'x1', 'x2', 'y1', 'y2', 'count', 'sum', 'init_n', 'ready')
+
+    def __init__(self, n: int, tau: float, ts: float):
+        self.n = n
+        self.tau = tau
+        self.coef = _butter2(tau, ts)
+        self.count = 0
+        self.sum = [0.0] * n
+        self.init_n = max(1, int(round(tau / ts)))
+        self.ready = False
+
+    def set_ts(self, ts: float) -> None:
+        """Recompute the coefficients for sampling period ``ts`` (s)."""
+        self.coef = _butter2(self.tau, ts)
+        if not self.ready:
+            self.init_n = max(1, int(round(self.tau / ts)))
+
+    def fill(self, value: list) -> None:
+        """Set the filter to the steady state of a constant input ``value``."""
+        self.x1 = list(value)
+        self.x2 = list(value)
+        self.y1 = list(value)
+        self.y2 = list(value)
+        self.ready = True
+
+    def __call__(self, x: list) -> list:
+        n = self.n
+        if not self.ready:
+            self.count += 1
+            s = self.sum
+            for i in range(n):
+                s[i] += x[i]
+            mean = [v / self.count for v in s]
+            if self.count >= self.init_n:
+                self.x1 = list(mean)
+                self.x2 = list(mean)
+                self.y1 = list(mean)
+                self.y2 = list(mean)
+                self.ready = True
+            return mean
+        b0, b1, b2, a1, a2 = self.coef
+        x1 = self.x1
+        x2 = self.x2
+        y1 = self.y1
+        y2 = self.y2
+        y = [0.0] * n
+        for i in range(n):
+            xi = x[i]
+            yi = b0 * xi + b1 * x1[i] + b2 * x2[i] - a1 * y1[i] - a2 * y2[i]
+            x2[i] = x1[i]
+            x1[i] = xi
+            y2[i] = y1[i]
+            y1[i] = yi
+            y[i] = yi
+        return y
+
+
+class _LowPass3(_LowPass):
+    """The 3-channel case of :class:`_LowPass`, unrolled (it runs several times per sample)."""
+
+    __slots__ = ()
+
+    def __call__(self, x: list) -> list:
+        if not self.ready:
+            return _LowPass.__call__(self, x)
+        b0, b1, b2, a1, a2 = self.coef
+        x1 = self.x1
+        x2 = self.x2
+        y1 = self.y1
+        y2 = self.y2
+        u0, u1, u2 = x[0], x[1], x[2]
+        v0 = b0 * u0 + b1 * x1[0] + b2 * x2[0] - a1 * y1[0] - a2 * y2[0]
+        v1 = b0 * u1 + b1 * x1[1] + b2 * x2[1] - a1 * y1[1] - a2 * y2[1]
+        v2 = b0 * u2 + b1 * x1[2] + b2 * x2[2] - a1 * y1[2] - a2 * y2[2]
+        self.x2 = x1
+        self.x1 = [u0, u1, u2]
+        self.y2 = y1
+        self.y1 = [v0, v1, v2]
+        return [v0, v1, v2]
+
+
+class AttitudeEstimator:
+    """
+    Whole-sphere 6D attitude estimator with gyro bias estimation (see the module docstring).
+
+    Call :meth:`update` with each sample; :attr:`quat` is the sensor-to-earth
+    attitude (yaw drifts; inclination is what the accelerometer observes).
+    """
+
+    def __init__(self, p: ImprovedFilterParams, ts: float = 0.005):
+        """Create the estimator for a nominal sampling period ``ts`` (s)."""
+        self.p = p
+        self.ts = ts
+        self._deg = math.pi / 180.0
+        self._still_rate2 = (p.rest_gyro_threshold * self._deg) ** 2
+        self.reset()
+
+    # -- state ---------------------------------------------------------------------------
+    def reset(self) -> None:
+        """Forget the attitude (the next sample re-initialises from the accelerometer)."""
+        p = self.p
+        ts = self.ts
+        self.q_gyr = (1.0, 0.0, 0.0, 0.0)
+        self.q_inc = (1.0, 0.0, 0.0, 0.0)
+        self.initialised = False
+        self.acc_lp = _LowPass3(3, p.tau_acc, ts)
+        self.rest_gyr_lp = _LowPass3(3, p.rest_tau, ts)
+        self.rest_acc_lp = _LowPass3(3, p.rest_tau, ts)
+        self._bias_every = max(1, int(round(p.bias_update_period / ts)))
+        self._acc_n = 0
+        self._acc_x = self._acc_y = self._acc_dt = 0.0
+        self._acc_g = [0.0, 0.0, 0.0]
+        self.rd_lp = _LowPass(9, p.tau_acc, ts * self._bias_every)
+        self.r_lp = _LowPass(9, p.tau_acc, ts * self._bias_every)
+        self.rb_lp = _LowPass(2, p.tau_acc, ts * self._bias_every)
+        self.rest_time = 0.0
+        self.rest = False
+        self.rest_gyr = (0.0, 0.0, 0.0)
+        self._rest_acc = (0.0, 0.0, 0.0)
+        self.snaps = 0
+        if not hasattr(self, 'bias'):
+            self.bias = [0.0, 0.0, 0.0]
+            self.scale = [0.0, 0.0, 0.0]
+            self.P6 = np.diag([(p.bias_sigma_init * self._deg) ** 2] * 3
+                              + [p.scale_sigma_init ** 2] * 3)
+            s0 = (p.bias_sigma_init * self._deg) ** 2
+            self.P = [[s0, 0.0, 0.0], [0.0, s0, 0.0], [0.0, 0.0, s0]]
+
+    def _set_ts(self, ts: float) -> None:
+        self.ts = ts
+        for f in (self.acc_lp, self.rest_gyr_lp, self.rest_acc_lp):
+            f.set_ts(ts)
+        self._bias_every = max(1, int(round(self.p.bias_update_period / ts)))
+        for f in (self.r_lp, self.rb_lp, self.rd_lp):
+            f.set_ts(ts * self._bias_every)
+
+    @property
+    def quat(self) -> tuple:
+        """Return the sensor-to-earth attitude (w, x, y, z)."""
+        return qmul(self.q_inc, self.q_gyr)
+
+    # -- one sample ----------------------------------------------------------------------
+    def update(self, gx: float, gy: float, gz: float, ax: float, ay: float, az: float,
+               dt: float) -> tuple:
+        """Process one sample (rad/s, m/s^2, s since the previous one); return the quaternion."""
+        p = self.p
+        if abs(dt - self.ts) > 0.2 * self.ts:
+            self._set_ts(dt)
+        if not self.initialised:
+            n = math.sqrt(ax * ax + ay * ay + az * az)
+            self.q_inc = align_up(ax / n, ay / n, az / n)
+            self.q_gyr = (1.0, 0.0, 0.0, 0.0)
+            self.initialised = True
+        else:
+            # Strapdown integration of the bias-corrected rate (exact for a constant rate).
+            b = self.bias
+            sc = self.scale
+            wx = gx - b[0] - sc[0] * gx
+            wy = gy - b[1] - sc[1] * gy
+            wz = gz - b[2] - sc[2] * gz
+            wn = math.sqrt(wx * wx + wy * wy + wz * wz)
+            if wn > 1e-12:
+                half = 0.5 * wn * dt
+                s = math.sin(half) / wn
+                self.q_gyr = qnorm(qmul(self.q_gyr, (math.cos(half), s * wx, s * wy, s * wz)))
+        self._rest_detection(gx, gy, gz, ax, ay, az, dt)
+
+        # Acceleration in the almost-inertial frame, low-pass filtered there.
+        a_i = qrot(self.q_gyr, ax, ay, az)
+        lp = self.acc_lp(a_i)
+        if p.rest_snap_angle > 0.0 and self.rest_time >= p.rest_snap_time \
+                and self.acc_lp.ready and self._turn_rate2(gx, gy, gz) < self._still_rate2:
+            lp = self._rest_snap(lp)
+        # Into the earth frame; correct the inclination so that it points up.
+        ex, ey, ez = qrot(self.q_inc, lp[0], lp[1], lp[2])
+        n = math.sqrt(ex * ex + ey * ey + ez * ez)
+        if n > 1e-9:
+            ex, ey, ez = ex / n, ey / n, ez / n
+            self.q_inc = qnorm(qmul(align_up(ex, ey, ez), self.q_inc))
+        if p.motion_bias or p.rest_bias:
+            # Average the corrections over bias_update_period, then one Kalman update.
+            self._acc_x += ex
+            self._acc_y += ey
+            self._acc_dt += dt
+            self._acc_n += 1
+            ag = self._acc_g
+            ag[0] += gx
+            ag[1] += gy
+            ag[2] += gz
+            if self._acc_n >= self._bias_every:
+                if p.scale_estimation:
+                    n = self._acc_n
+                    self._bias_scale_update(self._acc_x, self._acc_y, self._acc_dt,
+                                            (ag[0] / n, ag[1] / n, ag[2] / n))
+                else:
+                    self._bias_update(self._acc_x, self._acc_y, self._acc_dt)
+                self._acc_n = 0
+                self._acc_x = self._acc_y = self._acc_dt = 0.0
+                self._acc_g = [0.0, 0.0, 0.0]
+        return self.quat
+
+    def _turn_rate2(self, gx: float, gy: float, gz: float) -> float:
+        """Return the squared bias-corrected rate ((rad/s)^2)."""
+        b = self.bias
+        return (gx - b[0]) ** 2 + (gy - b[1]) ** 2 + (gz - b[2]) ** 2
+
+    def _rest_snap(self, lp: list) -> list:
+        """At rest, restart the acceleration filter from the mean reading if they disagree."""
+        m = self._rest_acc
+        mi = qrot(self.q_gyr, m[0], m[1], m[2])
+        dot = mi[0] * lp[0] + mi[1] * lp[1] + mi[2] * lp[2]
+        n2 = (mi[0] ** 2 + mi[1] ** 2 + mi[2] ** 2) * (lp[0] ** 2 + lp[1] ** 2 + lp[2] ** 2)
+        n = math.sqrt(n2)
+        if n <= 0.0 or dot / n > math.cos(self.p.rest_snap_angle * self._deg):
+            return lp
+        self.acc_lp.fill(list(mi))
+        self.snaps += 1
+        return list(mi)
+
+    def _rest_detection(self, gx: float, gy: float, gz: float, ax: float, ay: float,
+                        az: float, dt: float) -> None:
+        p = self.p
+        g = self.rest_gyr_lp([gx, gy, gz])
+        a = self.rest_acc_lp([ax, ay, az])
+        dg = (gx - g[0]) ** 2 + (gy - g[1]) ** 2 + (gz - g[2]) ** 2
+        da = (ax - a[0]) ** 2 + (ay - a[1]) ** 2 + (az - a[2]) ** 2
+        th_g = p.rest_gyro_threshold * self._deg
+        if dg < th_g * th_g and da < p.rest_accel_threshold ** 2:
+            self.rest_time += dt
+            self.rest = self.rest_time >= p.rest_min_time
+            self.rest_gyr = (g[0], g[1], g[2])
+            self._rest_acc = (a[0], a[1], a[2])
+        else:
+            self.rest_time = 0.0
+            self.rest = False
+
+    def _bias_scale_update(self, ex: float, ey: float, dt: float, g: tuple) -> None:
+        """
+        Kalman update of gyro bias (rad/s) and scale factors from rest or the correction.
+
+        The gyro error is modelled as ``b + diag(s) w``; its effect on the
+        inclination is ``R (b + diag(s) w)``, compared after the same low-pass
+        filter as the acceleration with the corrections the accelerometer made.
+        ``g``: mean raw rate (rad/s) over the last ``dt`` seconds.
+        """
+        p = self.p
+        deg = self._deg
+        b = self.bias
+        sc = self.scale
+        w, x, y, z = self.quat
+        R = [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y),
+             2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x),
+             2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)]
+        RD = [R[0] * g[0], R[1] * g[1], R[2] * g[2], R[3] * g[0], R[4] * g[1], R[5] * g[2],
+              R[6] * g[0], R[7] * g[1], R[8] * g[2]]
+        eb = [b[0] + sc[0] * g[0], b[1] + sc[1] * g[1], b[2] + sc[2] * g[2]]
+        rb = [R[0] * eb[0] + R[1] * eb[1] + R[2] * eb[2], R[3] * eb[0] + R[4] * eb[1]
+              + R[5] * eb[2]]
+        Rf = self.r_lp(R)
+        RDf = self.rd_lp(RD)
+        rbf = self.rb_lp(rb)
+        P = self.P6
+        v = (0.1 * deg) ** 2 * dt / p.bias_forgetting_time
+        vs = p.scale_sigma_init ** 2 * dt / (10.0 * p.bias_forgetting_time)
+        if P[0, 0] < (p.bias_sigma_init * deg) ** 2:
+            P[0, 0] += v
+            P[1, 1] += v
+            P[2, 2] += v
+        if P[3, 3] < p.scale_sigma_init ** 2:
+            P[3, 3] += vs
+            P[4, 4] += vs
+            P[5, 5] += vs
+        xs = np.array(b + sc)
+        if self.rest and p.rest_bias:
+            H = np.hstack((np.eye(3), np.zeros((3, 3))))
+            e = np.array([self.rest_gyr[i] - b[i] for i in range(3)])
+            s2 = (p.bias_sigma_rest * deg) ** 2
+            W = np.diag([s2 * s2 / v + s2] * 3)
+        elif p.motion_bias and not self.rest:
+            H = np.hstack((np.array(Rf).reshape(3, 3), np.array(RDf).reshape(3, 3)))
+            hx = H @ xs
+            e = np.array([-ey / dt + rbf[0] - hx[0], ex / dt + rbf[1] - hx[1], -hx[2]])
+            s2 = (p.bias_sigma_motion * deg) ** 2
+            wm = s2 * s2 / v + s2
+            W = np.diag([wm, wm, wm / p.bias_vertical_factor])
+        else:
+            return
+        clip = p.bias_clip * deg
+        e = np.clip(e, -clip, clip)
+        PHt = P @ H.T
+        S = H @ PHt + W
+        try:
+            K = np.linalg.solve(S, PHt.T).T
+        except np.linalg.LinAlgError:
+            return
+        xs = xs + K @ e
+        xs[:3] = np.clip(xs[:3], -clip, clip)
+        xs[3:] = np.clip(xs[3:], -p.scale_clip, p.scale_clip)
+        P = P - K @ PHt.T
+        self.P6 = 0.5 * (P + P.T)   # keep it symmetric over hours of updates
+        self.bias = [float(v) for v in xs[:3]]
+        self.scale = [float(v) for v in xs[3:]]
+
+    def _bias_update(self, ex: float, ey: float, dt: float) -> None:
+        """
+        Kalman update of the gyro bias (3 states, rad/s) from rest or from the correction.
+
+        ``ex``, ``ey``: summed inclination corrections (rad, about earth y and -x) over the
+        last ``dt`` seconds.
+        """
+        p = self.p
+        deg = self._deg
+        b = self.bias
+        w, x, y, z = self.quat
+        # Rotation matrix sensor -> earth (rows).
+        R = [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y),
+             2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x),
+             2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)]
+        rb = [R[0] * b[0] + R[1] * b[1] + R[2] * b[2], R[3] * b[0] + R[4] * b[1] + R[5] * b[2]]
+        # The correction acts through the same low-pass filter as the acceleration, so the
+        # rotation and the bias's effect are filtered alike before they are compared.
+        Rf = self.r_lp(R)
+        rbf = self.rb_lp(rb)
+        P = self.P
+        v = (0.1 * deg) ** 2 * dt / p.bias_forgetting_time
+        p0 = (p.bias_sigma_init * deg) ** 2
+        if P[0][0] < p0:
+            for i in range(3):
+                P[i][i] += v
+        if self.rest and p.rest_bias:
+            H = [1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0]
+            e = [self.rest_gyr[i] - b[i] for i in range(3)]
+            s2 = (p.bias_sigma_rest * deg) ** 2
+            wv = [s2 * s2 / v + s2] * 3
+        elif p.motion_bias and not self.rest:
+            H = Rf
+            # Inclination correction per second (rad/s) about earth x and y.
+            e = [-ey / dt + rbf[0] - (Rf[0] * b[0] + Rf[1] * b[1] + Rf[2] * b[2]),
+                 ex / dt + rbf[1] - (Rf[3] * b[0] + Rf[4] * b[1] + Rf[5] * b[2]),
+                 -(Rf[6] * b[0] + Rf[7] * b[1] + Rf[8] * b[2])]
+            s2 = (p.bias_sigma_motion * deg) ** 2
+            wm = s2 * s2 / v + s2
+            wv = [wm, wm, wm / p.bias_vertical_factor]
+        else:
+            return
+        clip = p.bias_clip * deg
+        e = [min(clip, max(-clip, ei)) for ei in e]
+        # K = P H' (W + H P H')^-1 ; b += K e ; P -= K H P
+        PHt = [[P[i][0] * H[j * 3] + P[i][1] * H[j * 3 + 1] + P[i][2] * H[j * 3 + 2]
+                for j in range(3)] for i in range(3)]
+        S = [[H[i * 3] * PHt[0][j] + H[i * 3 + 1] * PHt[1][j] + H[i * 3 + 2] * PHt[2][j]
+              + (wv[i] if i == j else 0.0) for j in range(3)] for i in range(3)]
+        Si = _inv3(S)
+        if Si is None:
+            return
+        K = [[PHt[i][0] * Si[0][j] + PHt[i][1] * Si[1][j] + PHt[i][2] * Si[2][j]
+              for j in range(3)] for i in range(3)]
+        for i in range(3):
+            b[i] += K[i][0] * e[0] + K[i][1] * e[1] + K[i][2] * e[2]
+            b[i] = min(clip, max(-clip, b[i]))
+        # H P = (P H')' for a symmetric P, so K H P = K PHt'
+        self.P = [[P[i][j] - (K[i][0] * PHt[j][0] + K[i][1] * PHt[j][1] + K[i][2] * PHt[j][2])
+                   for j in range(3)] for i in range(3)]
+
+
+def _inv3(m: list) -> Optional[list]:
+    a, b, c = m[0]
+    d, e, f = m[1]
+    g, h, i = m[2]
+    A = e * i - f * h
+    B = -(d * i - f * g)
+    C = d * h - e * g
+    det = a * A + b * B + c * C
+    if det == 0.0 or not math.isfinite(det):
+        return None
+    r = 1.0 / det
+    return [[A * r, -(b * i - c * h) * r, (b * f - c * e) * r],
+            [B * r, (a * i - c * g) * r, -(a * f - c * d) * r],
+            [C * r, -(a * h - b * g) * r, (a * e - b * d) * r]]
+
+
+class ImprovedTilt(TiltBase):
+    """Tilt detection with the whole-sphere attitude estimator (``mode: improved``)."""
+
+    def __init__(self, params=None, ts: float = 0.005):
+        """Create the estimator with ``params`` and a nominal sampling period ``ts`` (s)."""
+        super().__init__(params, ts)
+        self.att = AttitudeEstimator(self.params.improved, ts)
+
+    def _reset_filter(self) -> None:
+        self.att.reset()
+
+    def _attitude(self, gx: float, gy: float, gz: float, ax: float, ay: float, az: float,
+                  dt: float) -> tuple:
+        m = self.mount
+        q_imu = self.att.update(gx, gy, gz, ax, ay, az, dt)
+        # base_link -> earth = (imu -> earth) * (base_link -> imu)
+        return qmul(q_imu, (m[0], -m[1], -m[2], -m[3])), tuple(self.att.bias), self.att.rest
+
+    def _decision(self, q: tuple, tilt: float) -> tuple:
+        w, x, y, z = q
+        roll = math.atan2(2 * (w * x + y * z), 1 - 2 * (x * x + y * y))
+        pitch = math.asin(max(-1.0, min(1.0, 2 * (w * y - z * x))))
+        return roll, pitch, tilt
+
+    def _gyro_scale(self) -> Optional[tuple]:
+        return tuple(self.att.scale)
