@@ -16,6 +16,7 @@ Units: time s, rates rad/s, specific force m/s^2, angles rad. Quaternions are
 
 from __future__ import annotations
 
+import abc
 from dataclasses import dataclass
 import math
 from typing import Any, Optional, Sequence
@@ -184,7 +185,7 @@ class TiltResult:
     gyro_scale: Optional[tuple] = None
 
 
-class TiltBase:
+class TiltBase(abc.ABC):
     """
     Streaming tilt estimation and fall detection (an Estimator); variants supply the filter.
 
@@ -206,17 +207,18 @@ class TiltBase:
         self.last: Optional[TiltState] = None
 
     # -- the variant's part ----------------------------------------------------------------
+    @abc.abstractmethod
     def _attitude(self, gx: float, gy: float, gz: float, ax: float, ay: float, az: float,
                   dt: float) -> tuple:
         """Return (base_link-to-earth quaternion, bias, at rest) after one sample."""
-        raise NotImplementedError
 
+    @abc.abstractmethod
     def _decision(self, q: tuple, tilt: float) -> tuple:
         """Return (roll, pitch, the angle the fall decision uses) for attitude ``q``."""
-        raise NotImplementedError
 
+    @abc.abstractmethod
     def _reset_filter(self) -> None:
-        raise NotImplementedError
+        """Forget the attitude filter's state."""
 
     def _gyro_scale(self) -> Optional[tuple]:
         return None
