@@ -46,7 +46,7 @@ DATA = REPO.parent / 'shared' / 'data'
 OUT = REPO / 'docs' / 'bench' / '3-tilt.md'
 
 from robot_calib.methods.tilt_detection import params as TL  # noqa: E402
-from robot_calib.methods.tilt_detection.estimator import track  # noqa: E402
+from robot_calib.methods.tilt_detection.variants import track  # noqa: E402
 
 DEG = 180.0 / math.pi
 FALL = math.pi / 4

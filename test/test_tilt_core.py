@@ -7,11 +7,13 @@ import math
 import numpy as np
 import pytest
 
+from robot_calib.core.estimator import run_batch
 from robot_calib.core.geometry import quat_multiply, quat_to_matrix
+from robot_calib.core.types import ImuSample
+from robot_calib.methods.tilt_detection import params as TL
 from robot_calib.methods.tilt_detection.common import FallDetector
-from robot_calib.methods.tilt_detection.estimator import make_estimator, track
-from robot_calib.methods.tilt_detection.params import ImprovedFilterParams, TiltParams
 from robot_calib.methods.tilt_detection.seed import SeedKalmanAxis
+from robot_calib.methods.tilt_detection.variants import make_estimator, track
 
 G = 9.80665
 
@@ -52,6 +54,11 @@ def synth(rate_fn, t_end, fs=200.0, q0=(1.0, 0.0, 0.0, 0.0), lin_acc_fn=None,
         acc[k] = quat_to_matrix(q).T @ a_world
         qs[k] = q
     return t, gyro, acc, qs
+
+
+def imu(t, gyro, accel):
+    """Return one IMU sample (s, rad/s, m/s^2)."""
+    return ImuSample(t, np.array(gyro, dtype=float), np.array(accel, dtype=float))
 
 
 def incl_err_deg(q_est, q_true):
@@ -105,11 +112,11 @@ def test_seed_bias_state_converges():
 
 
 def test_seed_mode_fall_is_angle_outside_range():
-    p = TiltParams(mode='seed')
+    p = TL.TiltParams(mode='seed')
     est = make_estimator(p, 0.01)
     roll = math.radians(50.0)
     acc = (0.0, G * math.sin(roll), G * math.cos(roll))
-    states = [est.step(k * 0.01, (0.0, 0.0, 0.0), acc) for k in range(10)]
+    states = [est.update(imu(k * 0.01, (0.0, 0.0, 0.0), acc)) for k in range(10)]
     assert states[-1].alert
     assert states[-1].roll == pytest.approx(roll, abs=1e-6)
 
@@ -163,28 +170,28 @@ def test_improved_rejects_linear_acceleration():
 
 def test_improved_starts_upside_down_and_on_the_side():
     for acc0, expect in (((0.0, 0.0, -G), 180.0), ((G, 0.0, 0.0), 90.0)):
-        est = make_estimator(TiltParams(), 0.005)
-        s = [est.step(k * 0.005, (0.0, 0.0, 0.0), acc0) for k in range(10)]
+        est = make_estimator(TL.TiltParams(), 0.005)
+        s = [est.update(imu(k * 0.005, (0.0, 0.0, 0.0), acc0)) for k in range(10)]
         assert math.degrees(s[0].tilt) == pytest.approx(expect, abs=1e-6)
         assert s[-1].alert
         assert s[-1].t <= 0.05
 
 
 def test_gap_restarts_filter_and_keeps_alert():
-    est = make_estimator(TiltParams(), 0.005)
+    est = make_estimator(TL.TiltParams(), 0.005)
     for k in range(100):
-        est.step(k * 0.005, (0.0, 0.0, 0.0), (0.0, 0.0, -G))
-    assert est.result().state.alert
-    s = est.step(5.0, (0.0, 0.0, 0.0), (0.0, 0.0, -G))   # a 4.5 s gap
+        est.update(imu(k * 0.005, (0.0, 0.0, 0.0), (0.0, 0.0, -G)))
+    assert est.result().alert
+    s = est.update(imu(5.0, (0.0, 0.0, 0.0), (0.0, 0.0, -G)))   # a 4.5 s gap
     assert est.result().restarts == 1
     assert s.alert
 
 
 def test_mounting_rotation_is_applied():
     # IMU mounted upside down (roll pi) on an upright robot: no alert
-    p = TiltParams(mounting_rpy=[math.pi, 0.0, 0.0])
+    p = TL.TiltParams(mounting_rpy=[math.pi, 0.0, 0.0])
     est = make_estimator(p, 0.005)
-    s = [est.step(k * 0.005, (0.0, 0.0, 0.0), (0.0, 0.0, -G)) for k in range(50)]
+    s = [est.update(imu(k * 0.005, (0.0, 0.0, 0.0), (0.0, 0.0, -G))) for k in range(50)]
     assert math.degrees(s[-1].tilt) < 1e-6
     assert not s[-1].alert
 
@@ -207,27 +214,68 @@ def test_fall_detector_duration_hysteresis_and_clear():
 
 
 def test_params_clear_angle_default_and_validation():
-    p = TiltParams()
+    p = TL.TiltParams()
     assert p.effective_clear_angle() == pytest.approx(math.pi / 4 - 0.0873)
-    assert TiltParams(fall_angle=1.0).effective_clear_angle() == pytest.approx(1.0 - 0.0873)
+    assert TL.TiltParams(fall_angle=1.0).effective_clear_angle() == pytest.approx(1.0 - 0.0873)
     with pytest.raises(ValueError):
-        TiltParams(fall_angle=0.5, clear_angle=0.6)
+        TL.TiltParams(fall_angle=0.5, clear_angle=0.6)
     with pytest.raises(ValueError):
-        TiltParams(mounting_rpy=[0.0, 0.0])
+        TL.TiltParams(mounting_rpy=[0.0, 0.0])
 
 
 def test_rest_snap_recovers_after_missed_rotation():
     # the gyro missed a 90 deg roll (e.g. saturated): the accelerometer alone must fix it
     def tilt_after(snap_deg):
-        p = TiltParams(improved=ImprovedFilterParams(rest_snap_angle=snap_deg))
+        p = TL.TiltParams(improved=TL.ImprovedFilterParams(rest_snap_angle=snap_deg))
         est = make_estimator(p, 0.005)
         for k in range(1000):                                    # 5 s upright at rest
-            est.step(k * 0.005, (0.0, 0.0, 0.0), (0.0, 0.0, G))
+            est.update(imu(k * 0.005, (0.0, 0.0, 0.0), (0.0, 0.0, G)))
         s = None
         for k in range(800):                                     # 4 s on its side
-            s = est.step(5.0 + k * 0.005, (0.0, 0.0, 0.0), (0.0, G, 0.0))
-        return math.degrees(s.tilt), est.att.snaps
+            s = est.update(imu(5.0 + k * 0.005, (0.0, 0.0, 0.0), (0.0, G, 0.0)))
+        return math.degrees(s.tilt), est.result().rest_snaps
     tilt, snaps = tilt_after(5.0)
     assert snaps >= 1 and tilt == pytest.approx(90.0, abs=1.0)
     tilt_off, snaps_off = tilt_after(0.0)
     assert snaps_off == 0 and tilt_off < 85.0
+
+
+# -- the Estimator protocol ------------------------------------------------------------------
+@pytest.mark.parametrize('mode', ['seed', 'improved'])
+def test_variants_implement_the_estimator_protocol(mode):
+    from dataclasses import FrozenInstanceError
+
+    from robot_calib.core.estimator import Estimator
+    from robot_calib.core.types import StaticTransform
+    est = make_estimator(TL.TiltParams(mode=mode), 0.005)
+    assert isinstance(est, Estimator)
+    # an IMU mounted upside down, given by a static transform: upright, no alert
+    est.set_mounting(StaticTransform('base_link', 'imu_link', np.zeros(3),
+                                     np.array([0.0, 1.0, 0.0, 0.0])))
+    run = run_batch(est, [imu(k * 0.005, (0.0, 0.0, 0.0), (0.0, 0.0, -G)) for k in range(50)])
+    r = run.result
+    assert len(run.outputs) == 50 and r.samples == 50 and r.mode == mode
+    assert r.mounting_source == '/tf_static' and r.imu_frame == 'imu_link'
+    assert r.tilt < 1e-6 and not r.alert and r.alert_episodes == ()
+    np.testing.assert_allclose(run.outputs[-1].accel, [0.0, 0.0, G], atol=1e-9)
+    with pytest.raises(FrozenInstanceError):
+        r.restarts = 3
+    # reset forgets the state and keeps the mounting
+    est.reset()
+    assert est.result().samples == 0 and est.result().t is None
+    s = est.update(imu(1.0, (0.0, 0.0, 0.0), (0.0, 0.0, -G)))
+    assert s.tilt < 1e-6 and est.result().mounting_source == '/tf_static'
+
+
+def test_alert_episodes_in_result():
+    p = TL.TiltParams(clear_duration=0.1)
+    est = make_estimator(p, 0.005)
+    for k in range(40):
+        est.update(imu(k * 0.005, (0.0, 0.0, 0.0), (0.0, 0.0, -G)))
+    r = est.result()
+    assert r.alert and len(r.alert_episodes) == 1 and r.alert_episodes[0][1] is None
+    assert r.max_tilt == pytest.approx(math.pi)
+    for k in range(2000):
+        est.update(imu(0.2 + k * 0.005, (0.0, 0.0, 0.0), (0.0, 0.0, G)))
+    r = est.result()
+    assert not r.alert and r.alert_episodes[0][1] is not None

@@ -1,82 +1,35 @@
 # Copyright 2026 robot_calib contributors
 # SPDX-License-Identifier: Apache-2.0
 """
-What both tilt variants share: quaternion helpers on floats, the fall detector, the result types.
+What both ``tilt_detection`` variants share: fall detector, outputs, result, streaming frame.
 
-:class:`TiltBase` is the Estimator (:mod:`robot_calib.core.estimator`) both
-variants derive from: the IMU mounting, gaps, the maximum tilt and the latched
-fall alert (:class:`FallDetector`: the angle between the body z axis, i.e.
-``base_link`` after the mounting rotation, and world up, with a threshold, a
-minimum duration, hysteresis and a clear time). A variant supplies the
-attitude filter (:meth:`TiltBase._attitude`).
+:class:`TiltEstimatorBase` implements the :class:`robot_calib.core.estimator.Estimator`
+protocol once: IMU mounting (``mounting_rpy`` or a static transform
+``base_frame -> IMU frame``, through :mod:`robot_calib.core.frames`), sample
+spacing and gap restarts, the latched fall alert (:class:`FallDetector`) and
+its episodes, the per-sample output :class:`TiltState` and the frozen
+:class:`TiltResult`. A variant (:mod:`.seed`, :mod:`.improved`) supplies the
+attitude filter through ``_estimate`` and ``_restart_filter``.
 
 Units: time s, rates rad/s, specific force m/s^2, angles rad. Quaternions are
-``(w, x, y, z)``, sensor-to-earth.
+``(w, x, y, z)``.
 """
 
 from __future__ import annotations
 
 import abc
 from dataclasses import dataclass
-import math
-from typing import Any, Optional, Sequence
+from typing import Any, ClassVar, Optional
 
 import numpy as np
 
-from robot_calib.core import types as T
+from robot_calib.core.frames import rotation_matrix
+from robot_calib.core.types import ImuSample, StaticTransform
 from robot_calib.methods.tilt_detection.params import TiltParams
+from robot_calib.methods.tilt_detection.quaternion import IDENTITY, qnorm, quat_from_rpy_tuple
 
-
-# --------------------------------------------------------------------------------------------
-# Small quaternion helpers on Python floats (fast for one sample at a time)
-# --------------------------------------------------------------------------------------------
-def qmul(a: tuple, b: tuple) -> tuple:
-    w1, x1, y1, z1 = a
-    w2, x2, y2, z2 = b
-    return (w1 * w2 - x1 * x2 - y1 * y2 - z1 * z2,
-            w1 * x2 + x1 * w2 + y1 * z2 - z1 * y2,
-            w1 * y2 - x1 * z2 + y1 * w2 + z1 * x2,
-            w1 * z2 + x1 * y2 - y1 * x2 + z1 * w2)
-
-
-def qrot(q: tuple, x: float, y: float, z: float) -> tuple:
-    """Rotate (x, y, z) by unit quaternion q: R(q) v."""
-    w, a, b, c = q
-    # t = 2 * (q_vec x v); v' = v + w t + q_vec x t
-    tx = 2.0 * (b * z - c * y)
-    ty = 2.0 * (c * x - a * z)
-    tz = 2.0 * (a * y - b * x)
-    return (x + w * tx + b * tz - c * ty,
-            y + w * ty + c * tx - a * tz,
-            z + w * tz + a * ty - b * tx)
-
-
-def qnorm(q: tuple) -> tuple:
-    n = math.sqrt(q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3])
-    return (q[0] / n, q[1] / n, q[2] / n, q[3] / n)
-
-
-def align_up(x: float, y: float, z: float) -> tuple:
-    """Return the smallest rotation taking unit vector (x, y, z) to (0, 0, 1)."""
-    if z > -0.999999:
-        s = math.sqrt(2.0 * (1.0 + z))
-        return (0.5 * s, y / s, -x / s, 0.0)
-    return (0.0, 1.0, 0.0, 0.0)  # upside down: half turn about x
-
-
-def quat_from_rpy_tuple(roll: float, pitch: float, yaw: float) -> tuple:
-    """Return (w, x, y, z) of R = Rz(yaw) Ry(pitch) Rx(roll) (rad) as a tuple."""
-    cr, sr = math.cos(roll / 2), math.sin(roll / 2)
-    cp, sp = math.cos(pitch / 2), math.sin(pitch / 2)
-    cy, sy = math.cos(yaw / 2), math.sin(yaw / 2)
-    return (cr * cp * cy + sr * sp * sy, sr * cp * cy - cr * sp * sy,
-            cr * sp * cy + sr * cp * sy, cr * cp * sy - sr * sp * cy)
-
-
-def tilt_of(q: tuple) -> float:
-    """Return the tilt (rad, [0, pi]) of sensor-to-earth quaternion q: body z vs world up."""
-    c = 1.0 - 2.0 * (q[1] * q[1] + q[2] * q[2])
-    return math.acos(-1.0 if c < -1.0 else (1.0 if c > 1.0 else c))
+NOMINAL_PERIOD = 0.005
+"""Sampling period assumed before the first sample interval is known (s)."""
 
 
 # --------------------------------------------------------------------------------------------
@@ -137,18 +90,22 @@ class FallDetector:
 
 
 # --------------------------------------------------------------------------------------------
-# Results and the shared estimator
+# Outputs
 # --------------------------------------------------------------------------------------------
 @dataclass
 class TiltState:
     """
-    The result of one sample.
+    What :meth:`TiltEstimatorBase.update` returns for one sample.
 
     ``quat`` is base_link-to-earth (w, x, y, z; yaw not meaningful), ``tilt``
     the angle between base_link z and up (rad), ``roll``/``pitch`` (rad),
     ``alert`` the latched fall alert, ``changed`` True when the alert changed
     on this sample, ``bias`` the gyro bias estimate (rad/s, IMU frame),
-    ``rest`` whether the IMU is at rest.
+    ``rest`` True while the IMU counts as still. ``restart_gap`` is the gap
+    (s) that restarted the filter on this sample (None otherwise).
+    ``gyro`` (rad/s) and ``accel`` (m/s^2) are the sample's vectors in
+    ``frame_id``: the base frame when ``mounted`` (a mounting rotation that is
+    not the identity), else the IMU frame as measured.
     """
 
     t: float
@@ -160,122 +117,236 @@ class TiltState:
     pitch: float = 0.0
     bias: tuple = (0.0, 0.0, 0.0)
     rest: bool = False
-    restart_gap: float = 0.0
-    """The gap (s) after which this sample restarted the attitude filter; 0 when it did not."""
+    restart_gap: Optional[float] = None
+    gyro: Any = None
+    accel: Any = None
+    frame_id: str = ''
+    mounted: bool = False
 
 
 @dataclass(frozen=True)
 class TiltResult:
     """
-    Everything estimated so far.
+    Everything a ``tilt_detection`` estimator has estimated so far.
 
-    ``state`` is the last sample's :class:`TiltState` (None before the first),
-    ``max_tilt`` the largest decision angle seen (rad: the tilt, or for the
-    seed the larger of |roll| and |pitch|), ``mounting`` the IMU frame in
-    base_link (w, x, y, z), ``gyro_scale`` the estimated gyro scale errors
-    (improved variant only).
+    ``t``, ``quat``, ``tilt``, ``roll``, ``pitch``, ``bias`` and ``rest`` are
+    those of the last sample (None before the first one); ``alert`` is the
+    latched fall alert, ``alert_episodes`` its (start s, end s or None while
+    raised) pairs, ``max_tilt`` the largest fall decision value seen (rad: the
+    tilt, or for the seed max(|roll|, |pitch|)), ``restarts`` the filter
+    restarts after gaps. ``scale`` are the gyro scale-factor errors (relative;
+    None for the seed), ``rest_snaps`` the restarts of the acceleration filter
+    at rest (improved only). ``mounting`` is the IMU frame in base_link (w, x,
+    y, z), ``mounting_source`` 'none', 'parameter' or '/tf_static',
+    ``mounting_updates`` how often a static transform set it, ``imu_frame``
+    the frame of the samples (None before the first one).
     """
 
-    state: Optional[TiltState]
-    last_t: Optional[float]
-    restarts: int
+    mode: str
+    samples: int
+    t: Optional[float]
+    quat: Optional[tuple]
+    tilt: Optional[float]
+    roll: Optional[float]
+    pitch: Optional[float]
+    bias: Optional[tuple]
+    rest: bool
+    alert: bool
+    alert_episodes: tuple
     max_tilt: float
-    alert_episodes: int
+    restarts: int
+    scale: Optional[tuple]
+    rest_snaps: int
     mounting: tuple
-    gyro_scale: Optional[tuple] = None
+    mounting_source: str
+    mounting_updates: int
+    imu_frame: Optional[str]
 
 
-class TiltBase(abc.ABC):
+# --------------------------------------------------------------------------------------------
+# Batch helpers
+# --------------------------------------------------------------------------------------------
+def nominal_period(t: Any) -> float:
+    """Return the median sample interval (s) of sample times ``t`` (s), 0.005 s for < 2."""
+    t = np.asarray(t, dtype=float)
+    return float(np.median(np.diff(t))) if t.size > 1 else NOMINAL_PERIOD
+
+
+# --------------------------------------------------------------------------------------------
+# The streaming frame both variants share
+# --------------------------------------------------------------------------------------------
+class TiltEstimatorBase(abc.ABC):
     """
-    Streaming tilt estimation and fall detection (an Estimator); variants supply the filter.
+    Streaming tilt estimation and fall detection (the Estimator protocol); variants subclass.
 
     The caller validates samples (finite, in range, increasing stamps); gaps
-    longer than ``max_dt`` restart the attitude filter from the accelerometer.
+    longer than ``max_dt`` restart the attitude filter from the accelerometer
+    (the alert and the gyro bias are kept).
     """
 
-    def __init__(self, params: Optional[TiltParams] = None, ts: float = 0.005):
+    mode: ClassVar[str] = ''
+    """The value of ``TiltParams.mode`` that selects the variant."""
+
+    def __init__(self, params: Optional[TiltParams] = None, ts: float = NOMINAL_PERIOD):
         """Create the estimator with ``params`` and a nominal sampling period ``ts`` (s)."""
         self.params = params if params is not None else TiltParams()
         p = self.params
-        self.mount = quat_from_rpy_tuple(*p.mounting_rpy)   # IMU frame in base_link
-        self.detector = FallDetector(p.fall_angle, p.fall_min_duration,
-                                     p.effective_clear_angle(), p.clear_duration)
         self.ts = ts
-        self.last_t: Optional[float] = None
-        self.restarts = 0
-        self.max_tilt = 0.0
-        self.last: Optional[TiltState] = None
+        self._transforms: dict[str, StaticTransform] = {}
+        self._imu_frame: Optional[str] = None
+        self._mount_source = 'parameter' if any(p.mounting_rpy) else 'none'
+        self._mount_updates = 0
+        self._set_mount(quat_from_rpy_tuple(*p.mounting_rpy))
+        self.reset()
 
-    # -- the variant's part ----------------------------------------------------------------
-    @abc.abstractmethod
-    def _attitude(self, gx: float, gy: float, gz: float, ax: float, ay: float, az: float,
-                  dt: float) -> tuple:
-        """Return (base_link-to-earth quaternion, bias, at rest) after one sample."""
+    # -- the Estimator protocol ------------------------------------------------------------
+    def set_mounting(self, transform: StaticTransform) -> None:
+        """
+        Take a static transform ``base_frame`` -> IMU frame as the mounting rotation.
 
-    @abc.abstractmethod
-    def _decision(self, q: tuple, tilt: float) -> tuple:
-        """Return (roll, pitch, the angle the fall decision uses) for attitude ``q``."""
-
-    @abc.abstractmethod
-    def _reset_filter(self) -> None:
-        """Forget the attitude filter's state."""
-
-    def _gyro_scale(self) -> Optional[tuple]:
-        return None
-
-    # -- the Estimator API -----------------------------------------------------------------
-    def set_mounting(self, transform: T.StaticTransform) -> None:
-        """Take the IMU mounting rotation from a static transform base_link -> IMU frame."""
-        self.mount = qnorm(tuple(float(v) for v in transform.rotation))
+        Kept only with ``use_tf_static``; it applies once samples come in its
+        child frame (at once when they already do).
+        """
+        p = self.params
+        if not p.use_tf_static or transform.parent != p.base_frame \
+                or transform.child == p.base_frame:
+            return
+        self._transforms[transform.child] = transform
+        if transform.child == self._imu_frame:
+            self._apply_transform(transform)
 
     def reset(self) -> None:
-        """Restart the attitude filter from the next sample (the alert state is kept)."""
-        self._reset_filter()
-        self.detector.interrupt()
-        self.last_t = None
-        self.restarts += 1
+        """Forget the attitude, the alert and its history; keep parameters and mountings."""
+        p = self.params
+        self._detector = FallDetector(p.fall_angle, p.fall_min_duration,
+                                      p.effective_clear_angle(), p.clear_duration)
+        self._episodes: list[tuple[float, Optional[float]]] = []
+        self._last_t: Optional[float] = None
+        self._last: Optional[TiltState] = None
+        self._samples = 0
+        self._restarts = 0
+        self._max_tilt = 0.0
+        self._new_filter()
 
-    def update(self, sample: T.ImuSample) -> TiltState:
-        """Process one IMU sample (gyro rad/s, specific force m/s^2, IMU frame)."""
-        return self.step(sample.t, sample.gyro, sample.accel)
-
-    def step(self, t: float, gyro: Any, accel: Any) -> TiltState:
+    def update(self, sample: ImuSample) -> TiltState:
         """Process one IMU sample: time (s), gyro (rad/s) and specific force (m/s^2)."""
-        gx, gy, gz = float(gyro[0]), float(gyro[1]), float(gyro[2])
-        ax, ay, az = float(accel[0]), float(accel[1]), float(accel[2])
-        dt = self.ts if self.last_t is None else t - self.last_t
-        gap = 0.0
+        g = sample.gyro
+        a = sample.accel
+        gx, gy, gz = float(g[0]), float(g[1]), float(g[2])
+        ax, ay, az = float(a[0]), float(a[1]), float(a[2])
+        t = sample.t
+        if self._imu_frame is None:
+            self._imu_frame = sample.frame_id
+            transform = self._transforms.get(sample.frame_id)
+            if transform is not None:
+                self._apply_transform(transform)
+        dt = self.ts if self._last_t is None else t - self._last_t
+        gap = None
         if dt > self.params.max_dt:
-            self.reset()
-            gap, dt = dt, self.ts
-        self.last_t = t
-        q, bias, rest = self._attitude(gx, gy, gz, ax, ay, az, dt)
-        if q[0] < 0.0:
-            q = (-q[0], -q[1], -q[2], -q[3])
-        tilt = tilt_of(q)
-        roll, pitch, decision = self._decision(q, tilt)
-        if decision > self.max_tilt:
-            self.max_tilt = decision
-        changed = self.detector.update(t, decision)
-        self.last = TiltState(t, q, tilt, self.detector.alert, changed is not None, roll, pitch,
-                              bias, rest, gap)
-        return self.last
+            gap = dt
+            self._restart()
+            dt = self.ts
+        self._last_t = t
+        q, tilt, roll, pitch, bias, rest, decision = self._estimate(gx, gy, gz, ax, ay, az, dt)
+        if decision > self._max_tilt:
+            self._max_tilt = decision
+        changed = self._detector.update(t, decision)
+        if changed is True:
+            self._episodes.append((t, None))
+        elif changed is False and self._episodes:
+            self._episodes[-1] = (self._episodes[-1][0], t)
+        state = TiltState(t, q, tilt, self._detector.alert, changed is not None, roll, pitch,
+                          bias, rest, gap, *self._in_base_frame(sample))
+        self._last = state
+        self._samples += 1
+        return state
 
     def result(self) -> TiltResult:
-        """Return the last state, restarts, maximum tilt, alert episodes and mounting."""
-        return TiltResult(self.last, self.last_t, self.restarts, self.max_tilt,
-                          self.detector.episodes, tuple(self.mount), self._gyro_scale())
+        """Return the estimates so far (see :class:`TiltResult`)."""
+        s = self._last
+        return TiltResult(
+            mode=self.mode, samples=self._samples,
+            t=s.t if s else None, quat=s.quat if s else None, tilt=s.tilt if s else None,
+            roll=s.roll if s else None, pitch=s.pitch if s else None,
+            bias=s.bias if s else None, rest=s.rest if s else False,
+            alert=self._detector.alert, alert_episodes=tuple(self._episodes),
+            max_tilt=self._max_tilt, restarts=self._restarts, scale=self._gyro_scale(),
+            rest_snaps=self._rest_snaps(), mounting=self._mount,
+            mounting_source=self._mount_source, mounting_updates=self._mount_updates,
+            imu_frame=self._imu_frame)
+
+    # -- what a variant supplies -----------------------------------------------------------
+    @abc.abstractmethod
+    def _new_filter(self) -> None:
+        """Create the attitude filter from scratch."""
+
+    @abc.abstractmethod
+    def _restart_filter(self) -> None:
+        """Restart the attitude filter from the next sample (after a gap)."""
+
+    @abc.abstractmethod
+    def _estimate(self, gx: float, gy: float, gz: float, ax: float, ay: float, az: float,
+                  dt: float) -> tuple:
+        """
+        Run the filter on one sample (IMU frame; rad/s, m/s^2, s since the previous one).
+
+        Return (quat base_link-to-earth with w >= 0, tilt rad, roll rad, pitch
+        rad, gyro bias rad/s, at rest, fall decision value rad).
+        """
+
+    def _gyro_scale(self) -> Optional[tuple]:
+        """Return the gyro scale-factor errors (relative), None when not estimated."""
+        return None
+
+    def _rest_snaps(self) -> int:
+        """Return how often the filter restarted from the mean reading at rest."""
+        return 0
+
+    # -- internals -------------------------------------------------------------------------
+    def _restart(self) -> None:
+        """Restart the attitude filter after a gap (the alert state is kept)."""
+        self._restart_filter()
+        self._detector.interrupt()
+        self._last_t = None
+        self._restarts += 1
+
+    def _set_mount(self, q: tuple) -> None:
+        """Set the mounting rotation (IMU frame in base_link, unit (w, x, y, z))."""
+        self._mount = q
+        self._mounted = q != IDENTITY
+        self._mount_matrix = None
+        if self._mounted:
+            transform = StaticTransform(self.params.base_frame, self._imu_frame or '',
+                                        np.zeros(3), np.array(q))
+            self._mount_matrix = rotation_matrix(transform)
+
+    def _apply_transform(self, transform: StaticTransform) -> None:
+        """Take the rotation of a static transform base_frame -> IMU frame as the mounting."""
+        q = tuple(float(v) for v in transform.rotation)
+        if q == self._mount and self._mount_source == '/tf_static':
+            return
+        self._set_mount(qnorm(q))
+        self._mount_source = '/tf_static'
+        self._mount_updates += 1
+
+    def _in_base_frame(self, sample: ImuSample) -> tuple:
+        """Return (gyro, accel, frame, mounted): the sample's vectors in the base frame."""
+        if not self._mounted:
+            return sample.gyro, sample.accel, sample.frame_id, False
+        m = self._mount_matrix
+        return (m @ np.asarray(sample.gyro, dtype=float),
+                m @ np.asarray(sample.accel, dtype=float), self.params.base_frame, True)
 
 
-def stack_states(states: Sequence[TiltState]) -> dict[str, np.ndarray]:
+def outputs_as_arrays(outputs: list[TiltState]) -> dict[str, np.ndarray]:
     """
-    Return the per-sample states of a run as arrays.
+    Return per-sample outputs as arrays (e.g. the ``outputs`` of ``run_batch``).
 
-    ``quat`` (N, 4) base_link-to-earth (w, x, y, z), ``tilt`` (N,) rad, ``alert``
-    (N,) bool, ``bias`` (N, 3) rad/s.
+    ``quat`` (N, 4) base_link-to-earth (w, x, y, z), ``tilt`` (N,) rad,
+    ``alert`` (N,) bool, ``bias`` (N, 3) rad/s.
     """
-    n = len(states)
-    return {'quat': np.array([s.quat for s in states], dtype=float).reshape(n, 4),
-            'tilt': np.array([s.tilt for s in states], dtype=float),
-            'alert': np.array([s.alert for s in states], dtype=bool),
-            'bias': np.array([s.bias for s in states], dtype=float).reshape(n, 3)}
+    n = len(outputs)
+    return {'quat': np.array([o.quat for o in outputs]).reshape(n, 4),
+            'tilt': np.array([o.tilt for o in outputs], dtype=float),
+            'alert': np.array([o.alert for o in outputs], dtype=bool),
+            'bias': np.array([o.bias for o in outputs], dtype=float).reshape(n, 3)}

@@ -1,24 +1,29 @@
 # Copyright 2026 robot_calib contributors
 # SPDX-License-Identifier: Apache-2.0
 """
-The improved tilt estimator (the default): a whole-sphere attitude filter.
+The improved ``tilt_detection`` variant (the default): a whole-sphere attitude estimator.
 
-A whole-sphere attitude estimator (unit quaternions only, no Euler angles,
-so a robot on its side or back is an ordinary state). The structure follows
-the ideas published for VQF (Laidig & Seel, *Information Fusion* 2023):
-the gyroscope is integrated into an almost-inertial frame ``I``; the
-accelerometer is rotated into ``I`` and low-pass filtered there (linear
-accelerations of a robot that does not drift away average out, gravity
-does not); a separate inclination correction ``q_inc`` (``I`` -> earth)
-makes the filtered acceleration point up. The correction is therefore
-blind to bumps, vibration and braking shorter than the filter time
-constant. The gyro bias is estimated by a small Kalman filter, from the
-mean rate while the IMU is at rest and, in motion, from the inclination
-corrections the accelerometer asks for. Beyond VQF, the same Kalman
-filter also estimates the three gyro scale factors (MEMS gyros carry
-0.5-2 % sensitivity errors; while turning fast they, not the bias,
-dominate the drift): the gyro error is modelled as ``b + diag(s) w``.
-Written from the published description, not from VQF's code.
+Unit quaternions only, no Euler angles, so a robot on its side or back is an
+ordinary state. The structure follows the ideas published for VQF (Laidig &
+Seel, *Information Fusion* 2023): the gyroscope is integrated into an
+almost-inertial frame ``I``; the accelerometer is rotated into ``I`` and
+low-pass filtered there (linear accelerations of a robot that does not drift
+away average out, gravity does not); a separate inclination correction
+``q_inc`` (``I`` -> earth) makes the filtered acceleration point up. The
+correction is therefore blind to bumps, vibration and braking shorter than
+the filter time constant. The gyro bias is estimated by a small Kalman
+filter, from the mean rate while the IMU is at rest and, in motion, from the
+inclination corrections the accelerometer asks for. Beyond VQF, the same
+Kalman filter also estimates the three gyro scale factors (MEMS gyros carry
+0.5-2 % sensitivity errors; while turning fast they, not the bias, dominate
+the drift): the gyro error is modelled as ``b + diag(s) w``. Written from the
+published description, not from VQF's code.
+
+The fall decision is the angle between the body z axis (``base_link`` after
+the mounting rotation) and world up.
+
+Units: time s, rates rad/s, specific force m/s^2, angles rad. Quaternions are
+``(w, x, y, z)``, sensor-to-earth.
 """
 
 from __future__ import annotations
@@ -28,113 +33,11 @@ from typing import Optional
 
 import numpy as np
 
-from robot_calib.methods.tilt_detection.common import align_up, qmul, qnorm, qrot, TiltBase
+from robot_calib.methods.tilt_detection.common import TiltEstimatorBase
+from robot_calib.methods.tilt_detection.lowpass import LowPass, LowPass3
 from robot_calib.methods.tilt_detection.params import ImprovedFilterParams
-
-
-def _butter2(tau: float, ts: float) -> tuple:
-    """
-    Return (b0, b1, b2, a1, a2) of a 2nd-order Butterworth low-pass, fc = sqrt(2)/(2 pi tau).
-
-    Bilinear transform with pre-warping (Laidig & Seel 2023 choose the cut-off
-    this way so that the filter's step response has time constant ``tau``).
-    """
-    fc = math.sqrt(2.0) / (2.0 * math.pi * tau)
-    c = math.tan(math.pi * min(fc * ts, 0.49))
-    d = c * c + math.sqrt(2.0) * c + 1.0
-    b0 = c * c / d
-    return (b0, 2.0 * b0, b0, 2.0 * (c * c - 1.0) / d, (1.0 - math.sqrt(2.0) * c + c * c) / d)
-
-
-class _LowPass:
-    """
-    A bank of 2nd-order Butterworth low-pass filters (direct form I).
-
-    Direct form I keeps past inputs and outputs as its state, so a new
-    sampling period changes the coefficients without a jump. Until
-    ``tau`` seconds of samples have been seen, the output is the running mean
-    of the inputs (a fast, unbiased start).
-    """
-
-    __slots__ = ('n', 'tau', 'coef', 'x1', 'x2', 'y1', 'y2', 'count', 'sum', 'init_n', 'ready')
-
-    def __init__(self, n: int, tau: float, ts: float):
-        self.n = n
-        self.tau = tau
-        self.coef = _butter2(tau, ts)
-        self.count = 0
-        self.sum = [0.0] * n
-        self.init_n = max(1, int(round(tau / ts)))
-        self.ready = False
-
-    def set_ts(self, ts: float) -> None:
-        """Recompute the coefficients for sampling period ``ts`` (s)."""
-        self.coef = _butter2(self.tau, ts)
-        if not self.ready:
-            self.init_n = max(1, int(round(self.tau / ts)))
-
-    def fill(self, value: list) -> None:
-        """Set the filter to the steady state of a constant input ``value``."""
-        self.x1 = list(value)
-        self.x2 = list(value)
-        self.y1 = list(value)
-        self.y2 = list(value)
-        self.ready = True
-
-    def __call__(self, x: list) -> list:
-        n = self.n
-        if not self.ready:
-            self.count += 1
-            s = self.sum
-            for i in range(n):
-                s[i] += x[i]
-            mean = [v / self.count for v in s]
-            if self.count >= self.init_n:
-                self.x1 = list(mean)
-                self.x2 = list(mean)
-                self.y1 = list(mean)
-                self.y2 = list(mean)
-                self.ready = True
-            return mean
-        b0, b1, b2, a1, a2 = self.coef
-        x1 = self.x1
-        x2 = self.x2
-        y1 = self.y1
-        y2 = self.y2
-        y = [0.0] * n
-        for i in range(n):
-            xi = x[i]
-            yi = b0 * xi + b1 * x1[i] + b2 * x2[i] - a1 * y1[i] - a2 * y2[i]
-            x2[i] = x1[i]
-            x1[i] = xi
-            y2[i] = y1[i]
-            y1[i] = yi
-            y[i] = yi
-        return y
-
-
-class _LowPass3(_LowPass):
-    """The 3-channel case of :class:`_LowPass`, unrolled (it runs several times per sample)."""
-
-    __slots__ = ()
-
-    def __call__(self, x: list) -> list:
-        if not self.ready:
-            return _LowPass.__call__(self, x)
-        b0, b1, b2, a1, a2 = self.coef
-        x1 = self.x1
-        x2 = self.x2
-        y1 = self.y1
-        y2 = self.y2
-        u0, u1, u2 = x[0], x[1], x[2]
-        v0 = b0 * u0 + b1 * x1[0] + b2 * x2[0] - a1 * y1[0] - a2 * y2[0]
-        v1 = b0 * u1 + b1 * x1[1] + b2 * x2[1] - a1 * y1[1] - a2 * y2[1]
-        v2 = b0 * u2 + b1 * x1[2] + b2 * x2[2] - a1 * y1[2] - a2 * y2[2]
-        self.x2 = x1
-        self.x1 = [u0, u1, u2]
-        self.y2 = y1
-        self.y1 = [v0, v1, v2]
-        return [v0, v1, v2]
+from robot_calib.methods.tilt_detection.quaternion import (align_up, positive_w, qmul, qnorm,
+                                                           qrot, tilt_of)
 
 
 class AttitudeEstimator:
@@ -161,16 +64,16 @@ class AttitudeEstimator:
         self.q_gyr = (1.0, 0.0, 0.0, 0.0)
         self.q_inc = (1.0, 0.0, 0.0, 0.0)
         self.initialised = False
-        self.acc_lp = _LowPass3(3, p.tau_acc, ts)
-        self.rest_gyr_lp = _LowPass3(3, p.rest_tau, ts)
-        self.rest_acc_lp = _LowPass3(3, p.rest_tau, ts)
+        self.acc_lp = LowPass3(3, p.tau_acc, ts)
+        self.rest_gyr_lp = LowPass3(3, p.rest_tau, ts)
+        self.rest_acc_lp = LowPass3(3, p.rest_tau, ts)
         self._bias_every = max(1, int(round(p.bias_update_period / ts)))
         self._acc_n = 0
         self._acc_x = self._acc_y = self._acc_dt = 0.0
         self._acc_g = [0.0, 0.0, 0.0]
-        self.rd_lp = _LowPass(9, p.tau_acc, ts * self._bias_every)
-        self.r_lp = _LowPass(9, p.tau_acc, ts * self._bias_every)
-        self.rb_lp = _LowPass(2, p.tau_acc, ts * self._bias_every)
+        self.rd_lp = LowPass(9, p.tau_acc, ts * self._bias_every)
+        self.r_lp = LowPass(9, p.tau_acc, ts * self._bias_every)
+        self.rb_lp = LowPass(2, p.tau_acc, ts * self._bias_every)
         self.rest_time = 0.0
         self.rest = False
         self.rest_gyr = (0.0, 0.0, 0.0)
@@ -437,29 +340,43 @@ def _inv3(m: list) -> Optional[list]:
             [C * r, -(a * h - b * g) * r, (a * e - b * d) * r]]
 
 
-class ImprovedTilt(TiltBase):
-    """Tilt detection with the whole-sphere attitude estimator (``mode: improved``)."""
+class ImprovedTiltEstimator(TiltEstimatorBase):
+    """
+    Tilt and fall alert from the whole-sphere attitude estimator (``mode: improved``).
 
-    def __init__(self, params=None, ts: float = 0.005):
-        """Create the estimator with ``params`` and a nominal sampling period ``ts`` (s)."""
-        super().__init__(params, ts)
-        self.att = AttitudeEstimator(self.params.improved, ts)
+    Implements the Estimator protocol; the attitude is that of
+    :class:`AttitudeEstimator` (IMU frame) turned into base_link by the
+    mounting, the fall decision the tilt of base_link z from up.
+    """
 
-    def _reset_filter(self) -> None:
-        self.att.reset()
+    mode = 'improved'
 
-    def _attitude(self, gx: float, gy: float, gz: float, ax: float, ay: float, az: float,
+    def _new_filter(self) -> None:
+        """Create the attitude filter for the nominal sampling period."""
+        self._filter = AttitudeEstimator(self.params.improved, self.ts)
+
+    def _restart_filter(self) -> None:
+        """Restart the attitude from the next sample (gyro bias and scale are kept)."""
+        self._filter.reset()
+
+    def _estimate(self, gx: float, gy: float, gz: float, ax: float, ay: float, az: float,
                   dt: float) -> tuple:
-        m = self.mount
-        q_imu = self.att.update(gx, gy, gz, ax, ay, az, dt)
+        """Run the attitude filter on one sample (see :meth:`TiltEstimatorBase._estimate`)."""
+        f = self._filter
+        q_imu = f.update(gx, gy, gz, ax, ay, az, dt)
+        m = self._mount
         # base_link -> earth = (imu -> earth) * (base_link -> imu)
-        return qmul(q_imu, (m[0], -m[1], -m[2], -m[3])), tuple(self.att.bias), self.att.rest
-
-    def _decision(self, q: tuple, tilt: float) -> tuple:
+        q = positive_w(qmul(q_imu, (m[0], -m[1], -m[2], -m[3])))
+        tilt = tilt_of(q)
         w, x, y, z = q
         roll = math.atan2(2 * (w * x + y * z), 1 - 2 * (x * x + y * y))
         pitch = math.asin(max(-1.0, min(1.0, 2 * (w * y - z * x))))
-        return roll, pitch, tilt
+        return q, tilt, roll, pitch, tuple(f.bias), f.rest, tilt
 
     def _gyro_scale(self) -> Optional[tuple]:
-        return tuple(self.att.scale)
+        """Return the gyro scale-factor errors (relative, IMU axes)."""
+        return tuple(self._filter.scale)
+
+    def _rest_snaps(self) -> int:
+        """Return how often the acceleration filter restarted from the mean reading at rest."""
+        return self._filter.snaps

@@ -5,7 +5,7 @@ The ``tilt_detection`` node: ``imu`` in; ``tilt/imu``, ``tilt/fall_alert``, ``/d
 
 A thin wrapper of :class:`robot_calib.methods.tilt_detection.pipeline.TiltPipeline`
 through :mod:`robot_calib.nodes.base` (parameters from
-:class:`robot_calib.methods.tilt_detection.estimator.TiltParams`).
+:class:`robot_calib.methods.tilt_detection.params.TiltParams`).
 """
 
 from __future__ import annotations

@@ -1,6 +1,12 @@
 # Copyright 2026 robot_calib contributors
 # SPDX-License-Identifier: Apache-2.0
-"""Parameters of tilt detection: the seed filter, the improved estimator, the alert."""
+"""
+Parameters of ``tilt_detection`` (the single source of their defaults).
+
+:class:`TiltParams` holds the node's ROS parameters; ``seed`` and ``improved``
+hold the settings of the two estimator variants (:mod:`.seed`, :mod:`.improved`).
+Units: time s, rates rad/s (settings in deg/s where named so), angles rad.
+"""
 
 from __future__ import annotations
 

@@ -37,14 +37,12 @@ from typing import Any, Optional
 import numpy as np
 
 from robot_calib.core import types as T
-from robot_calib.core.geometry import quat_to_matrix
-from robot_calib.methods.tilt_detection.common import TiltState
-from robot_calib.methods.tilt_detection.estimator import make_estimator
+from robot_calib.methods.tilt_detection.common import TiltResult, TiltState
 from robot_calib.methods.tilt_detection.params import TiltParams
+from robot_calib.methods.tilt_detection.variants import make_estimator
 from robot_calib.pipelines.base import InputSpec, Output, OutputSpec, Pipeline
 
 STATUS_NAME = 'tilt_detection'
-_IDENTITY = (1.0, 0.0, 0.0, 0.0)
 
 
 class TiltPipeline(Pipeline):
@@ -63,45 +61,32 @@ class TiltPipeline(Pipeline):
     def __init__(self, params: Optional[TiltParams] = None, log: Any = None):
         """Create the estimator from ``params`` (defaults when None)."""
         super().__init__(params, log)
-        p = self.params
-        self.est = make_estimator(p)
-        self.mounting = self.est.result().mounting
-        self.mount_source = 'parameter' if any(p.mounting_rpy) else 'none'
-        self.imu_frame: Optional[str] = None
-        self.alerts: list[list[float]] = []
+        self.est = make_estimator(self.params)
+        self.last: Optional[TiltState] = None
         self._first = True
+        self._mount_updates = 0
         self._last_diag: Optional[float] = None
         self._rejected_at_diag = 0
         self._restarts_at_diag = 0
         self._last_stop: Optional[float] = None
         self._reason = 'upright'
-        self._cov = self._orientation_cov()
+        rp = 0.02 ** 2 if self.params.mode == 'improved' else 0.05 ** 2
+        self._cov = np.diag([rp, rp, 1e3])
 
     # -- configuration -----------------------------------------------------------------------
-    def _orientation_cov(self) -> np.ndarray:
-        rp = 0.02 ** 2 if self.params.mode == 'improved' else 0.05 ** 2
-        return np.diag([rp, rp, 1e3])
-
     def on_static_transform(self, transform: T.StaticTransform) -> None:
-        """Take the IMU mounting rotation from base_frame -> IMU frame when it arrives."""
-        if self.imu_frame is not None:
-            self._apply_tf(self.imu_frame)
+        """Forward a static transform to the estimator (base_frame -> IMU frame: the mounting)."""
+        self.est.set_mounting(transform)
+        self._log_mounting()
 
-    def _apply_tf(self, frame: str) -> None:
-        p = self.params
-        if not p.use_tf_static or frame == p.base_frame:
+    def _log_mounting(self) -> None:
+        """Log the mounting when a static transform has just set it."""
+        r = self.est.result()
+        if r.mounting_updates == self._mount_updates:
             return
-        tf = self.static_transforms.get((p.base_frame, frame))
-        if tf is None:
-            return
-        q = tuple(float(v) for v in tf.rotation)
-        if q == self.mounting and self.mount_source == '/tf_static':
-            return
-        self.est.set_mounting(tf)
-        self.mounting = self.est.result().mounting
-        self.mount_source = '/tf_static'
-        self.log('info', f'IMU mounting from /tf_static {p.base_frame} -> {frame}: '
-                 f'q = ({", ".join(f"{v:.4f}" for v in self.mounting)})')
+        self._mount_updates = r.mounting_updates
+        self.log('info', f'IMU mounting from /tf_static {self.params.base_frame} -> '
+                 f'{r.imu_frame}: q = ({", ".join(f"{v:.4f}" for v in r.mounting)})')
 
     # -- samples ---------------------------------------------------------------------------
     def handle(self, key: str, sample: Any) -> list[Output]:
@@ -120,13 +105,13 @@ class TiltPipeline(Pipeline):
             return self.reject(key, 'accel_zero')
         if gx * gx + gy * gy + gz * gz > p.max_gyro * p.max_gyro:
             return self.reject(key, 'gyro_out_of_range')
-        if self.imu_frame is None:
-            self.imu_frame = sample.frame_id
-            self._apply_tf(sample.frame_id)
         s = self.est.update(sample)
-        if s.restart_gap:
+        if self._first:
+            self._log_mounting()
+        if s.restart_gap is not None:
             self.log('warn', f'IMU gap of {s.restart_gap:.2f} s (> max_dt {p.max_dt} s): '
                      'attitude filter restarted from the accelerometer')
+        self.last = s
         stamp = T.stamp_of(sample.t, sample.stamp_ns)
         outs: list[Output] = [('imu', self._imu_out(sample, s, stamp))]
         if s.changed or self._first:
@@ -145,40 +130,37 @@ class TiltPipeline(Pipeline):
         return outs
 
     def _imu_out(self, sample: T.ImuSample, s: TiltState, stamp: int) -> T.ImuSample:
-        if self.mounting == _IDENTITY:
+        """Return the sample with the attitude filled (in the base frame when mounted)."""
+        if not s.mounted:
             return T.ImuSample(sample.t, sample.gyro, sample.accel, sample.frame_id,
                                np.array(s.quat), self._cov, sample.gyro_cov, sample.accel_cov,
                                stamp)
-        rotation = quat_to_matrix(self.mounting)
-        return T.ImuSample(sample.t, rotation @ np.asarray(sample.gyro, dtype=float),
-                           rotation @ np.asarray(sample.accel, dtype=float),
-                           self.params.base_frame, np.array(s.quat), self._cov,
+        return T.ImuSample(sample.t, s.gyro, s.accel, s.frame_id, np.array(s.quat), self._cov,
                            None, None, stamp)
 
     def _on_change(self, s: TiltState) -> None:
+        """Log an alert change and keep its reason for the diagnostics."""
         p = self.params
         if s.alert:
-            self.alerts.append([s.t, math.nan])
             self._reason = (f'fallen: tilt {math.degrees(s.tilt):.1f} deg above fall_angle '
                             f'{math.degrees(p.fall_angle):.1f} deg for '
                             f'>= {p.fall_min_duration:.3f} s')
             self.log('warn', f'FALL ALERT at t = {s.t:.3f} s: {self._reason}')
         else:
-            if self.alerts:
-                self.alerts[-1][1] = s.t
             self._reason = (f'upright again: tilt below clear_angle '
                             f'{math.degrees(p.effective_clear_angle()):.1f} deg for '
                             f'{p.clear_duration:.2f} s')
             self.log('info', f'fall alert cleared at t = {s.t:.3f} s')
 
     def _diagnostics(self, s: TiltState, stamp: int) -> T.DiagnosticSample:
+        """Return the /diagnostics status for the last sample."""
         p = self.params
+        r = self.est.result()
         rejected = self.counts['imu'].get('rejected', 0)
         new_rejects = rejected - self._rejected_at_diag
-        result = self.est.result()
-        new_restarts = result.restarts - self._restarts_at_diag
+        new_restarts = r.restarts - self._restarts_at_diag
         self._rejected_at_diag = rejected
-        self._restarts_at_diag = result.restarts
+        self._restarts_at_diag = r.restarts
         if s.alert:
             level, message = 2, self._reason
         elif new_restarts:
@@ -199,35 +181,33 @@ class TiltPipeline(Pipeline):
             ('clear_angle_deg', f'{deg(p.effective_clear_angle()):.2f}'),
             ('margin_to_fall_deg', f'{deg(p.fall_angle - s.tilt):.2f}'),
             ('margin_to_clear_deg', f'{deg(p.effective_clear_angle() - s.tilt):.2f}'),
-            ('alert_episodes', str(result.alert_episodes)),
+            ('alert_episodes', str(len(r.alert_episodes))),
             ('gyro_bias_rad_s', ' '.join(f'{b:.5f}' for b in s.bias)),
             ('at_rest', str(s.rest).lower()),
-            ('mounting', self.mount_source),
-            ('filter_restarts', str(result.restarts)),
+            ('mounting', r.mounting_source),
+            ('filter_restarts', str(r.restarts)),
             ('samples_rejected', str(rejected)),
         )
         return T.DiagnosticSample(s.t, (T.DiagnosticStatus(STATUS_NAME, level, message,
-                                                           self.imu_frame or '', values),),
+                                                           r.imu_frame or '', values),),
                                   stamp)
 
     # -- results ---------------------------------------------------------------------------
     def method_summary(self) -> dict[str, Any]:
         """Return alert episodes, final state, restarts and the gyro bias for summary.json."""
-        result = self.est.result()
-        last = result.state
+        r: TiltResult = self.est.result()
         return {
             'mode': self.params.mode,
-            'alerts': len(self.alerts),
-            'alert_episodes': [{'start': a, 'end': (None if math.isnan(b) else b)}
-                               for a, b in self.alerts],
-            'alert_active': bool(last.alert) if last else False,
-            'final_tilt_deg': math.degrees(last.tilt) if last else None,
-            'max_tilt_deg': math.degrees(result.max_tilt),
-            'gyro_bias': list(last.bias) if last else None,
-            'gyro_scale': None if result.gyro_scale is None else list(result.gyro_scale),
-            'filter_restarts': result.restarts,
-            'mounting': self.mount_source,
-            'mounting_quat': list(self.mounting),
+            'alerts': len(r.alert_episodes),
+            'alert_episodes': [{'start': a, 'end': b} for a, b in r.alert_episodes],
+            'alert_active': r.alert,
+            'final_tilt_deg': math.degrees(r.tilt) if r.tilt is not None else None,
+            'max_tilt_deg': math.degrees(r.max_tilt),
+            'gyro_bias': list(r.bias) if r.bias is not None else None,
+            'gyro_scale': list(r.scale) if r.scale is not None else None,
+            'filter_restarts': r.restarts,
+            'mounting': r.mounting_source,
+            'mounting_quat': list(r.mounting),
         }
 
 

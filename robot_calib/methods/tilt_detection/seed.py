@@ -1,13 +1,15 @@
 # Copyright 2026 robot_calib contributors
 # SPDX-License-Identifier: Apache-2.0
 """
-The seed-faithful tilt estimator: seed 002's per-axis two-state Kalman filter.
+The seed-faithful ``tilt_detection`` variant: seed 002's per-axis Kalman filter.
 
 State ``X = [angle, gyro_bias]`` for roll and for pitch, the gyro rate as the
 control input, the accelerometer roll/pitch as the observation,
 ``A = [[1, -dt], [0, 1]]``, ``B = [dt, 0]'``, ``H = [1, 0]``,
 ``Q = diag(Q_angle, Q_gyro)``, scalar ``R``. The fall decision is the seed's
 "angle outside a preset range": ``|roll| > fall_angle or |pitch| > fall_angle``.
+
+Units: time s, rates rad/s, specific force m/s^2, angles rad.
 """
 
 from __future__ import annotations
@@ -17,8 +19,10 @@ from typing import Optional
 
 import numpy as np
 
-from robot_calib.methods.tilt_detection.common import qrot, quat_from_rpy_tuple, TiltBase
+from robot_calib.methods.tilt_detection.common import TiltEstimatorBase
 from robot_calib.methods.tilt_detection.params import SeedFilterParams
+from robot_calib.methods.tilt_detection.quaternion import (positive_w, qrot, quat_from_rpy_tuple,
+                                                           tilt_of)
 
 
 class SeedKalmanAxis:
@@ -102,29 +106,34 @@ class SeedEstimator:
         return quat_from_rpy_tuple(roll, pitch, 0.0), roll, pitch
 
 
-class SeedTilt(TiltBase):
-    """Tilt detection exactly as seed 002 describes it (``mode: seed``)."""
+class SeedTiltEstimator(TiltEstimatorBase):
+    """
+    Tilt and fall alert from the seed's filter (``mode: seed``; Estimator protocol).
 
-    def __init__(self, params=None, ts: float = 0.005):
-        """Create the estimator with ``params`` and a nominal sampling period ``ts`` (s)."""
-        super().__init__(params, ts)
-        self.filter = SeedEstimator(self.params.seed)
-        self._rp = (0.0, 0.0)
+    The seed's filter works in the body frame: the measurements are rotated
+    by the mounting first. Its attitude is Rx(roll) Ry(pitch) (yaw 0), its
+    fall decision ``max(|roll|, |pitch|)``.
+    """
 
-    def _reset_filter(self) -> None:
-        self.filter.reset()
+    mode = 'seed'
 
-    def _attitude(self, gx: float, gy: float, gz: float, ax: float, ay: float, az: float,
+    def _new_filter(self) -> None:
+        """Create the two axis filters (they start from the next accelerometer sample)."""
+        self._filter = SeedEstimator(self.params.seed)
+
+    def _restart_filter(self) -> None:
+        """Restart both axes from the next accelerometer sample."""
+        self._filter.reset()
+
+    def _estimate(self, gx: float, gy: float, gz: float, ax: float, ay: float, az: float,
                   dt: float) -> tuple:
-        # The seed's filter works in the body frame: rotate the measurements first.
-        m = self.mount
+        """Run the seed's filter on one sample (see :meth:`TiltEstimatorBase._estimate`)."""
+        m = self._mount
         gx, gy, gz = qrot(m, gx, gy, gz)
         ax, ay, az = qrot(m, ax, ay, az)
-        q, roll, pitch = self.filter.update(gx, gy, gz, ax, ay, az, dt)
-        self._rp = (roll, pitch)
-        return q, (self.filter.roll.x[1], self.filter.pitch.x[1], 0.0), False
-
-    def _decision(self, q: tuple, tilt: float) -> tuple:
-        roll, pitch = self._rp
+        f = self._filter
+        q, roll, pitch = f.update(gx, gy, gz, ax, ay, az, dt)
+        bias = (f.roll.x[1], f.pitch.x[1], 0.0)
+        q = positive_w(q)
         # seed 002: fallen when an angle leaves the preset range
-        return roll, pitch, max(abs(roll), abs(pitch))
+        return q, tilt_of(q), roll, pitch, bias, False, max(abs(roll), abs(pitch))
