@@ -7,7 +7,7 @@ from pathlib import Path
 import pytest
 
 REPO = Path(__file__).resolve().parent.parent
-LINTED = ['robot_calib', 'test', 'benchmarks', 'setup.py']
+LINTED = ['robot_calib', 'test', 'benchmarks', 'launch', 'setup.py']
 HEADER = ('# Copyright 2026 robot_calib contributors\n'
           '# SPDX-License-Identifier: Apache-2.0\n')
 

@@ -28,7 +28,9 @@ def test_package_xml_is_valid_format_3():
     assert pkg.get_build_type() == 'ament_python'
     assert all('@' in m.email for m in pkg.maintainers)
     names = {d.name for d in pkg.exec_depends}
-    assert {'rclpy', 'sensor_msgs', 'nav_msgs', 'diagnostic_msgs'} <= names
+    assert {'rclpy', 'sensor_msgs', 'nav_msgs', 'diagnostic_msgs', 'geometry_msgs', 'std_msgs',
+            'rosgraph_msgs', 'builtin_interfaces', 'rcl_interfaces', 'tf2_msgs',
+            'python3-rosbags-pip', 'python3-kiss-icp-pip'} <= names
 
 
 def test_setup_installs_scripts_where_ros2_run_looks():
@@ -143,3 +145,19 @@ def test_installed_node_starts_and_stops_cleanly(install_space):
         if proc.poll() is None:
             proc.kill()
     assert rc == 0, ''.join(lines) + proc.stdout.read()
+
+
+def test_launch_file_declares_every_node_and_the_params_file():
+    """launch/robot_calib.launch.py parses, takes the installed params file, knows every node."""
+    import ast
+    path = REPO / 'launch' / 'robot_calib.launch.py'
+    tree = ast.parse(path.read_text())
+    functions = {f.name for f in tree.body if isinstance(f, ast.FunctionDef)}
+    assert 'generate_launch_description' in functions
+    args = {c.args[0].value for c in ast.walk(tree) if isinstance(c, ast.Call)
+            and getattr(c.func, 'id', '') == 'DeclareLaunchArgument'}
+    assert args == {'nodes', 'params_file', 'namespace', 'use_sim_time'}
+    text = path.read_text()
+    assert "'robot_calib.yaml'" in text and 'methods.names()' in text
+    setup = (REPO / 'setup.py').read_text()
+    assert "glob('launch/*.launch.py')" in setup
