@@ -7,9 +7,15 @@ import math
 import numpy as np
 import pytest
 from robot_calib.core import types as T
+from robot_calib.core.estimator import run_batch
 from robot_calib.core.geometry import quat_from_rpy, quat_to_matrix, wrap_angle
-from robot_calib.methods.odometry_fusion import estimator as F
+from robot_calib.methods.odometry_fusion import common as F
+from robot_calib.methods.odometry_fusion.common import LidarOdomSample, Rejected
+from robot_calib.methods.odometry_fusion.improved import IBG, ImprovedFusion, IV
+from robot_calib.methods.odometry_fusion.params import FusionParams
 from robot_calib.methods.odometry_fusion.pipeline import FusionPipeline
+from robot_calib.methods.odometry_fusion.seed import SeedFusion
+from robot_calib.methods.odometry_fusion.variants import make_estimator
 
 HUSKY_RPY = [math.pi / 2, 0.0, -math.pi / 2]
 
@@ -97,16 +103,28 @@ def raw_ate(samples, truth):
     return ate([s for k, s in samples if k == 'odom'], truth)
 
 
+def run(samples, params):
+    """Run the filter of ``params.mode`` over (kind, sample) pairs; return (estimates, result)."""
+    batch = run_batch(make_estimator(params), [s for _, s in samples], keep=F.from_odometry)
+    return batch.outputs, batch.result
+
+
+def used(out):
+    """Tell whether the filter used the sample (its update returned no rejection)."""
+    return not isinstance(out, Rejected)
+
+
 # ---------------------------------------------------------------------------------------
 # seed-faithful mode: hand-computed steps
 # ---------------------------------------------------------------------------------------
 def test_seed_step_matches_hand_computation():
-    p = F.FusionParams(mode='seed', imu_extrinsic='param', accel_units='mps2')
-    f = F.SeedFusion(p)
+    p = FusionParams(mode='seed', imu_extrinsic='param', accel_units='mps2')
+    f = SeedFusion(p)
     grav = np.array([0.0, 0.0, 9.80665])
-    assert f.imu(T.ImuSample(0.0, np.zeros(3), grav)) is None
-    assert f.odom(T.OdomSample(0.0, 0.0, 0.0, 0.0, 0.0)) is None
-    assert f.imu(T.ImuSample(0.1, np.zeros(3), grav + [1.0, 0.0, 0.0])) is None
+    assert f.update(T.ImuSample(0.0, np.zeros(3), grav)) is None
+    assert used(f.update(T.OdomSample(0.0, 0.0, 0.0, 0.0, 0.0)))
+    assert f.update(T.ImuSample(0.1, np.zeros(3), grav + [1.0, 0.0, 0.0])) is None
+    r = f.result()
     # prediction by hand: x = F x = 0; then the IMU acceleration (1, 0) enters ax, ay
     dt = 0.1
     Fm = np.eye(6)
@@ -116,38 +134,40 @@ def test_seed_step_matches_hand_computation():
     P0 = np.diag([1e-4, 1e-4, 1e-2, 1e-2, 1e-1, 1e-1])
     Q = np.diag([1e-4, 1e-4, 1e-3, 1e-3, 1e-2, 1e-2])
     P = Fm @ P0 @ Fm.T + Q
-    np.testing.assert_allclose(f.x, [0, 0, 0, 0, 1.0, 0], atol=1e-12)
-    np.testing.assert_allclose(f.P, P, rtol=1e-12)
+    np.testing.assert_allclose(r.state, [0, 0, 0, 0, 1.0, 0], atol=1e-12)
+    np.testing.assert_allclose(r.covariance, P, rtol=1e-12)
     # observation: odometry v = 0.5 m/s straight ahead after 0.1 s
-    assert f.odom(T.OdomSample(0.1, 0.05, 0.0, 0.0, 0.5)) is None
+    assert used(f.update(T.OdomSample(0.1, 0.05, 0.0, 0.0, 0.5)))
+    r = f.result()
     z = np.array([0.05, 0.0, 0.5, 0.0, 5.0, 0.0])  # x += v dt; a = (0.5 - 0) / 0.1
     Ro = np.diag([1e-4, 1e-4, 1e-3, 1e-3, 1e-1, 1e-1])
     Po = Fm @ np.zeros((6, 6)) @ Fm.T + Ro
     S = P + Po
     K = P @ np.linalg.inv(S)
     x = np.array([0, 0, 0, 0, 1.0, 0]) + K @ (z - np.array([0, 0, 0, 0, 1.0, 0]))
-    np.testing.assert_allclose(f.z, z, atol=1e-12)
-    np.testing.assert_allclose(f.Po, Po, rtol=1e-12)
-    np.testing.assert_allclose(f.x, x, rtol=1e-10, atol=1e-12)
-    np.testing.assert_allclose(f.P, (np.eye(6) - K) @ P, rtol=1e-10, atol=1e-14)
+    np.testing.assert_allclose(r.odometry_state, z, atol=1e-12)
+    np.testing.assert_allclose(r.odometry_covariance, Po, rtol=1e-12)
+    np.testing.assert_allclose(r.state, x, rtol=1e-10, atol=1e-12)
+    np.testing.assert_allclose(r.covariance, (np.eye(6) - K) @ P, rtol=1e-10, atol=1e-14)
     # spot values: the speed gain is P_vv / (P_vv + R_v) on this diagonal-dominant step
-    assert 0.0 < f.x[2] < 0.5
+    assert 0.0 < r.state[2] < 0.5
 
 
 def test_seed_clamps_imu_acceleration_and_speed():
-    p = F.FusionParams(mode='seed', imu_extrinsic='param', accel_units='mps2')
-    f = F.SeedFusion(p)
+    p = FusionParams(mode='seed', imu_extrinsic='param', accel_units='mps2')
+    f = SeedFusion(p)
     g = np.array([0.0, 0.0, 9.80665])
-    f.imu(T.ImuSample(0.0, np.zeros(3), g))
-    f.imu(T.ImuSample(0.1, np.zeros(3), g + [50.0, 0.0, 0.0]))
-    assert f.x[4] == pytest.approx(p.seed.max_accel)
+    f.update(T.ImuSample(0.0, np.zeros(3), g))
+    f.update(T.ImuSample(0.1, np.zeros(3), g + [50.0, 0.0, 0.0]))
+    assert f.result().state[4] == pytest.approx(p.seed.max_accel)
     for i in range(2, 100):
-        f.imu(T.ImuSample(0.1 * i, np.zeros(3), g + [50.0, 0.0, 0.0]))
-    assert math.hypot(f.x[2], f.x[3]) <= p.seed.max_speed + 1e-9
+        f.update(T.ImuSample(0.1 * i, np.zeros(3), g + [50.0, 0.0, 0.0]))
+    state = f.result().state
+    assert math.hypot(state[2], state[3]) <= p.seed.max_speed + 1e-9
 
 
 def test_wheel_speed_from_rev_per_second_as_the_seed_writes_it():
-    p = F.FusionParams(wheel_radius=0.1, track_width=0.5)
+    p = FusionParams(wheel_radius=0.1, track_width=0.5)
     js = T.JointStateSample(0.0, ('left_wheel_joint', 'right_wheel_joint'), np.zeros(2),
                             np.array([2 * math.pi, 2 * math.pi]))  # 1 rev/s each
     v, w = F.wheel_twist(p, js, None)
@@ -177,15 +197,15 @@ def test_lidar_accuracy_check():
 
 def test_lidar_distance_is_used_when_available():
     samples, _ = drive(duration=30.0, seed=2)
-    f = F.make_filter(F.FusionParams())
+    f = make_estimator(FusionParams())
     for k, s in samples:
         if k == 'imu':
-            f.imu(s)
+            f.update(s)
         elif k == 'odom':
-            f.odom(s)
+            f.update(s)
             # a lidar odometry that saw 10 % less motion than the wheels
-            f.lidar(T.OdomSample(s.t, 0.9 * s.x, 0.9 * s.y, s.yaw))
-    acc, ok = f.lidar_check()
+            f.update(LidarOdomSample(T.OdomSample(s.t, 0.9 * s.x, 0.9 * s.y, s.yaw)))
+    acc, ok = f.result().lidar_accuracy, f.result().lidar_valid
     assert 0.7 < acc < 0.95 and not ok
 
 
@@ -194,26 +214,26 @@ def test_lidar_distance_is_used_when_available():
 # ---------------------------------------------------------------------------------------
 def test_improved_beats_raw_odometry_and_seed_and_learns_the_gyro_bias():
     samples, truth = drive(duration=180.0, seed=1, gyro_bias=0.01)
-    outs, f = F.run(samples, F.FusionParams())
-    seed_outs, _ = F.run(samples, F.FusionParams(mode='seed'))
+    outs, f = run(samples, FusionParams())
+    seed_outs, _ = run(samples, FusionParams(mode='seed'))
     e_imp, e_raw, e_seed = ate(outs, truth), raw_ate(samples, truth), ate(seed_outs, truth)
     assert e_imp < 0.5 * e_raw
     assert e_imp < 0.5 * e_seed
-    assert f.x[F.IBG] == pytest.approx(0.01, abs=0.002)
+    assert f.state[IBG] == pytest.approx(0.01, abs=0.002)
     # the output covariance means something: the final position error is within 3 sigma
     o = outs[-1]
     err = math.hypot(o.x - truth[-1, 1], o.y - truth[-1, 2])
     assert err < 3.0 * math.sqrt(o.pose_cov[0, 0] + o.pose_cov[1, 1]) + 0.3
-    assert np.all(np.linalg.eigvalsh(f.P) > 0)
+    assert np.all(np.linalg.eigvalsh(f.covariance) > 0)
 
 
 def test_slip_episodes_are_gated_and_counted():
     slip = [(40.0, 44.0, 0.5), (90.0, 93.0, 0.4)]
     samples, truth = drive(duration=120.0, seed=3, slip=slip, radius_err=0.0)
-    outs, f = F.run(samples, F.FusionParams())
+    outs, f = run(samples, FusionParams())
     assert f.counts.get('rejected_slip_speed', 0) > 20
     clean, _ = drive(duration=120.0, seed=3, radius_err=0.0)
-    outs_clean, _ = F.run(clean, F.FusionParams())
+    outs_clean, _ = run(clean, FusionParams())
     # slipping wheels cost the filter far less than they cost raw odometry
     assert ate(outs, truth) - ate(outs_clean, truth) < \
         0.5 * (raw_ate(samples, truth) - raw_ate(clean, truth))
@@ -223,19 +243,19 @@ def test_slip_episodes_are_gated_and_counted():
 def test_rotated_imu_mounting(how):
     samples, truth = drive(duration=60.0, seed=4, imu_rpy=HUSKY_RPY)
     if how == 'param':
-        p = F.FusionParams(imu_extrinsic='param', imu_rpy=HUSKY_RPY)
+        p = FusionParams(imu_extrinsic='param', imu_rpy=HUSKY_RPY)
         samples = [s for s in samples if s[0] != 'tf_static']
     elif how == 'tf':
-        p = F.FusionParams(imu_extrinsic='tf')
+        p = FusionParams(imu_extrinsic='tf')
     else:
-        p = F.FusionParams(imu_extrinsic='gravity')
+        p = FusionParams(imu_extrinsic='gravity')
         samples = [s for s in samples if s[0] != 'tf_static']
-    outs, f = F.run(samples, p)
-    assert f.front.rot_source == how
-    level, _ = F.run(drive(duration=60.0, seed=4)[0], F.FusionParams())
+    outs, f = run(samples, p)
+    assert f.imu_extrinsic == how
+    level, _ = run(drive(duration=60.0, seed=4)[0], FusionParams())
     if how == 'gravity':
         # only the up axis is known: heading is as good, the accelerometer is not used
-        assert not f.front.forward_known
+        assert not f.imu_forward_known
         assert ate(outs, truth) < 0.5 * raw_ate(samples, truth)
     else:
         assert ate(outs, truth) < 1.2 * ate(level, truth) + 0.05
@@ -247,7 +267,7 @@ def test_tf_static_through_the_pipeline_and_diagnostics():
     outs = []
     for k, s in samples:
         outs += pipe.process(k, s)
-    assert pipe.filter.front.rot_source == 'tf'
+    assert pipe.estimator.result().imu_extrinsic == 'tf'
     diags = [s for k, s in outs if k == 'diagnostics']
     assert len(diags) >= 15
     keys = dict(diags[-1].statuses[0].values)
@@ -274,8 +294,8 @@ def test_joint_states_input():
                 np.array([wl, wr]))))
         else:
             conv.append((k, s))
-    outs, f = F.run(conv, F.FusionParams(wheel_radius=r, track_width=b,
-                                         initial_pose_from_odom=False))
+    outs, f = run(conv, FusionParams(wheel_radius=r, track_width=b,
+                                     initial_pose_from_odom=False))
     assert len(outs) > 1000
     assert ate(outs, truth) < 1.0
 
@@ -305,9 +325,11 @@ def test_non_finite_fields_are_rejected_and_counted():
     assert c['imu']['rejected_non_finite'] > 0 and c['odom']['rejected_non_finite'] > 0
     assert all(np.isfinite([o.x, o.y, o.yaw]).all() for k, o in outs if k == 'odom')
     # the core rejects them too when called directly
-    f = F.ImprovedFusion()
-    assert f.imu(T.ImuSample(0.0, np.array([np.nan, 0, 0]), np.zeros(3))) == 'non_finite'
-    assert f.imu(T.ImuSample(0.0, np.array([100.0, 0, 0]), np.zeros(3))) == 'gyro_out_of_range'
+    f = ImprovedFusion()
+    assert f.update(T.ImuSample(0.0, np.array([np.nan, 0, 0]), np.zeros(3))) == \
+        Rejected('non_finite')
+    assert f.update(T.ImuSample(0.0, np.array([100.0, 0, 0]), np.zeros(3))) == \
+        Rejected('gyro_out_of_range')
 
 
 def test_zero_and_absurd_covariances_are_ignored_and_counted():
@@ -349,11 +371,11 @@ def test_imu_stops_then_resumes_without_divergence():
     gap = [(k, s) for k, s in samples if not (k == 'imu' and 20.0 < s.t < 26.0)]
     pipe = FusionPipeline()
     outs = _feed(pipe, gap)
-    f = pipe.filter
+    f = pipe.estimator.result()
     assert f.counts.get('imu_stale_periods', 0) >= 1 and f.counts.get('imu_gaps', 0) >= 1
     odoms = [o for k, o in outs if k == 'odom']
     assert ate(odoms, truth) < 2.0
-    msgs = [m for _, m in f.events]
+    msgs = [m for _, m in f.warnings]
     assert any('IMU stale' in m for m in msgs) and any('resumed' in m for m in msgs)
 
 
@@ -362,7 +384,7 @@ def test_odometry_stops_then_resumes_reinitialises_with_a_warning():
     gap = [(k, s) for k, s in samples if not (k == 'odom' and 30.0 < s.t < 34.0)]
     pipe = FusionPipeline()
     outs = _feed(pipe, gap)
-    f = pipe.filter
+    f = pipe.estimator.result()
     assert f.counts.get('odom_gaps') == 1 and f.counts.get('reinitialisations', 0) >= 1
     # during the gap the node keeps publishing from the IMU, with growing covariance
     during = [o for k, o in outs if k == 'odom' and 30.6 < o.t < 34.0]
@@ -381,16 +403,16 @@ def test_odometry_reset_jump_is_detected_and_does_not_move_the_estimate():
         if k == 'odom' and s.t >= 20.0:
             s = T.OdomSample(s.t, s.x - 50.0, s.y + 20.0, s.yaw, s.vx, s.vy, s.wz)
         jumped.append((k, s))
-    outs, f = F.run(jumped, F.FusionParams())
-    ref, _ = F.run(samples, F.FusionParams())
+    outs, f = run(jumped, FusionParams())
+    ref, _ = run(samples, FusionParams())
     assert f.counts.get('odom_resets') == 1
-    assert any('jumped' in m for _, m in f.events)
+    assert any('jumped' in m for _, m in f.warnings)
     assert (outs[-1].x, outs[-1].y) == pytest.approx((ref[-1].x, ref[-1].y), abs=1e-6)
     # an odometry that fills only the pose (zero twist): velocity from pose increments,
     # and the reset is skipped rather than turned into a huge speed
     pose_only = [(k, T.OdomSample(s.t, s.x, s.y, s.yaw)) if k == 'odom' else (k, s)
                  for k, s in jumped]
-    outs2, f2 = F.run(pose_only, F.FusionParams())
+    outs2, f2 = run(pose_only, FusionParams())
     assert f2.counts.get('odom_resets') == 1
     assert math.hypot(outs2[-1].x - ref[-1].x, outs2[-1].y - ref[-1].y) < 1.0
 
@@ -398,14 +420,14 @@ def test_odometry_reset_jump_is_detected_and_does_not_move_the_estimate():
 def test_imu_in_g_is_detected_and_gives_the_same_result():
     samples, truth = drive(duration=40.0, seed=13)
     in_g, _ = drive(duration=40.0, seed=13, accel_g=True)
-    outs, f = F.run(samples, F.FusionParams())
-    outs_g, fg = F.run(in_g, F.FusionParams())
-    assert f.front.units_source == 'detected_mps2' and fg.front.units_source == 'detected_g'
-    assert any('in g' in m for _, m in fg.events)
+    outs, f = run(samples, FusionParams())
+    outs_g, fg = run(in_g, FusionParams())
+    assert f.accel_units == 'detected_mps2' and fg.accel_units == 'detected_g'
+    assert any('in g' in m for _, m in fg.warnings)
     assert (outs_g[-1].x, outs_g[-1].y) == pytest.approx((outs[-1].x, outs[-1].y), abs=1e-3)
     # configured explicitly as g: no detection needed
-    outs_c, fc = F.run(in_g, F.FusionParams(accel_units='g'))
-    assert fc.front.units_source == 'g'
+    outs_c, fc = run(in_g, FusionParams(accel_units='g'))
+    assert fc.accel_units == 'g'
 
 
 def test_persistent_rejection_reinitialises_instead_of_diverging():
@@ -415,15 +437,16 @@ def test_persistent_rejection_reinitialises_instead_of_diverging():
         if k == 'odom' and s.t > 30.0:  # wheels suddenly report twice the speed for good
             s = T.OdomSample(s.t, s.x, s.y, s.yaw, 2.0 * s.vx, s.vy, s.wz)
         bad.append((k, s))
-    outs, f = F.run(bad, F.FusionParams())
+    outs, f = run(bad, FusionParams())
     assert all(np.all(np.isfinite(o.pose_cov)) for o in outs)
     assert f.counts.get('reinitialisations', 0) + f.counts.get('rejected_slip_speed', 0) > 0
-    assert np.all(np.linalg.eigvalsh(f.P) > 0)
-    assert F.FusionParams().adapt_min <= f.lam.min() and f.lam.max() <= F.FusionParams().adapt_max
+    assert np.all(np.linalg.eigvalsh(f.covariance) > 0)
+    assert FusionParams().adapt_min <= min(f.noise_scales) and \
+        max(f.noise_scales) <= FusionParams().adapt_max
 
 
 def test_steered_wheel_joint_states():
-    p = F.FusionParams(drive_type='steered_wheel', wheel_radius=0.2, wheel_base=1.0)
+    p = FusionParams(drive_type='steered_wheel', wheel_radius=0.2, wheel_base=1.0)
     names = ('steering_joint', 'traction_joint')
     js = T.JointStateSample(0.0, names, np.array([math.pi / 6, 0.0]), np.array([np.nan, 5.0]))
     v, w = F.wheel_twist(p, js, None)
@@ -442,15 +465,15 @@ def test_speed_lock_out_recovers_with_a_warning():
         if k == 'odom' and s.t > 30.0:  # a wheel swapped for a bigger one: +60 % for good
             s = T.OdomSample(s.t, s.x, s.y, s.yaw, 1.6 * s.vx, s.vy, s.wz)
         bad.append((k, s))
-    f = F.ImprovedFusion()
+    f = ImprovedFusion()
     for k, s in bad:
-        f.imu(s) if k == 'imu' else f.odom(s) if k == 'odom' else None
-    events = [(t, m) for t, m in f.events if 'speed re-initialised' in m]
+        f.update(s) if k in ('imu', 'odom') else None
+    events = [(t, m) for t, m in f.result().warnings if 'speed re-initialised' in m]
     assert events and 30.0 < events[0][0] < 40.0
     # afterwards the filter follows the (new) wheel speed again instead of rejecting it
-    assert f.x[F.IV] == pytest.approx(bad[-1][1].vx if bad[-1][0] == 'odom'
-                                      else [s for k, s in bad if k == 'odom'][-1].vx,
-                                      abs=0.15)
+    assert f.result().state[IV] == pytest.approx(bad[-1][1].vx if bad[-1][0] == 'odom'
+                                                 else [s for k, s in bad if k == 'odom'][-1].vx,
+                                                 abs=0.15)
 
 
 def test_an_acceleration_spike_is_clamped_to_the_robot_limit():
@@ -460,18 +483,18 @@ def test_an_acceleration_spike_is_clamped_to_the_robot_limit():
         if k == 'imu' and abs(s.t - 20.0) < 0.005:
             s = T.ImuSample(s.t, s.gyro, s.accel + np.array([60.0, 0.0, 0.0]))
         spiked.append((k, s))
-    p = F.FusionParams(imu_extrinsic='param')  # level IMU, forward axis known
-    f = F.ImprovedFusion(p)
-    f_ref = F.ImprovedFusion(p)
-    assert f.front.forward_known
+    p = FusionParams(imu_extrinsic='param')  # level IMU, forward axis known
+    f = ImprovedFusion(p)
+    f_ref = ImprovedFusion(p)
+    assert f.result().imu_forward_known
     for (k, s), (_, r) in zip(spiked, samples):
         if k == 'imu':
-            f.imu(s)
-            f_ref.imu(r)
+            f.update(s)
+            f_ref.update(r)
         elif k == 'odom':
-            f.odom(s)
-            f_ref.odom(r)
+            f.update(s)
+            f_ref.update(r)
         if s.t > 20.02:
             break
     # 60 m/s^2 for 10 ms would add 0.6 m/s; clamped to 5 m/s^2 it adds at most 0.05
-    assert 0.0 < abs(f.x[F.IV] - f_ref.x[F.IV]) < 0.06
+    assert 0.0 < abs(f.result().state[IV] - f_ref.result().state[IV]) < 0.06

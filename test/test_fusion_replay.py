@@ -87,7 +87,7 @@ def test_replay_of_the_real_husky_bag(tmp_path):
 
 def test_joint_states_of_the_simulator_with_its_geometry():
     sim = pytest.importorskip('robot_calib.sim')
-    from robot_calib.methods.odometry_fusion.estimator import FusionParams
+    from robot_calib.methods.odometry_fusion.params import FusionParams
     from robot_calib.methods.odometry_fusion.pipeline import FusionPipeline
     res = sim.run_scenario('fusion_drive', seed=2, duration=60.0)
     nominal = res.truth.get('nominal', {})

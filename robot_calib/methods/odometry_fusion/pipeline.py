@@ -3,27 +3,33 @@
 """
 Pipeline of the ``odometry_fusion`` node: IMU + wheel odometry -> ``odometry/fused``.
 
-Glue only: samples go to :mod:`robot_calib.methods.odometry_fusion.estimator`, estimates
-come back as nav_msgs/Odometry samples stamped with the input that produced them, and a
-diagnostic_msgs/DiagnosticArray on ``/diagnostics`` reports the NIS, the noise
-adaptation, the bias estimates, rejections and re-initialisations once per
-``diagnostics_period`` of sensor time.
+Glue only: samples go to the filter (:mod:`robot_calib.methods.odometry_fusion.seed`
+or :mod:`~robot_calib.methods.odometry_fusion.improved`, by ``mode``) through its
+``update``; the estimates it returns come back as nav_msgs/Odometry samples
+stamped with the input that produced them, and a diagnostic_msgs/DiagnosticArray
+on ``/diagnostics`` reports its result (:mod:`.report`: NIS, noise adaptation,
+bias estimates, rejections and re-initialisations) once per
+``diagnostics_period`` of sensor time. Static transforms go to its
+``set_mounting`` (the IMU mounting); its warnings are logged.
 
 Outputs are published on every accepted odometry (or joint-state) update; while
-the odometry is silent for longer than ``sensor_timeout`` they are published on
-every IMU sample instead (IMU dead reckoning, growing covariance).
+the odometry is silent for longer than ``sensor_timeout`` the filter returns
+them on every IMU sample instead (IMU dead reckoning, growing covariance).
 """
 
 from __future__ import annotations
 
 import math
-from typing import Any
+from typing import Any, Optional
 
 import numpy as np
 
 from robot_calib.core import types as T
 from robot_calib.core.series import Thinned
-from robot_calib.methods.odometry_fusion import estimator as F
+from robot_calib.methods.odometry_fusion import report
+from robot_calib.methods.odometry_fusion.common import FusionOutput, LidarOdomSample, Rejected
+from robot_calib.methods.odometry_fusion.params import FusionParams
+from robot_calib.methods.odometry_fusion.variants import make_estimator
 from robot_calib.pipelines.base import InputSpec, Output, OutputSpec, Pipeline
 
 
@@ -31,7 +37,7 @@ class FusionPipeline(Pipeline):
     """IMU + wheel odometry fusion (seed 004; improved EKF by default)."""
 
     name = 'odometry_fusion'
-    params_type = F.FusionParams
+    params_type = FusionParams
     inputs = (
         InputSpec('imu', 'imu', 'imu'),
         InputSpec('odom', 'odom', 'odom', optional=True),
@@ -45,59 +51,49 @@ class FusionPipeline(Pipeline):
     )
 
     def __init__(self, params: Any = None, log: Any = None):
-        """Create the pipeline and its filter."""
+        """Create the pipeline and its filter (the filter's warnings go to ``log``)."""
         super().__init__(params, log)
-        self.filter = F.make_filter(self.params)
-        self._tfs: list = []
-        self._imu_frame = None
-        self._next_diag = None
-        self._events_seen = 0
+        self.estimator = make_estimator(self.params, self.log)
+        self._next_diag: Optional[float] = None
         self._trajectory = Thinned()  # (t, x, y, yaw) for the plot
         self._ignored_cov = 0
+        self._wheel_key: Optional[str] = None
+        self._js_first: Optional[float] = None
+        self._cov_next = -math.inf
 
     # -- inputs ----------------------------------------------------------------------------
     def on_static_transform(self, transform: T.StaticTransform) -> None:
-        """Take the IMU mounting from /tf_static (base_frame -> IMU frame)."""
-        if F.apply_static_transform(self.filter, transform, self._tfs, self.params,
-                                    self._imu_frame):
-            self.log('info', f'IMU extrinsic from /tf_static ({self.params.base_frame} -> '
-                     f'{self._imu_frame or transform.child})')
+        """Give a static transform to the filter (the IMU mounting: base_frame -> IMU frame)."""
+        self.estimator.set_mounting(transform)
 
     def handle(self, key: str, sample: Any) -> list[Output]:
         """Feed one accepted sample to the filter; return fused odometry and diagnostics."""
-        f = self.filter
         outs: list[Output] = []
         if key == 'imu':
-            if self._imu_frame is None:
-                self._imu_frame = sample.frame_id.lstrip('/')
-                if self._tfs and f.front.rot_source != 'tf':
-                    F.apply_static_transform(f, self._tfs.pop(), self._tfs, self.params,
-                                             self._imu_frame)
             if self._cov_next <= sample.t:  # IMU covariances: checked once a second
                 self._check_cov(sample.gyro_cov)
                 self._cov_next = sample.t + 1.0
-            reason = f.imu(sample)
-            if reason is not None and reason != 'initialising':
-                self.reject(key, reason)
-            elif reason is None and f.last_odom_t is not None and \
-                    sample.t - f.last_odom_t > self.params.sensor_timeout:
-                outs += self._estimate(sample)
+            outs += self._update(key, sample)
         elif key in ('odom', 'joint_states'):
             if not self._wheel_source_ok(key, sample.t):
                 self.reject(key, 'other_wheel_source_used')
                 return self._diagnostics(sample)
             if key == 'odom':
                 self._check_cov(sample.twist_cov)
-            reason = f.odom(sample) if key == 'odom' else f.wheels(sample)
-            if reason is not None:
-                self.reject(key, reason)
-            else:
-                outs += self._estimate(sample)
+            outs += self._update(key, sample)
         elif key == 'lidar_odom':
-            f.lidar(sample)
+            self.estimator.update(LidarOdomSample(sample))
         outs += self._diagnostics(sample)
-        self._flush_events()
         return outs
+
+    def _update(self, key: str, sample: Any) -> list[Output]:
+        """Update the filter with ``sample``; count a rejection or publish the estimate."""
+        out = self.estimator.update(sample)
+        if isinstance(out, Rejected):
+            return self.reject(key, out.reason)
+        if isinstance(out, FusionOutput):
+            return self._publish(sample, out)
+        return []
 
     def _wheel_source_ok(self, key: str, t: float) -> bool:
         """Use one wheel source only: odometry, or joint states when no odometry comes."""
@@ -114,10 +110,6 @@ class FusionPipeline(Pipeline):
             self.log('info', f'wheel input: {key}')
         return key == self._wheel_key
 
-    _wheel_key = None
-    _js_first = None
-    _cov_next = -math.inf
-
     def _check_cov(self, cov: Any) -> None:
         """Count message covariances that are zero, negative or absurd (they are not used)."""
         if cov is None:
@@ -128,13 +120,11 @@ class FusionPipeline(Pipeline):
         if not all(0.0 < v <= 1e3 for v in d):  # zero, negative, NaN or absurd
             self._ignored_cov += 1
 
-    def _estimate(self, sample: Any) -> list[Output]:
-        o = self.filter.output()
-        if o is None:
-            return []
+    def _publish(self, sample: Any, o: FusionOutput) -> list[Output]:
+        """Return the estimate ``o`` as odometry stamped with the input ``sample``."""
         p = self.params
         tw, pc = o.twist_cov, o.pose_cov
-        if isinstance(self.filter, F.SeedFusion):  # unknown entries -> -1 (ROS convention)
+        if p.mode == 'seed':  # unknown entries -> -1 (ROS convention)
             tw = np.where(np.isfinite(tw), tw, -1.0)
             pc = np.where(np.isfinite(pc), pc, -1.0)
         w = o.w if math.isfinite(o.w) else 0.0
@@ -143,17 +133,9 @@ class FusionPipeline(Pipeline):
         self._trajectory.append((sample.t, o.x, o.y, o.yaw))
         return [('odom', out)]
 
-    def _flush_events(self) -> None:
-        ev = self.filter.events
-        while self._events_seen < len(ev):
-            self.log('warn', ev[self._events_seen][1])
-            self._events_seen += 1
-        if len(ev) > 900:
-            self._events_seen = 0
-            ev.clear()
-
-    # -- diagnostics -----------------------------------------------------------------------
+    # -- reports ---------------------------------------------------------------------------
     def _diagnostics(self, sample: Any) -> list[Output]:
+        """Return the diagnostics when one ``diagnostics_period`` of sensor time has passed."""
         if self._next_diag is None:
             self._next_diag = sample.t + self.params.diagnostics_period
             return []
@@ -165,71 +147,11 @@ class FusionPipeline(Pipeline):
 
     def status(self) -> T.DiagnosticStatus:
         """Return the current diagnostic status: level, message and key-values."""
-        f = self.filter
-        values = [('mode', self.params.mode),
-                  ('imu_extrinsic', f.front.rot_source),
-                  ('accel_units', f.front.units_source)]
-        level, msg = 0, 'ok'
-        if isinstance(f, F.ImprovedFusion):
-            band = f.nis_band_now
-            frac = f.nis_in_band / f.nis_checked if f.nis_checked else float('nan')
-            wfrac = f.nis_window_in_band / f.nis_window_checked if f.nis_window_checked \
-                else float('nan')
-            values += [('nis_last', f'{f.nis_hist[-1]:.3f}' if f.nis_hist else 'nan'),
-                       ('nis_avg', f'{f.nis_avg:.3f}'),
-                       ('nis_band_low', f'{band[0]:.3f}'), ('nis_band_high', f'{band[1]:.3f}'),
-                       ('nis_in_band_fraction', f'{frac:.3f}'),
-                       ('nis_window_in_band_fraction', f'{wfrac:.3f}')]
-            values += [(k, f'{v:.6g}') for k, v in f.state_summary().items()]
-            values.append(('imu_stale', str(f.imu_stale)))
-            if math.isfinite(f.nis_avg) and not band[0] <= f.nis_avg <= band[1]:
-                level, msg = 1, 'NIS outside its 95% band'
-            if f.imu_stale:
-                level, msg = 1, 'IMU stale: wheel odometry only'
-        for k, v in sorted(f.counts.items()):
-            values.append((k, str(v)))
-        for key, c in sorted(self.counts.items()):
-            if c.get('rejected'):
-                values.append((f'{key}_rejected', str(c['rejected'])))
-        acc, valid = f.lidar_check()
-        if math.isfinite(acc):
-            values += [('lidar_accuracy', f'{acc:.4f}'), ('lidar_accuracy_valid', str(valid))]
-            if not valid:
-                level, msg = max(level, 1), 'lidar distance check failed (accuracy < 0.95)'
-        if f.counts.get('reinitialisations'):
-            msg = msg if level else f'ok ({f.counts["reinitialisations"]} re-initialisations)'
-        if f.events:
-            values.append(('last_warning', f.events[-1][1]))
-        return T.DiagnosticStatus('odometry_fusion: filter', level, msg, 'odometry_fusion',
-                                  tuple(values))
+        return report.diagnostic_status(self.estimator.result(), self.params, self.counts)
 
-    # -- summary ---------------------------------------------------------------------------
     def method_summary(self) -> dict[str, Any]:
         """Return estimates, adaptation state, NIS consistency, warnings and counters."""
-        f = self.filter
-        out: dict[str, Any] = {
-            'mode': self.params.mode,
-            'imu_extrinsic': f.front.rot_source,
-            'accel_units': f.front.units_source,
-            'filter_counts': dict(f.counts),
-            'message_covariances_ignored': self._ignored_cov,
-            'warnings': [f'{t:.3f}: {m}' for t, m in f.events[-50:]],
-            'path_length': f.path_length,
-        }
-        if isinstance(f, F.ImprovedFusion):
-            out['estimates'] = f.state_summary()
-            out['nis'] = {
-                'updates': f.nis_hist.count,
-                'mean': f.nis_sum / f.nis_hist.count if f.nis_hist.count else None,
-                'window': self.params.nis_window,
-                'in_band_fraction': f.nis_in_band / f.nis_checked if f.nis_checked else None,
-                'window_in_band_fraction': f.nis_window_in_band / f.nis_window_checked
-                if f.nis_window_checked else None,
-            }
-        else:
-            out['estimates'] = f.state_summary()
-        acc, valid = f.lidar_check()
-        out['lidar_accuracy'] = {'accuracy': acc, 'valid': valid}
+        out = report.summary(self.estimator.result(), self.params, self._ignored_cov)
         if self._trajectory:
             t, x, y, yaw = self._trajectory[-1]
             out['final_pose'] = {'t': t, 'x': x, 'y': y, 'yaw': yaw}
@@ -237,34 +159,8 @@ class FusionPipeline(Pipeline):
 
     def plot(self, out_dir: str) -> list[str]:
         """Draw the fused trajectory and the NIS history (PNG)."""
-        if not self._trajectory:
-            return []
-        import matplotlib
-        matplotlib.use('Agg')
-        import matplotlib.pyplot as plt
-        from pathlib import Path
-        tr = np.array(list(self._trajectory))
-        names = []
-        fig, ax = plt.subplots(figsize=(6, 6))
-        ax.plot(tr[:, 1], tr[:, 2], lw=1)
-        ax.set_aspect('equal')
-        ax.set_xlabel('x (m)')
-        ax.set_ylabel('y (m)')
-        ax.set_title(f'odometry_fusion ({self.params.mode}) trajectory')
-        fig.savefig(Path(out_dir) / 'odometry_fusion_trajectory.png', dpi=100)
-        plt.close(fig)
-        names.append('odometry_fusion_trajectory.png')
-        f = self.filter
-        if isinstance(f, F.ImprovedFusion) and f.nis_hist:
-            fig, ax = plt.subplots(figsize=(7, 3))
-            ax.semilogy(np.arange(0, f.nis_hist.count, f.nis_hist.stride)[:len(f.nis_hist.items)],
-                        f.nis_hist.items, lw=0.5)
-            ax.set_xlabel('odometry update')
-            ax.set_ylabel('NIS')
-            fig.savefig(Path(out_dir) / 'odometry_fusion_nis.png', dpi=100)
-            plt.close(fig)
-            names.append('odometry_fusion_nis.png')
-        return names
+        return report.plot(self.estimator.result(), self.params, list(self._trajectory),
+                           out_dir)
 
 
 PIPELINE = FusionPipeline

@@ -1,0 +1,270 @@
+# Copyright 2026 robot_calib contributors
+# SPDX-License-Identifier: Apache-2.0
+"""
+The base of both fusion filters: the Estimator API, input checks, counters and warnings.
+
+:class:`FusionFilter` implements :class:`robot_calib.core.estimator.Estimator`
+for both variants: ``set_mounting`` takes the IMU mounting from static
+transforms, ``update`` checks a sample and hands it to the variant
+(``_imu_step``, ``_wheel_step``), ``result`` collects what both share plus
+the variant's own fields (``_variant_result``). Wheel odometry is checked for
+pose resets (a jump beyond what its twist explains) and for drivers that fill
+only the pose (velocity from the pose increments).
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any, Callable, Optional, Union
+
+import numpy as np
+from robot_calib.core import types as T
+from robot_calib.methods.odometry_fusion.common import (
+    FusionOutput, FusionResult, lidar_accuracy, LidarOdomSample, Rejected, wheel_twist, wrap)
+from robot_calib.methods.odometry_fusion.frontend import chain_rotation, ImuFrontEnd
+from robot_calib.methods.odometry_fusion.params import FusionParams
+
+Log = Callable[[str, str], None]
+"""A logger: (level 'info' or 'warn', message)."""
+
+
+class FusionFilter:
+    """Common bookkeeping of both filters (Estimator API, counters, warnings, lidar check)."""
+
+    mode = ''
+    """The variant's name (``params.mode``)."""
+
+    def __init__(self, params: Optional[FusionParams] = None, log: Optional[Log] = None):
+        """Create the filter with ``params`` (defaults when None); ``log`` hears its warnings."""
+        self.params = params if params is not None else FusionParams()
+        self.p = self.params
+        self._log = log
+        self._mountings: list[T.StaticTransform] = []
+        self._imu_frame: Optional[str] = None
+        self._start()
+
+    def _start(self) -> None:
+        """Set the state of a filter that has seen no sample (variants extend it)."""
+        self.front = ImuFrontEnd(self.p)
+        self.t: Optional[float] = None
+        self.counts: dict[str, int] = {}
+        self.events: list[tuple[float, str]] = []
+        self.path_length = 0.0
+        self.last_imu_t: Optional[float] = None
+        self.last_odom_t: Optional[float] = None
+        self.initialised = False
+        self._odom_last: Optional[T.OdomSample] = None
+        self._joints_last: Optional[T.JointStateSample] = None
+        self.lidar_distance = 0.0
+        self._lidar_last: Optional[T.OdomSample] = None
+        self._fused_at_lidar_start: Optional[float] = None
+
+    # -- Estimator API ---------------------------------------------------------------------
+    def set_mounting(self, transform: T.StaticTransform) -> None:
+        """Take a static transform; a chain base_frame -> IMU frame sets the IMU mounting."""
+        self._apply_mounting(transform, announce=True)
+
+    def update(self, sample: Any) -> Union[FusionOutput, Rejected, None]:
+        """
+        Process one time-ordered sample; return an estimate, a rejection or None.
+
+        ``ImuSample`` drives the prediction (an estimate comes back only while the
+        odometry is silent for longer than ``sensor_timeout``: IMU dead
+        reckoning); ``OdomSample`` and ``JointStateSample`` are the wheel
+        observation (an estimate comes back when used); ``LidarOdomSample`` feeds
+        the seed's distance check (None).
+        """
+        if isinstance(sample, T.ImuSample):
+            return self._update_imu(sample)
+        if isinstance(sample, T.OdomSample):
+            reason = self._odom_sample(sample)
+        elif isinstance(sample, T.JointStateSample):
+            reason = self._joint_sample(sample)
+        elif isinstance(sample, LidarOdomSample):
+            self._lidar_sample(sample.odom)
+            return None
+        else:
+            raise TypeError(f'odometry fusion takes no {type(sample).__name__}')
+        return Rejected(reason) if reason is not None else self._output()
+
+    def result(self) -> FusionResult:
+        """Return the estimates, counters and warnings so far (covariance: as last propagated)."""
+        acc, valid = self._lidar_check()
+        rot = self.front.rot
+        return FusionResult(
+            mode=self.mode, t=self.t, state=self.x.copy(), covariance=self.P.copy(),
+            estimates=self._estimates(), imu_extrinsic=self.front.rot_source,
+            imu_rotation=None if rot is None else rot.copy(),
+            imu_forward_known=self.front.forward_known, accel_units=self.front.units_source,
+            counts=dict(self.counts), warnings=tuple(self.events),
+            path_length=self.path_length, lidar_accuracy=acc, lidar_valid=valid,
+            **self._variant_result())
+
+    def reset(self) -> None:
+        """Forget the state; keep the parameters and the mountings."""
+        mountings, self._mountings = self._mountings, []
+        self._start()
+        for transform in mountings:
+            self._apply_mounting(transform, announce=False)
+
+    # -- bookkeeping -----------------------------------------------------------------------
+    def count(self, key: str, n: int = 1) -> None:
+        """Increase counter ``key`` by ``n``."""
+        self.counts[key] = self.counts.get(key, 0) + n
+
+    def warn(self, t: float, message: str) -> None:
+        """Record a warning event at time ``t`` (s) and log it."""
+        self.events.append((t, message))
+        if len(self.events) > 1000:
+            del self.events[:500]
+        if self._log is not None:
+            self._log('warn', message)
+
+    def _apply_mounting(self, transform: T.StaticTransform, announce: bool) -> None:
+        """Use the static transform chain base_frame -> IMU frame as the IMU mounting."""
+        self._mountings.append(transform)
+        if self.p.imu_extrinsic not in ('auto', 'tf'):
+            return
+        rot = chain_rotation(self._mountings, self.p.base_frame, self._imu_frame)
+        if rot is None:
+            return
+        self.front.set_rotation(rot, 'tf')
+        if announce and self._log is not None:
+            self._log('info', f'IMU extrinsic from /tf_static ({self.p.base_frame} -> '
+                      f'{self._imu_frame or transform.child})')
+
+    # -- input adapters --------------------------------------------------------------------
+    def _update_imu(self, s: T.ImuSample) -> Optional[Union[FusionOutput, Rejected]]:
+        """Feed one IMU sample; an estimate while the odometry is silent, else None."""
+        if self._imu_frame is None:
+            # the IMU's frame is known now: a mounting may be found that was not before
+            self._imu_frame = s.frame_id.lstrip('/')
+            if self._mountings and self.front.rot_source != 'tf':
+                self._apply_mounting(self._mountings.pop(), announce=False)
+        reason = self._imu_sample(s)
+        if reason == 'initialising':
+            return None
+        if reason is not None:
+            return Rejected(reason)
+        if self.last_odom_t is not None and s.t - self.last_odom_t > self.p.sensor_timeout:
+            return self._output()
+        return None
+
+    def _imu_sample(self, s: T.ImuSample) -> Optional[str]:
+        """Check one IMU sample and use it; return a rejection reason or None when used."""
+        gx, gy, gz = np.asarray(s.gyro, dtype=float).tolist()
+        ax, ay, az = np.asarray(s.accel, dtype=float).tolist()
+        if not math.isfinite(gx + gy + gz + ax + ay + az + s.t):
+            return 'non_finite'
+        if max(abs(gx), abs(gy), abs(gz)) > self.p.max_gyro:
+            return 'gyro_out_of_range'
+        if math.sqrt(ax * ax + ay * ay + az * az) * (self.front.accel_scale or 1.0) > \
+                self.p.max_accel:
+            return 'accel_out_of_range'
+        if self.last_imu_t is not None and s.t <= self.last_imu_t:
+            return 'out_of_order'
+        conv = self.front.convert(s, (gx, gy, gz), (ax, ay, az))
+        while self.front.warnings:
+            self.warn(s.t, self.front.warnings.pop(0))
+        if conv is None:
+            self.last_imu_t = s.t
+            return 'initialising'
+        if self.last_imu_t is not None and s.t - self.last_imu_t > self.p.sensor_timeout:
+            self.count('imu_gaps')
+            self.warn(s.t, f'IMU silent for {s.t - self.last_imu_t:.2f} s; resumed')
+        self.last_imu_t = s.t
+        return self._imu_step(s.t, *conv)
+
+    def _odom_sample(self, s: T.OdomSample) -> Optional[str]:
+        """Check one wheel-odometry message and use it; return a rejection reason or None."""
+        vals = (s.t, s.x, s.y, s.yaw, s.vx, s.vy, s.wz)
+        if not all(math.isfinite(v) for v in vals):
+            return 'non_finite'
+        last = self._odom_last
+        if last is not None and s.t <= last.t:
+            return 'out_of_order'
+        v, w = s.vx, s.wz
+        self._odom_last = s
+        if last is not None:
+            dt = s.t - last.t
+            c, sn = math.cos(last.yaw), math.sin(last.yaw)
+            dx, dy = s.x - last.x, s.y - last.y
+            fwd = c * dx + sn * dy
+            dyaw = wrap(s.yaw - last.yaw)
+            moved = math.hypot(dx, dy)
+            twist_zero = s.vx == 0.0 and s.wz == 0.0 and last.vx == 0.0 and last.wz == 0.0
+            expect = max(abs(s.vx), abs(last.vx)) * dt
+            jump_limit = self.p.max_speed * dt + self.p.reset_jump
+            if moved > expect + self.p.reset_jump and (not twist_zero or moved > jump_limit):
+                self.count('odom_resets')
+                self.warn(s.t, f'odometry pose jumped {moved:.2f} m: reset taken, '
+                          'using increments after it')
+                if twist_zero:
+                    return 'odom_reset'
+            elif twist_zero and (moved > 1e-6 or abs(dyaw) > 1e-6) and dt > 0:
+                # a driver that fills only the pose: velocity from pose increments
+                v, w = fwd / dt, dyaw / dt
+        else:
+            self._init_pose(s)
+        if abs(v) > 3.0 * self.p.max_speed:
+            return 'speed_out_of_range'
+        return self._wheel_step(s.t, v, w)
+
+    def _joint_sample(self, s: T.JointStateSample) -> Optional[str]:
+        """Check one joint-state message and use it; return a rejection reason or None."""
+        tw = wheel_twist(self.p, s, self._joints_last)
+        last = self._joints_last
+        self._joints_last = s
+        if last is not None and s.t <= last.t:
+            return 'out_of_order'
+        if tw is None:
+            return 'missing_wheel_joints'
+        if last is None and self.t is None:
+            self._init_pose(None)
+        v, w = tw
+        if not (math.isfinite(v) and math.isfinite(w)):
+            return 'non_finite'
+        if abs(v) > 3.0 * self.p.max_speed:
+            return 'speed_out_of_range'
+        return self._wheel_step(s.t, v, w)
+
+    def _lidar_sample(self, s: T.OdomSample) -> None:
+        """Feed a lidar odometry pose (m) for the seed's distance accuracy check."""
+        if not all(math.isfinite(v) for v in (s.t, s.x, s.y)):
+            return
+        if self._lidar_last is None:
+            self._fused_at_lidar_start = self.path_length
+        else:
+            self.lidar_distance += math.hypot(s.x - self._lidar_last.x, s.y - self._lidar_last.y)
+        self._lidar_last = s
+
+    def _lidar_check(self) -> tuple[float, bool]:
+        """Return the seed's (accuracy, valid) of fused vs lidar distance since the first scan."""
+        if self._fused_at_lidar_start is None:
+            return float('nan'), False
+        return lidar_accuracy(self.path_length - self._fused_at_lidar_start, self.lidar_distance)
+
+    # -- to override -----------------------------------------------------------------------
+    def _init_pose(self, s: Optional[T.OdomSample]) -> None:
+        """Start at the first odometry pose ``s`` (or 0) when ``initial_pose_from_odom``."""
+        raise NotImplementedError
+
+    def _imu_step(self, t: float, gz: float, ax: float, use_acc: bool) -> Optional[str]:
+        """Use gyro z (rad/s) and forward specific force (m/s^2); return a rejection or None."""
+        raise NotImplementedError
+
+    def _wheel_step(self, t: float, v: float, w: float) -> Optional[str]:
+        """Use the wheel speed (m/s) and yaw rate (rad/s); return a rejection or None."""
+        raise NotImplementedError
+
+    def _output(self) -> Optional[FusionOutput]:
+        """Return the current estimate, or None before initialisation."""
+        raise NotImplementedError
+
+    def _estimates(self) -> dict:
+        """Return the named estimates of :attr:`FusionResult.estimates`."""
+        raise NotImplementedError
+
+    def _variant_result(self) -> dict:
+        """Return the variant's own fields of :class:`FusionResult`."""
+        return {}

@@ -1,0 +1,448 @@
+# Copyright 2026 robot_calib contributors
+# SPDX-License-Identifier: Apache-2.0
+"""
+The improved fusion filter (``mode: improved``, the default): an error-aware planar EKF.
+
+State ``[x, y, yaw, v, b_g, b_a, k_w, k_v]``: pose (m, m, rad), forward speed
+(m/s), gyro z bias (rad/s), forward accelerometer bias (m/s^2), the odometry
+yaw-rate scale (a skid-steer or track-width error, dimensionless) and the
+odometry yaw rate per unit speed (a left/right wheel radius mismatch, rad/m).
+The IMU (gyro z and forward specific force, rotated into ``base_link`` by the
+mounting extrinsic from a parameter, ``/tf_static`` or, failing both, the
+gravity direction: :mod:`.frontend`) drives the prediction; the wheel
+odometry's forward speed and yaw rate are scalar observations, each gated by
+its innovation (chi-square, 1 dof) so wheel slip and outliers are rejected
+and counted. A stationary robot (wheels exactly still) gives a zero-velocity
+update that pins the gyro bias. Noise adaptation and NIS monitoring:
+:mod:`.improved_consistency`.
+
+The gyro bias is learnt at standstill (zero-velocity update: the gyro must
+read its bias) and, by default, NOT from the wheel yaw rate: wheel slip,
+skid steering and a left/right radius mismatch all mimic a gyro bias there,
+so that update is a Schmidt-Kalman consider update that corrects only the
+wheel yaw-rate scale and per-speed offset (``bias_from_wheels: true``
+turns it into a full update).
+
+Sensor latency: an IMU sample or odometry up to ``max_lag`` older than the
+filter time is applied at the filter time (counted); older ones are
+rejected. Equations from seed 004 are tagged ``seed 004``.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Optional
+
+import numpy as np
+from robot_calib.core import types as T
+from robot_calib.methods.odometry_fusion.common import chi2_ppf, FusionOutput, wrap
+from robot_calib.methods.odometry_fusion.filter_base import FusionFilter
+from robot_calib.methods.odometry_fusion.improved_consistency import NisMonitor, NoiseAdapter
+
+IX, IY, IYAW, IV, IBG, IBA, IKW, IKV = range(8)
+"""Indices of the improved state."""
+
+_EYE8 = np.eye(8)
+_CONSIDER_W = np.array([True, True, True, True, True, True, False, False])
+"""States the wheel yaw rate does not correct by default (only its scale and offset)."""
+
+
+class ImprovedFusion(FusionFilter):
+    """Planar EKF: pose, speed, gyro bias, accel bias and odometry yaw-rate scale (see module)."""
+
+    mode = 'improved'
+
+    def _start(self) -> None:
+        """Set the initial state: still at the origin, biases 0, scale 1, their priors."""
+        super()._start()
+        p = self.p
+        self.x = np.array([0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0])
+        self.P = np.diag([1e-6, 1e-6, 1e-6, 0.25, p.gyro_bias_init ** 2,
+                          p.accel_bias_init ** 2, p.yaw_rate_scale_init ** 2,
+                          p.yaw_rate_offset_init ** 2])
+        self.gz = 0.0
+        self._gz_sum = 0.0
+        self._gz_n = 0
+        self.ax = 0.0
+        self.use_acc = False
+        self._gate = float(chi2_ppf(p.gate_probability, 1)) if p.gate_probability < 1 \
+            else float('inf')
+        self.noise = NoiseAdapter(p, self._gate)
+        self.nis = NisMonitor(p.nis_window)
+        self._rej_since: dict = {'slip_speed': None, 'slip_yaw_rate': None}
+        self.imu_stale = True
+        self._cov_acc = [0.0, 0.0, 0.0, 0.0, 0.0]
+        self._cov_mode = (True, False)
+        self._w_fallback = 0.0
+        self._last_upd_t: Optional[float] = None
+        self._pl_last: Optional[tuple] = None
+
+    # -- initialisation --------------------------------------------------------------------
+    def _init_pose(self, s: Optional[T.OdomSample]) -> None:
+        """Start at the first odometry pose ``s`` (or 0) when ``initial_pose_from_odom``."""
+        if self.initialised:
+            return
+        if s is not None and self.p.initial_pose_from_odom:
+            self.x[IX], self.x[IY], self.x[IYAW] = s.x, s.y, s.yaw
+        self.initialised = True
+
+    def reinitialise(self, t: float, v: float, reason: str) -> None:
+        """Reset speed and the bias/scale uncertainties, keep the pose; warn."""
+        p = self.p
+        self._flush()
+        self.x[IV] = v
+        self.x[IKW] = 1.0 if not (0.2 < self.x[IKW] < 5.0) else self.x[IKW]
+        P = np.diag(np.maximum(np.diag(self.P), 0.0))
+        P[IV, IV] = 0.25
+        P[IBG, IBG] = max(P[IBG, IBG], p.gyro_bias_init ** 2)
+        P[IBA, IBA] = max(P[IBA, IBA], p.accel_bias_init ** 2)
+        P[IKW, IKW] = max(P[IKW, IKW], p.yaw_rate_scale_init ** 2)
+        P[IKV, IKV] = max(P[IKV, IKV], p.yaw_rate_offset_init ** 2)
+        self.P = P
+        self.noise.reset()
+        self.count('reinitialisations')
+        self.warn(t, f'filter re-initialised ({reason})')
+
+    # -- prediction ------------------------------------------------------------------------
+    def _predict(self, t: float) -> None:
+        """Integrate the state to ``t`` (s); the covariance follows in chunks (see _flush)."""
+        if self.t is None:
+            self.t = t
+            return
+        dt = t - self.t
+        if dt <= 0.0:
+            return
+        if dt > self.p.sensor_timeout:
+            # every input silent (a gap, or a clock that jumped ahead): nothing is known about
+            # the motion in between, so none is invented; the odometry re-initialises after it
+            self._flush()
+            self.t = t
+            return
+        p = self.p
+        x = self.x
+        mode = (self.imu_stale, self.use_acc)
+        if mode != self._cov_mode:
+            self._flush()
+            self._cov_mode = mode
+        if self.imu_stale:
+            w_in, a_in = self._w_fallback, 0.0
+        else:
+            w_in = self.gz - x[IBG]
+            a_in = self.ax - x[IBA] if self.use_acc else 0.0
+            # clamp to what the robot can do on its wheels (seed 004's clamping): a shock
+            # or an aliased spike must not throw the speed off
+            lim = p.max_robot_accel
+            a_in = lim if a_in > lim else (-lim if a_in < -lim else a_in)
+        yaw, v = x[IYAW], x[IV]
+        c, s = math.cos(yaw), math.sin(yaw)
+        # constant-rate planar kinematics, first order (IMU as input)
+        dx, dy = v * c * dt, v * s * dt
+        x[IX] += dx
+        x[IY] += dy
+        x[IYAW] = wrap(yaw + w_in * dt)
+        v += a_in * dt
+        x[IV] = v if abs(v) <= p.max_speed else math.copysign(p.max_speed, v)
+        acc = self._cov_acc
+        acc[0] += dt
+        acc[1] += dx
+        acc[2] += dy
+        acc[3] += c * dt
+        acc[4] += s * dt
+        self.t = t
+        if acc[0] >= 0.25:
+            self._flush()
+
+    def _flush(self) -> None:
+        """Propagate P over the pending chunk of prediction (<= 0.25 s): P = F P F' + Q."""
+        dt, dx, dy, sc, ss = self._cov_acc
+        if dt <= 0.0:
+            return
+        self._cov_acc = [0.0, 0.0, 0.0, 0.0, 0.0]
+        p = self.p
+        stale, use_acc = self._cov_mode
+        F = _EYE8.copy()
+        F[IX, IYAW] = -dy  # d(displacement)/d(yaw): the displacement rotated by 90 deg
+        F[IY, IYAW] = dx
+        F[IX, IV] = sc
+        F[IY, IV] = ss
+        qs = self.noise.scales if p.adaptation == 'nis' else (1.0, 1.0)
+        if not stale:
+            F[IYAW, IBG] = -dt
+            q_yaw = (p.gyro_noise ** 2) * dt * qs[1]
+        else:
+            q_yaw = (p.odom_yaw_rate_noise ** 2) * dt
+        if use_acc and not stale:
+            F[IV, IBA] = -dt
+            q_v = (p.accel_noise ** 2) * dt * qs[0]
+        else:
+            # no accelerometer: speed as a random walk, 0.5 m/s^2/sqrt(Hz)
+            q_v = (0.5 ** 2) * dt * qs[0]
+        P = F @ self.P @ F.T
+        c, s = math.cos(self.x[IYAW]), math.sin(self.x[IYAW])
+        lat = (p.lateral_slip * abs(self.x[IV])) ** 2 * dt
+        P[IX, IX] += lat * s * s + 1e-8 * dt
+        P[IY, IY] += lat * c * c + 1e-8 * dt
+        P[IX, IY] -= lat * s * c
+        P[IY, IX] -= lat * s * c
+        P[IYAW, IYAW] += q_yaw
+        P[IV, IV] += q_v
+        P[IBG, IBG] += (p.gyro_bias_walk ** 2) * dt
+        P[IBA, IBA] += (p.accel_bias_walk ** 2) * dt
+        P[IKW, IKW] += (p.yaw_rate_scale_walk ** 2) * dt
+        P[IKV, IKV] += (p.yaw_rate_offset_walk ** 2) * dt
+        self.P = P
+
+    def _imu_step(self, t: float, gz: float, ax: float, use_acc: bool) -> Optional[str]:
+        """Predict to ``t`` (s), then hold gyro z (rad/s) and forward force (m/s^2) as input."""
+        if self.t is not None and t < self.t:
+            if self.t - t > self.p.max_lag:
+                return 'stale'
+            # a little older than the filter (sensor latency): use it from now on
+            self.count('late_imu')
+        self._predict(t)
+        self.imu_stale = False
+        self.gz, self.ax, self.use_acc = gz, ax, use_acc
+        self._gz_sum += gz
+        self._gz_n += 1
+        if self.t is None:
+            self.t = t
+        return None
+
+    # -- odometry update -------------------------------------------------------------------
+    def _scalar_update(self, h: np.ndarray, resid: float, r: float,
+                       consider: Optional[np.ndarray] = None) -> tuple[float, float]:
+        """
+        Kalman update with one scalar observation; return (innovation variance, NIS).
+
+        ``consider`` masks states left uncorrected (Schmidt-Kalman consider update):
+        their uncertainty enters the innovation variance, their values are kept.
+        """
+        Ph = self.P @ h
+        s = float(h @ Ph) + r
+        k = Ph / s
+        if consider is None:
+            self.x += k * resid
+            # P = (I - k h') P = P - Ph Ph' / s: symmetric by construction
+            self.P = self.P - np.outer(k, Ph)
+        else:
+            k[consider] = 0.0
+            self.x += k * resid
+            # Joseph form for any gain, expanded: (I - k h') P (I - k h')' + r k k'
+            #   = P - k Ph' - Ph k' + s k k'
+            kPh = np.outer(k, Ph)
+            self.P = self.P - kPh - kPh.T + s * np.outer(k, k)
+        return s, resid * resid / s
+
+    def _wheel_step(self, t: float, v: float, w: float) -> Optional[str]:
+        """Update with the wheel speed v (m/s) and yaw rate w (rad/s); return a rejection."""
+        p = self.p
+        if not self.initialised:
+            self._init_pose(None)
+        if self.t is not None and t < self.t:
+            if self.t - t > p.max_lag:
+                return 'stale'
+            t = self.t  # a little late: apply now
+        self._predict_to_wheels(t, v, w)
+        still = p.zero_velocity_update and abs(v) < p.zero_velocity_threshold and \
+            abs(w) < p.zero_velocity_threshold
+        gz_avg = self._gz_sum / self._gz_n if self._gz_n else self.gz
+        self._gz_sum, self._gz_n = 0.0, 0
+        # nominal variances of the two channels
+        r_v = (p.odom_speed_noise + p.odom_speed_noise_rel * abs(v)) ** 2
+        r_w = (p.odom_yaw_rate_noise + p.odom_yaw_rate_noise_rel * abs(w)) ** 2
+        nis_total, dof, rejected = 0.0, 0, []
+        nis_v = self._speed_update(t, v, r_v, still)
+        if nis_v is None:
+            rejected.append('slip_speed')
+        else:
+            nis_total += nis_v
+            dof += 1
+        if not self.imu_stale:
+            nis_w = self._yaw_rate_update(t, v, w, r_w, gz_avg, still)
+            if nis_w is None:
+                rejected.append('slip_yaw_rate')
+            else:
+                nis_total += nis_w
+                dof += 1
+        if still:
+            h = np.zeros(8)
+            h[IV] = 1.0
+            self._scalar_update(h, -self.x[IV], 1e-4)
+        self._last_upd_t = t
+        self._after_update(t, v, r_v, rejected, nis_total, dof)
+        if rejected:
+            return None if dof else 'gated_' + rejected[0]
+        return None
+
+    def _predict_to_wheels(self, t: float, v: float, w: float) -> None:
+        """Predict to the odometry time ``t`` (s); wheels only while the IMU is stale."""
+        p = self.p
+        gap = self.last_odom_t is not None and t - self.last_odom_t > p.sensor_timeout
+        imu_stale = self.last_imu_t is None or t - self.last_imu_t > p.sensor_timeout
+        if imu_stale and not self.imu_stale:
+            self.warn(t, 'IMU stale: propagating with wheel odometry only')
+            self.count('imu_stale_periods')
+        self.imu_stale = imu_stale
+        kw = self.x[IKW] if abs(self.x[IKW]) > 1e-3 else 1.0
+        self._w_fallback = w / kw
+        self._predict(t)
+        self._flush()
+        if gap:
+            self.count('odom_gaps')
+            self.reinitialise(t, v, f'odometry silent for {t - self.last_odom_t:.2f} s')
+        self.last_odom_t = t
+
+    def _speed_update(self, t: float, v: float, r_v: float, still: bool) -> Optional[float]:
+        """Update with the wheel speed (z = v); return its NIS, or None when gated out."""
+        h = np.zeros(8)
+        h[IV] = 1.0
+        res_v = v - self.x[IV]
+        s_pred = float(self.P[IV, IV])
+        r_eff = r_v * self.noise.scales[0]
+        s_v = s_pred + r_eff
+        nis_v = res_v * res_v / s_v
+        used = not (nis_v > self._gate and not still)
+        if used:
+            self._scalar_update(h, res_v, r_eff)
+        self.noise.adapt(0, res_v, s_pred, r_v, s_v, t)
+        return nis_v if used else None
+
+    def _yaw_rate_update(self, t: float, v: float, w: float, r_w: float, gz_avg: float,
+                         still: bool) -> Optional[float]:
+        """
+        Update with the wheel yaw rate (z = k_w (gz - b_g) + k_v v); return its NIS or None.
+
+        ``gz_avg`` is the gyro z averaged over the odometry interval (rad/s); at
+        standstill a zero-velocity update then pins the gyro bias.
+        """
+        p = self.p
+        x = self.x
+        w_imu = gz_avg - x[IBG]
+        h = np.zeros(8)
+        h[IBG] = -x[IKW]
+        h[IKW] = w_imu
+        h[IKV] = v
+        res_w = w - x[IKW] * w_imu - x[IKV] * v
+        # variance of the gyro averaged over the odometry interval: sigma^2 / T
+        interval = t - self._last_upd_t if self._last_upd_t is not None else 0.1
+        r_gyro = (x[IKW] ** 2) * (p.gyro_noise ** 2) / max(interval, 1e-3)
+        s_pred = float(h @ self.P @ h)
+        if p.adaptation == 'nis':
+            r_gyro *= self.noise.scales[1]
+        r_eff = r_w * self.noise.scales[1] + r_gyro
+        s_w = s_pred + r_eff
+        nis_w = res_w * res_w / s_w
+        used = not (nis_w > self._gate and not still)
+        if used:
+            self._scalar_update(h, res_w, r_eff, None if p.bias_from_wheels else _CONSIDER_W)
+        self.noise.adapt(1, res_w, s_pred + r_gyro, r_w, s_w, t)
+        if still:
+            # zero-velocity update: the gyro must read its bias
+            h = np.zeros(8)
+            h[IBG] = -1.0
+            # nominal gyro noise of the average over the interval (not adapted: the
+            # yaw-rate channel's scale also carries wheel noise; an adapted-down value
+            # here made the bias over-confident)
+            self._scalar_update(h, 0.0 - (gz_avg - x[IBG]),
+                                (p.gyro_noise ** 2) / max(interval, 1e-3) + 1e-6)
+        return nis_w if used else None
+
+    def _after_update(self, t: float, v: float, r_v: float, rejected: list, nis_total: float,
+                      dof: int) -> None:
+        """Count rejections, record the NIS, guard the state and extend the path length."""
+        for r in rejected:
+            self.count('rejected_' + r)
+        self._persistent_rejection(t, v, rejected, r_v * self.noise.scales[0])
+        if dof:
+            self.nis.record(nis_total, dof)
+        self._guard(t, v)
+        prev = self._pl_last
+        if prev is not None:
+            self.path_length += math.hypot(self.x[IX] - prev[0], self.x[IY] - prev[1])
+        self._pl_last = (float(self.x[IX]), float(self.x[IY]))
+
+    def _persistent_rejection(self, t: float, v: float, rejected: list, r_v: float) -> None:
+        """Re-initialise a channel whose measurements were all rejected for reinit_after (s)."""
+        p = self.p
+        for channel in ('slip_speed', 'slip_yaw_rate'):
+            if channel not in rejected:
+                self._rej_since[channel] = None
+                continue
+            since = self._rej_since[channel]
+            if since is None:
+                self._rej_since[channel] = t
+                continue
+            if t - since <= p.reinit_after:
+                continue
+            self._rej_since[channel] = None
+            P = self.P
+            if channel == 'slip_speed':
+                # the speed state lost the wheels (a long slip, a changed wheel, a bad
+                # prediction): restart it from the wheel speed, uncorrelated
+                self.x[IV] = v
+                P[IV, :] = 0.0
+                P[:, IV] = 0.0
+                P[IV, IV] = r_v + 0.01
+                what = 'speed'
+            else:
+                # the wheel yaw-rate model no longer fits: restart its scale and offset
+                for i, init in ((IKW, p.yaw_rate_scale_init), (IKV, p.yaw_rate_offset_init)):
+                    P[i, :] = 0.0
+                    P[:, i] = 0.0
+                    P[i, i] = init ** 2
+                what = 'wheel yaw-rate model'
+            self.count('reinitialisations')
+            self.warn(t, f'{what} re-initialised: wheel {channel[5:].replace("_", " ")} '
+                      f'rejected for {t - since:.1f} s')
+
+    def _guard(self, t: float, v: float) -> None:
+        """Re-initialise when the state or covariance is no longer finite or sane."""
+        P = self.P
+        bad = not math.isfinite(float(self.x.sum()) + float(P.sum()))
+        if not bad:
+            d = P.diagonal()
+            bad = float(d.min()) < 0 or d[IBG] > 1.0 or abs(self.x[IBG]) > 1.0 or \
+                not (0.05 < self.x[IKW] < 20.0)
+        if bad:
+            if not np.all(np.isfinite(self.x[:3])):
+                self.x[:3] = 0.0
+            self.x[IBG] = 0.0 if not (abs(self.x[IBG]) <= 1.0) else self.x[IBG]
+            self.x[IBA] = 0.0
+            self.x[IKW] = 1.0
+            self.x[IKV] = 0.0
+            self.P = np.diag([1.0, 1.0, 0.1, 0.25, self.p.gyro_bias_init ** 2,
+                              self.p.accel_bias_init ** 2, self.p.yaw_rate_scale_init ** 2,
+                              self.p.yaw_rate_offset_init ** 2])
+            self.reinitialise(t, v, 'state or covariance diverged')
+
+    # -- output ----------------------------------------------------------------------------
+    def _output(self) -> Optional[FusionOutput]:
+        """Return the current estimate with covariances, or None before initialisation."""
+        if self.t is None or not self.initialised:
+            return None
+        self._flush()
+        x, P = self.x, self.P
+        w = (self.gz - x[IBG]) if not self.imu_stale else self._w_fallback
+        pose_cov = P[:3, :3].copy()
+        var_w = (self.p.gyro_noise ** 2) * 30.0 + P[IBG, IBG] if not self.imu_stale else \
+            self.p.odom_yaw_rate_noise ** 2
+        lat = (self.p.lateral_slip * abs(x[IV])) ** 2 + 1e-6
+        twist_cov = np.diag([P[IV, IV], lat, var_w])
+        return FusionOutput(self.t, float(x[IX]), float(x[IY]), float(x[IYAW]), float(x[IV]),
+                            float(w), pose_cov, twist_cov)
+
+    def _estimates(self) -> dict:
+        """Return the current bias/scale estimates and adaptation state."""
+        sd = np.sqrt(np.maximum(np.diag(self.P), 0.0))
+        return {'gyro_bias': float(self.x[IBG]), 'gyro_bias_std': float(sd[IBG]),
+                'accel_bias': float(self.x[IBA]), 'accel_bias_std': float(sd[IBA]),
+                'yaw_rate_scale': float(self.x[IKW]), 'yaw_rate_scale_std': float(sd[IKW]),
+                'yaw_rate_per_speed': float(self.x[IKV]),
+                'yaw_rate_per_speed_std': float(sd[IKV]),
+                'noise_scale_speed': float(self.noise.scales[0]),
+                'noise_scale_yaw_rate': float(self.noise.scales[1])}
+
+    def _variant_result(self) -> dict:
+        """Return the noise scales, the NIS statistics and whether the IMU is stale."""
+        return {'noise_scales': (float(self.noise.scales[0]), float(self.noise.scales[1])),
+                'nis': self.nis.stats(), 'imu_stale': self.imu_stale}

@@ -1,0 +1,130 @@
+# Copyright 2026 robot_calib contributors
+# SPDX-License-Identifier: Apache-2.0
+"""
+Reports of the ``odometry_fusion`` pipeline, made from the filter's result only.
+
+:func:`diagnostic_status` is the ``/diagnostics`` status (NIS, noise
+adaptation, bias estimates, rejections, re-initialisations, lidar check),
+:func:`summary` the method's part of ``summary.json`` and :func:`plot` the
+trajectory and NIS plots.
+"""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+from typing import Any, Mapping
+
+import numpy as np
+from robot_calib.core import types as T
+from robot_calib.methods.odometry_fusion.common import FusionResult
+from robot_calib.methods.odometry_fusion.params import FusionParams
+
+
+def diagnostic_status(r: FusionResult, params: FusionParams,
+                      input_counts: Mapping[str, Mapping[str, int]]) -> T.DiagnosticStatus:
+    """
+    Return the diagnostic status of the filter: level, message and key-values.
+
+    :param r: the filter's result
+    :param params: the node's parameters
+    :param input_counts: the pipeline's counters per input (read, rejected...)
+    """
+    values = [('mode', params.mode), ('imu_extrinsic', r.imu_extrinsic),
+              ('accel_units', r.accel_units)]
+    level, msg = 0, 'ok'
+    nis = r.nis
+    if nis is not None:
+        frac = nis.in_band_fraction
+        wfrac = nis.window_in_band_fraction
+        values += [('nis_last', f'{nis.last:.3f}'), ('nis_avg', f'{nis.average:.3f}'),
+                   ('nis_band_low', f'{nis.band[0]:.3f}'),
+                   ('nis_band_high', f'{nis.band[1]:.3f}'),
+                   ('nis_in_band_fraction', f'{math.nan if frac is None else frac:.3f}'),
+                   ('nis_window_in_band_fraction',
+                    f'{math.nan if wfrac is None else wfrac:.3f}')]
+        values += [(k, f'{v:.6g}') for k, v in r.estimates.items()]
+        values.append(('imu_stale', str(r.imu_stale)))
+        if not nis.average_in_band:
+            level, msg = 1, 'NIS outside its 95% band'
+        if r.imu_stale:
+            level, msg = 1, 'IMU stale: wheel odometry only'
+    for k, v in sorted(r.counts.items()):
+        values.append((k, str(v)))
+    for key, c in sorted(input_counts.items()):
+        if c.get('rejected'):
+            values.append((f'{key}_rejected', str(c['rejected'])))
+    if math.isfinite(r.lidar_accuracy):
+        values += [('lidar_accuracy', f'{r.lidar_accuracy:.4f}'),
+                   ('lidar_accuracy_valid', str(r.lidar_valid))]
+        if not r.lidar_valid:
+            level, msg = max(level, 1), 'lidar distance check failed (accuracy < 0.95)'
+    if r.counts.get('reinitialisations'):
+        msg = msg if level else f'ok ({r.counts["reinitialisations"]} re-initialisations)'
+    if r.warnings:
+        values.append(('last_warning', r.warnings[-1][1]))
+    return T.DiagnosticStatus('odometry_fusion: filter', level, msg, 'odometry_fusion',
+                              tuple(values))
+
+
+def summary(r: FusionResult, params: FusionParams, covariances_ignored: int) -> dict[str, Any]:
+    """
+    Return estimates, adaptation state, NIS consistency, warnings and counters.
+
+    :param covariances_ignored: message covariances the pipeline found unusable
+    """
+    out: dict[str, Any] = {
+        'mode': params.mode,
+        'imu_extrinsic': r.imu_extrinsic,
+        'accel_units': r.accel_units,
+        'filter_counts': dict(r.counts),
+        'message_covariances_ignored': covariances_ignored,
+        'warnings': [f'{t:.3f}: {m}' for t, m in r.warnings[-50:]],
+        'path_length': r.path_length,
+    }
+    out['estimates'] = dict(r.estimates)
+    if r.nis is not None:
+        out['nis'] = {
+            'updates': r.nis.updates,
+            'mean': r.nis.mean,
+            'window': r.nis.window,
+            'in_band_fraction': r.nis.in_band_fraction,
+            'window_in_band_fraction': r.nis.window_in_band_fraction,
+        }
+    out['lidar_accuracy'] = {'accuracy': r.lidar_accuracy, 'valid': r.lidar_valid}
+    return out
+
+
+def plot(r: FusionResult, params: FusionParams, trajectory: list, out_dir: str) -> list[str]:
+    """
+    Draw the fused trajectory and the NIS history (PNG) into ``out_dir``; return the names.
+
+    :param trajectory: (t s, x m, y m, yaw rad) of the published estimates
+    """
+    if not trajectory:
+        return []
+    import matplotlib
+    matplotlib.use('Agg')
+    import matplotlib.pyplot as plt
+    tr = np.array(trajectory)
+    names = []
+    fig, ax = plt.subplots(figsize=(6, 6))
+    ax.plot(tr[:, 1], tr[:, 2], lw=1)
+    ax.set_aspect('equal')
+    ax.set_xlabel('x (m)')
+    ax.set_ylabel('y (m)')
+    ax.set_title(f'odometry_fusion ({params.mode}) trajectory')
+    fig.savefig(Path(out_dir) / 'odometry_fusion_trajectory.png', dpi=100)
+    plt.close(fig)
+    names.append('odometry_fusion_trajectory.png')
+    nis = r.nis
+    if nis is not None and nis.updates:
+        fig, ax = plt.subplots(figsize=(7, 3))
+        ax.semilogy(np.arange(0, nis.updates, nis.history_stride)[:len(nis.history)],
+                    nis.history, lw=0.5)
+        ax.set_xlabel('odometry update')
+        ax.set_ylabel('NIS')
+        fig.savefig(Path(out_dir) / 'odometry_fusion_nis.png', dpi=100)
+        plt.close(fig)
+        names.append('odometry_fusion_nis.png')
+    return names

@@ -1,0 +1,19 @@
+# Copyright 2026 robot_calib contributors
+# SPDX-License-Identifier: Apache-2.0
+"""The two variants of the fusion filter, chosen by ``params.mode``."""
+
+from __future__ import annotations
+
+from typing import Optional
+
+from robot_calib.methods.odometry_fusion.filter_base import FusionFilter, Log
+from robot_calib.methods.odometry_fusion.improved import ImprovedFusion
+from robot_calib.methods.odometry_fusion.params import FusionParams
+from robot_calib.methods.odometry_fusion.seed import SeedFusion
+
+
+def make_estimator(params: Optional[FusionParams] = None,
+                   log: Optional[Log] = None) -> FusionFilter:
+    """Return the filter selected by ``params.mode`` (``seed`` or ``improved``)."""
+    params = params or FusionParams()
+    return SeedFusion(params, log) if params.mode == 'seed' else ImprovedFusion(params, log)
