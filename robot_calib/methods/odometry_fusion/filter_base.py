@@ -14,6 +14,7 @@ only the pose (velocity from the pose increments).
 
 from __future__ import annotations
 
+import abc
 import math
 from typing import Any, Callable, Optional, Union
 
@@ -28,7 +29,7 @@ Log = Callable[[str, str], None]
 """A logger: (level 'info' or 'warn', message)."""
 
 
-class FusionFilter:
+class FusionFilter(abc.ABC):
     """Common bookkeeping of both filters (Estimator API, counters, warnings, lidar check)."""
 
     mode = ''
@@ -245,25 +246,25 @@ class FusionFilter:
         return lidar_accuracy(self.path_length - self._fused_at_lidar_start, self.lidar_distance)
 
     # -- to override -----------------------------------------------------------------------
+    @abc.abstractmethod
     def _init_pose(self, s: Optional[T.OdomSample]) -> None:
         """Start at the first odometry pose ``s`` (or 0) when ``initial_pose_from_odom``."""
-        raise NotImplementedError
 
+    @abc.abstractmethod
     def _imu_step(self, t: float, gz: float, ax: float, use_acc: bool) -> Optional[str]:
         """Use gyro z (rad/s) and forward specific force (m/s^2); return a rejection or None."""
-        raise NotImplementedError
 
+    @abc.abstractmethod
     def _wheel_step(self, t: float, v: float, w: float) -> Optional[str]:
         """Use the wheel speed (m/s) and yaw rate (rad/s); return a rejection or None."""
-        raise NotImplementedError
 
+    @abc.abstractmethod
     def _output(self) -> Optional[FusionOutput]:
         """Return the current estimate, or None before initialisation."""
-        raise NotImplementedError
 
+    @abc.abstractmethod
     def _estimates(self) -> dict:
         """Return the named estimates of :attr:`FusionResult.estimates`."""
-        raise NotImplementedError
 
     def _variant_result(self) -> dict:
         """Return the variant's own fields of :class:`FusionResult`."""
