@@ -18,7 +18,9 @@ from robot_calib.core.params import describe
 import yaml
 
 HEADER = """\
-# robot_calib parameters, one top-level key per node (the executable's name).
+# robot_calib parameters, one top-level key per node: /**/<executable> matches the node in any
+# namespace (a robot's /robot1/tilt_detection too); a renamed node (-r __node:=NAME) needs its
+# own key, e.g. /**/NAME. /**: would set a key for every node.
 # Load with: ros2 run robot_calib <node> --ros-args --params-file config/robot_calib.yaml
 # or replay: robot-calib replay BAG --out DIR --params config/robot_calib.yaml
 # Every key: what it is [unit] (default). Generated from the core params dataclasses by
@@ -48,7 +50,7 @@ def _emit(lines: list[str], tree: dict, indent: int) -> None:
 
 
 def node_section(name: str) -> list[str]:
-    """Return the YAML lines of one node's ``ros__parameters``."""
+    """Return the YAML lines of one node's ``ros__parameters`` (key ``/**/<name>``)."""
     cls = pipelines.load(name)
     tree: dict = {}
     for info in describe(cls.params_type):
@@ -59,7 +61,7 @@ def node_section(name: str) -> list[str]:
         node[parts[-1]] = (info.default, info.unit, info.doc)
     for key, default, unit, doc in COMMON:
         tree.setdefault(key, (default, unit, doc))
-    lines = [f'{name}:', '  ros__parameters:']
+    lines = [f'/**/{name}:', '  ros__parameters:']
     _emit(lines, tree, 4)
     return lines
 

@@ -20,7 +20,7 @@ def test_config_file_is_up_to_date():
 def test_every_node_has_a_section_and_every_key_a_comment_with_default():
     tree = yaml.safe_load(CONFIG.read_text())
     for name in pipelines.available():
-        params = flatten_nested(tree[name]['ros__parameters'])
+        params = flatten_nested(tree[f'/**/{name}']['ros__parameters'])
         cls = pipelines.load(name).params_type
         expected = {i.name for i in describe(cls)}
         assert expected <= set(params), name

@@ -84,12 +84,27 @@ def parse_overrides(overrides: Union[None, Mapping[str, Any], Iterable[str]]
     return dict(out)
 
 
+def node_of_key(key: str) -> str:
+    """
+    Return the node a parameter-file key addresses, as rcl matches it for replay's nodes.
+
+    ``/**`` (and ``/**/*``) address every node and stay ``'/**'``; ``name``,
+    ``/name``, ``/robot1/name`` and ``/**/name`` address the node ``name``
+    (replay runs each node once, so the namespace part matches it).
+    """
+    text = str(key).strip()
+    if text.strip('/') in ('**', '*', '**/*'):
+        return '/**'
+    return text.strip('/').split('/')[-1]
+
+
 def load_params_file(path: Union[str, os.PathLike, None]) -> dict[str, dict[str, Any]]:
     """
     Read a ROS 2 parameter YAML (node -> ros__parameters -> nested or dotted keys).
 
-    Returns ``{node name: {dotted name: value}}``; ``/**`` (all nodes) is kept as
-    the key ``'/**'``. Raises ReplayError when the file is missing or malformed.
+    Returns ``{node name: {dotted name: value}}``; keys may carry a namespace or
+    wildcards as rcl allows (:func:`node_of_key`); ``/**`` (all nodes) is kept
+    as the key ``'/**'``. Raises ReplayError when the file is missing or malformed.
     """
     if path is None:
         return {}
@@ -108,16 +123,14 @@ def load_params_file(path: Union[str, os.PathLike, None]) -> dict[str, dict[str,
     if not isinstance(data, dict):
         raise ReplayError(f'parameter file {p}: expected a mapping of node names to '
                           '{ros__parameters: {...}}')
-    out = {}
+    out: dict[str, dict[str, Any]] = {}
     for node, section in data.items():
-        name = str(node)
-        if name != '/**':
-            name = name.lstrip('/')
         if not isinstance(section, dict) or not isinstance(
                 section.get('ros__parameters', {}), dict):
             raise ReplayError(f'parameter file {p}: node {node!r} must map to '
                               '{ros__parameters: {...}}')
-        out[name] = flatten_nested(section.get('ros__parameters') or {})
+        flat = flatten_nested(section.get('ros__parameters') or {})
+        out.setdefault(node_of_key(node), {}).update(flat)
     return out
 
 
