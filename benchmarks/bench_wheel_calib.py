@@ -33,7 +33,13 @@ sys.path.insert(0, str(REPO))
 DATA = REPO.parent / 'shared' / 'data'
 OUT = REPO / 'docs' / 'bench' / '7-wheel-calib.md'
 
-from robot_calib.methods.wheel_odometry_calibration import estimator as W  # noqa: E402
+from robot_calib.core.estimator import run_batch  # noqa: E402
+from robot_calib.methods.wheel_odometry_calibration import params as P  # noqa: E402
+from robot_calib.methods.wheel_odometry_calibration import solver as S  # noqa: E402
+from robot_calib.methods.wheel_odometry_calibration.improved import (  # noqa: E402
+    ImprovedWheelCalibrator)
+from robot_calib.methods.wheel_odometry_calibration.stages import (  # noqa: E402
+    SeedSteeredCalibrator)
 
 MM = 1e3
 DEG = 180.0 / math.pi
@@ -69,11 +75,11 @@ def censi_section() -> str:
     for name in censi.FILES:
         segs = censi.load_tuples(folder / f'{name}.tuple')
         ref = censi.load_results(folder / f'{name}_results.json')
-        refx = np.array([ref[k] for k in W.DIFF_KEYS])
-        faithful = W.censi_calibrate(segs)['x']
-        p = W.WheelCalibParams(drive_type='differential', wheel_radius=0.02, track_width=0.09)
-        res = W.calibrate('differential', segs, p)
-        imp = np.array([res.values[k] for k in W.DIFF_KEYS])
+        refx = np.array([ref[k] for k in P.DIFF_KEYS])
+        faithful = S.censi_calibrate(segs)['x']
+        p = P.WheelCalibParams(drive_type='differential', wheel_radius=0.02, track_width=0.09)
+        res = S.calibrate('differential', segs, p)
+        imp = np.array([res.values[k] for k in P.DIFF_KEYS])
         row = {}
         for tag, x in (('faithful', faithful), ('improved', imp)):
             d = np.array([2 * (x[0] - refx[0]) * MM, 2 * (x[1] - refx[1]) * MM,
@@ -130,14 +136,14 @@ def tricycle_section() -> str:
         return float(e.mean()), float(e.max())
 
     nominal = dict(data.nominal)
-    p = W.WheelCalibParams(drive_type='steered_wheel', **nominal)
+    p = P.WheelCalibParams(drive_type='steered_wheel', **nominal)
     t0 = time.perf_counter()
-    res = W.calibrate('steered_wheel', TR.segments(data, 0, half, 10), p)
+    res = S.calibrate('steered_wheel', TR.segments(data, 0, half, 10), p)
     secs = time.perf_counter() - t0
-    full = W.calibrate('steered_wheel', TR.segments(data, 0, n - 1, 10), p)
-    seed_p = W.WheelCalibParams(drive_type='steered_wheel', mode='seed', **nominal)
+    full = S.calibrate('steered_wheel', TR.segments(data, 0, n - 1, 10), p)
+    seed_p = P.WheelCalibParams(drive_type='steered_wheel', mode='seed', **nominal)
     seed_stages = TR.stages(data, 0, half)
-    seed = W.SeedSteeredCalibrator(seed_p).run(seed_stages)
+    seed = SeedSteeredCalibrator(seed_p).run(seed_stages)
     b_ho, a_ho, s_ho = errors(nominal, half, n - 1), errors(res.values, half, n - 1), \
         errors(seed.values, half, n - 1)
     b_all, a_all = errors(nominal, 0, n - 1), errors(full.values, 0, n - 1)
@@ -156,7 +162,7 @@ def tricycle_section() -> str:
              'the beginning of the half) against the tracker, mean and max over the half.', '',
              '| parameter | nominal | improved, fit on first half | std |',
              '|---|---|---|---|']
-    for k in W.STEER_KEYS:
+    for k in P.STEER_KEYS:
         label, unit = names[k]
         scale = 2 * math.pi if k == 'wheel_radius' else 1.0
         lines.append(f'| {label} {f"({unit})" if unit else ""} | {nominal[k] * scale:.6g} | '
@@ -178,7 +184,7 @@ def tricycle_section() -> str:
     rows = ['| segment length (samples) | held-out mean (m) | held-out max (m) |',
             '|---|---|---|']
     for win in (5, 10, 20, 40):
-        r = W.calibrate('steered_wheel', TR.segments(data, 0, half, win), p)
+        r = S.calibrate('steered_wheel', TR.segments(data, 0, half, win), p)
         m = errors(r.values, half, n - 1)
         rows.append(f'| {win} | {m[0]:.3f} | {m[1]:.3f} |')
     lines += ['Sensitivity to the segment length (improved):', ''] + rows + ['']
@@ -200,17 +206,17 @@ def breezy_section() -> str:
     results = []
     for run in ('exp1', 'exp2'):
         samples = B.load(DATA / 'breezyslam' / f'{run}.dat')
-        p = W.WheelCalibParams(drive_type='differential', wheel_radius=B.WHEEL_RADIUS,
+        p = P.WheelCalibParams(drive_type='differential', wheel_radius=B.WHEEL_RADIUS,
                                track_width=B.TRACK_WIDTH, lidar_x=B.LIDAR_X)
         t0 = time.perf_counter()
-        cal = W.WheelCalibrator(p, max_range=5.6)
-        res = cal.run(samples)
+        res = run_batch(ImprovedWheelCalibrator(p, max_range=5.6, periodic=False),
+                        samples).result
         secs = time.perf_counter() - t0
         results.append(res)
         v, s = res.values, res.stds
-        c = cal.counts
+        c = res.counts
         lines.append(
-            f'| {run} | {len(cal.segments)} / {c["match_attempts"]} | '
+            f'| {run} | {res.segments} / {c["match_attempts"]} | '
             f'{res.details.get("outliers", 0)} | {v["left_wheel_radius"] * MM:.1f} +- '
             f'{s["left_wheel_radius"] * MM:.1f} | {v["right_wheel_radius"] * MM:.1f} +- '
             f'{s["right_wheel_radius"] * MM:.1f} | {v["track_width"] * MM:.1f} +- '
@@ -219,13 +225,13 @@ def breezy_section() -> str:
             f'+- {s["lidar_yaw"] * DEG:.2f} | {secs:.1f} | {res.verdict} |')
     shifted = []
     for run in ('exp1', 'exp2'):
-        p = W.WheelCalibParams(drive_type='differential', wheel_radius=B.WHEEL_RADIUS,
+        p = P.WheelCalibParams(drive_type='differential', wheel_radius=B.WHEEL_RADIUS,
                                track_width=B.TRACK_WIDTH, lidar_x=B.LIDAR_X,
                                scan_time_offset=-0.1)
-        cal = W.WheelCalibrator(p, max_range=5.6)
-        r = cal.run(B.load(DATA / 'breezyslam' / f'{run}.dat'))
+        r = run_batch(ImprovedWheelCalibrator(p, max_range=5.6, periodic=False),
+                      B.load(DATA / 'breezyslam' / f'{run}.dat')).result
         shifted.append(f'{run}: {r.details.get("outliers", 0)} outliers of '
-                       f'{len(cal.segments)}, radii {r.values["left_wheel_radius"] * MM:.1f} / '
+                       f'{r.segments}, radii {r.values["left_wheel_radius"] * MM:.1f} / '
                        f'{r.values["right_wheel_radius"] * MM:.1f} mm, track '
                        f'{r.values["track_width"] * MM:.1f} mm')
     lines += ['', 'Many segments disagree with the model (fast rover, ~1 m/s and ~1 rad/s, in '
@@ -237,7 +243,7 @@ def breezy_section() -> str:
     a, b = results
     lines += ['', '| quantity | exp1 - exp2 | combined std | difference / std |',
               '|---|---|---|---|']
-    for k in W.DIFF_KEYS:
+    for k in P.DIFF_KEYS:
         d = a.values[k] - b.values[k]
         sd = math.hypot(a.stds[k], b.stds[k])
         unit = DEG if k == 'lidar_yaw' else MM
@@ -261,26 +267,25 @@ def _sim_one(name: str, seed: int, with_time: bool = False) -> dict:
     t0 = time.perf_counter()
     sim = run_scenario(name, seed=seed)
     t1 = time.perf_counter()
-    p = W.WheelCalibParams(**SIM_NOMINAL[name])
-    cal = W.WheelCalibrator(p)
-    for topic, sample in sim.messages:
-        if topic.lstrip('/') in ('joint_states', 'scan'):
-            cal.update(sample)
-    res = cal.solve(final=True)
+    p = P.WheelCalibParams(**SIM_NOMINAL[name])
+    cal = ImprovedWheelCalibrator(p, periodic=False)
+    res = run_batch(cal, [sample for topic, sample in sim.messages
+                          if topic.lstrip('/') in ('joint_states', 'scan')]).result
     t2 = time.perf_counter()
     out = {'truth': sim.truth, 'res': res, 'sim_s': t1 - t0, 'calib_s': t2 - t1,
            'duration': sim.truth['duration']}
-    if cal.seed is not None:
-        out['seed'] = cal.seed.result()
-        out['stages'] = len(cal.seed.records)
-        out['stages_needed'] = cal.seed.stages_needed
-        if cal.seed.stages_needed:
-            out['seed_time'] = cal.seed.records[cal.seed.stages_needed - 1].t1
+    gate = cal.stage_gate  # the seed's stages of the same drive, for comparison
+    if gate is not None:
+        out['seed'] = gate.result()
+        out['stages'] = len(gate.records)
+        out['stages_needed'] = gate.stages_needed
+        if gate.stages_needed:
+            out['seed_time'] = gate.records[gate.stages_needed - 1].t1
         if with_time:  # drive time the improved estimator needs (prefix solves every 20 s)
             truth = sim.truth
             for t_end in np.arange(20.0, sim.truth['duration'] + 1.0, 20.0):
-                segs = [s for s in cal.segments if s.t1 <= t_end]
-                r = W.calibrate(p.drive_type, segs, p)
+                segs = [s for s in cal.front.segments if s.t1 <= t_end]
+                r = S.calibrate(p.drive_type, segs, p)
                 if r.converged and abs(r.values['steering_offset']
                                        - truth['steering_offset']) * DEG <= 0.02:
                     out['improved_time'] = float(t_end)
@@ -330,7 +335,7 @@ def sim_section(n_seeds: int, budget_s: float = math.inf) -> str:
     if done < requested:
         lines.insert(2, f'**Time budget reached: {done} of {requested} seeds were run.**\n')
     agv = runs['agv_segments']
-    keys = W.STEER_KEYS
+    keys = P.STEER_KEYS
     err = {k: np.array([r['res'].values[k] - r['truth'][k] for r in agv]) for k in keys}
     std = {k: np.array([r['res'].stds[k] for r in agv]) for k in keys}
     conv = sum(r['res'].converged for r in agv)
@@ -339,7 +344,7 @@ def sim_section(n_seeds: int, budget_s: float = math.inf) -> str:
               '| parameter | median abs error | max abs error | median std | 95 % coverage |',
               '|---|---|---|---|---|']
     for k in keys:
-        unit, fmt = (DEG, 'deg') if k in W.ANGLE_KEYS else (1.0, '')
+        unit, fmt = (DEG, 'deg') if k in P.ANGLE_KEYS else (1.0, '')
         rel = k in ('wheel_radius', 'wheel_base', 'steering_scale')
         e = np.abs(err[k]) / (agv[0]['truth'][k] if rel else 1.0) * (100 if rel else unit)
         sd = std[k] / (agv[0]['truth'][k] if rel else 1.0) * (100 if rel else unit)
@@ -378,7 +383,7 @@ def sim_section(n_seeds: int, budget_s: float = math.inf) -> str:
               '| wheel base, steering scale, lidar pose | estimated (table above) | not '
               'estimated (nominal) |', '']
     diff = runs['diff_segments']
-    keys = W.DIFF_KEYS
+    keys = P.DIFF_KEYS
     lines += ['### Differential drive (`diff_segments`, 180 s: radii +0.8 % / -0.5 %, track '
               '+2 %)', '',
               '| parameter | median abs error | max abs error | median std | 95 % coverage |',

@@ -7,7 +7,11 @@ import math
 import numpy as np
 import pytest
 from robot_calib.core import kinematics as K
-from robot_calib.methods.wheel_odometry_calibration import estimator as W
+from robot_calib.core.estimator import run_batch
+from robot_calib.methods.wheel_odometry_calibration import params as P
+from robot_calib.methods.wheel_odometry_calibration import solver as S
+from robot_calib.methods.wheel_odometry_calibration.improved import ImprovedWheelCalibrator
+from robot_calib.methods.wheel_odometry_calibration.stages import SeedSteeredCalibrator
 import yaml
 
 DIFF_TRUTH = {'left_wheel_radius': 0.0504, 'right_wheel_radius': 0.0497, 'track_width': 0.306,
@@ -21,7 +25,7 @@ def _params(drive, **kw):
     base = {'drive_type': drive, 'wheel_radius': 0.05 if diff else 0.1, 'wheel_base': 1.0,
             'track_width': 0.3, 'lidar_x': 0.1 if diff else 0.5}
     base.update(kw)
-    return W.WheelCalibParams(**base)
+    return P.WheelCalibParams(**base)
 
 
 def _diff_segments(rng, n=120, noise=(0.0, 0.0, 0.0), kind='mixed'):
@@ -37,9 +41,9 @@ def _diff_segments(rng, n=120, noise=(0.0, 0.0, 0.0), kind='mixed'):
         else:
             a, b = rng.uniform(2.0, 8.0, 2) * (1 if i % 2 else -1)
             steps = np.tile([a, b], (k, 1)) / k
-        segs.append(W.Segment(i, i + 1, steps, np.zeros(3)))
-    x = np.array([DIFF_TRUTH[k] for k in W.DIFF_KEYS])
-    pred = W.predict('differential', x, W.pad_steps(segs))
+        segs.append(K.Segment(i, i + 1, steps, np.zeros(3)))
+    x = np.array([DIFF_TRUTH[k] for k in P.DIFF_KEYS])
+    pred = S.predict('differential', x, S.pad_steps(segs))
     for s, p in zip(segs, pred):
         s.sensor_motion = p + rng.normal(0.0, 1.0, 3) * np.asarray(noise)
     return segs
@@ -56,9 +60,9 @@ def _steer_segments(rng, n=150, noise=(0.0, 0.0, 0.0), kind='mixed', truth=STEER
         else:
             reading = np.full(k, rng.uniform(0.2, 0.8) * (1 if i % 4 == 1 else -1))
         dphi = np.full(k, rng.uniform(2.0, 4.0) / k)
-        segs.append(W.Segment(i, i + 1, np.column_stack((dphi, reading)), np.zeros(3)))
-    x = np.array([truth[k] for k in W.STEER_KEYS])
-    pred = W.predict('steered_wheel', x, W.pad_steps(segs))
+        segs.append(K.Segment(i, i + 1, np.column_stack((dphi, reading)), np.zeros(3)))
+    x = np.array([truth[k] for k in P.STEER_KEYS])
+    pred = S.predict('steered_wheel', x, S.pad_steps(segs))
     for s, p in zip(segs, pred):
         s.sensor_motion = p + rng.normal(0.0, 1.0, 3) * np.asarray(noise)
     return segs
@@ -91,16 +95,16 @@ def test_steered_and_diff_arc_by_hand():
 # -- solvers on exact synthetic data -------------------------------------------------------
 def test_censi_closed_form_exact():
     segs = _diff_segments(np.random.default_rng(1))
-    x = W.censi_closed_form(segs)
-    np.testing.assert_allclose(x, [DIFF_TRUTH[k] for k in W.DIFF_KEYS], atol=1e-9)
+    x = S.censi_closed_form(segs)
+    np.testing.assert_allclose(x, [DIFF_TRUTH[k] for k in P.DIFF_KEYS], atol=1e-9)
 
 
 def test_joint_fit_differential_recovers_truth_with_honest_std():
     rng = np.random.default_rng(2)
     segs = _diff_segments(rng, n=300, noise=(0.002, 0.002, 0.001))
-    res = W.calibrate('differential', segs, _params('differential'))
+    res = S.calibrate('differential', segs, _params('differential'))
     assert res.verdict == 'converged', res.verdict
-    for k in W.DIFF_KEYS:
+    for k in P.DIFF_KEYS:
         assert abs(res.values[k] - DIFF_TRUTH[k]) < 4 * res.stds[k], k
         assert res.stds[k] > 0
     assert res.segments_used >= 290
@@ -111,9 +115,9 @@ def test_joint_fit_steered_recovers_truth_from_far_nominal():
     segs = _steer_segments(rng, noise=(0.001, 0.001, 0.0003))
     # nominal far from the truth: scale 0.5 instead of 1.03, no lidar yaw knowledge
     p = _params('steered_wheel', steering_scale=0.5)
-    res = W.calibrate('steered_wheel', segs, p)
+    res = S.calibrate('steered_wheel', segs, p)
     assert res.verdict == 'converged', res.verdict
-    for k in W.STEER_KEYS:
+    for k in P.STEER_KEYS:
         assert abs(res.values[k] - STEER_TRUTH[k]) < 4 * res.stds[k], k
 
 
@@ -121,7 +125,7 @@ def test_slip_in_one_segment_is_rejected():
     rng = np.random.default_rng(4)
     segs = _diff_segments(rng, n=150, noise=(0.001, 0.001, 0.0005))
     segs[9].sensor_motion = segs[9].sensor_motion * np.array([0.6, 0.6, 1.0])  # wheel slip
-    res = W.calibrate('differential', segs, _params('differential'))
+    res = S.calibrate('differential', segs, _params('differential'))
     assert res.details['outliers'] >= 1
     assert res.verdict == 'converged'
     assert abs(res.values['left_wheel_radius'] - DIFF_TRUTH['left_wheel_radius']) < 1e-4
@@ -131,7 +135,7 @@ def test_slip_in_one_segment_is_rejected():
 def test_steered_no_turns_is_not_converged():
     segs = _steer_segments(np.random.default_rng(5), kind='straight',
                            noise=(0.001, 0.001, 0.0003))
-    res = W.calibrate('steered_wheel', segs, _params('steered_wheel'))
+    res = S.calibrate('steered_wheel', segs, _params('steered_wheel'))
     assert res.verdict != 'converged'
     assert 'turn both ways' in res.verdict
     assert res.stds['steering_scale'] > 0.01  # scale unobservable: large, honest std
@@ -139,22 +143,22 @@ def test_steered_no_turns_is_not_converged():
 
 def test_steered_one_way_turns_asks_for_both_ways():
     segs = _steer_segments(np.random.default_rng(6), kind='left', noise=(0.001, 0.001, 0.0003))
-    res = W.calibrate('steered_wheel', segs, _params('steered_wheel'))
+    res = S.calibrate('steered_wheel', segs, _params('steered_wheel'))
     assert 'turn both ways' in res.verdict
 
 
 def test_diff_only_spinning_says_straight_segments_missing():
     segs = _diff_segments(np.random.default_rng(7), kind='spin', noise=(0.001, 0.001, 0.0005))
-    res = W.calibrate('differential', segs, _params('differential'))
+    res = S.calibrate('differential', segs, _params('differential'))
     assert res.verdict != 'converged'
     assert 'straight' in res.verdict
 
 
 def test_too_little_data():
     segs = _diff_segments(np.random.default_rng(8), n=6)
-    res = W.calibrate('differential', segs, _params('differential'))
+    res = S.calibrate('differential', segs, _params('differential'))
     assert res.verdict.lower().startswith('too little data')
-    res = W.calibrate('differential', [], _params('differential'))
+    res = S.calibrate('differential', [], _params('differential'))
     assert res.verdict.startswith('Too little data')
     assert res.segments_used == 0
 
@@ -167,14 +171,14 @@ def _stage(offset_true, comp_reading=0.0, travel_rad=30.0, params=None, scene_no
     steps = np.column_stack((np.full(k, travel_rad / k), np.full(k, comp_reading)))
     x = np.array([offset_true, p.steering_scale, p.wheel_radius, p.wheel_base,
                   p.lidar_x, p.lidar_y, p.lidar_yaw])
-    sm = W.predict('steered_wheel', x, steps[None])[0]
+    sm = S.predict('steered_wheel', x, steps[None])[0]
     sm[2] += scene_noise
-    return W.Segment(0.0, 1.0, steps, sm)
+    return K.Segment(0.0, 1.0, steps, sm)
 
 
 def test_seed_stage_offset_solves_rotation_equation():
     p = _params('steered_wheel', mode='seed')
-    cal = W.SeedSteeredCalibrator(p)
+    cal = SeedSteeredCalibrator(p)
     seg = _stage(0.0123, comp_reading=-0.004, params=p)
     assert cal.stage_offset(seg) == pytest.approx(0.0123, abs=1e-9)
 
@@ -183,7 +187,7 @@ def test_seed_gate_counter_reset_and_convergence():
     p = _params('steered_wheel', mode='seed')
     p.seed.consecutive_stages = 3
     p.seed.offset_threshold = 0.001
-    cal = W.SeedSteeredCalibrator(p)
+    cal = SeedSteeredCalibrator(p)
     true_off = 0.02
     r0 = cal.update(_stage(true_off, params=p))
     # first stage: compensation 0, residual = the whole offset: gate closed
@@ -207,15 +211,15 @@ def test_seed_gate_counter_reset_and_convergence():
 def test_seed_radius_from_scene_displacement():
     p = _params('steered_wheel', mode='seed')
     p.seed.consecutive_stages = 2
-    truth = W.WheelCalibParams(**{**p.__dict__, 'wheel_radius': 0.1015})
-    cal = W.SeedSteeredCalibrator(p)
+    truth = P.WheelCalibParams(**{**p.__dict__, 'wheel_radius': 0.1015})
+    cal = SeedSteeredCalibrator(p)
     for _ in range(4):
         cal.update(_stage(0.0, params=truth))
     assert cal.radius == pytest.approx(0.1015, rel=1e-6)
 
 
 def test_seed_without_stages_says_what_is_missing():
-    res = W.SeedSteeredCalibrator(_params('steered_wheel', mode='seed')).run([])
+    res = SeedSteeredCalibrator(_params('steered_wheel', mode='seed')).run([])
     assert res.verdict != 'converged' and 'straight' in res.verdict
     assert math.isnan(res.stds['wheel_base'])
 
@@ -223,14 +227,14 @@ def test_seed_without_stages_says_what_is_missing():
 # -- result format -------------------------------------------------------------------------
 def test_yaml_is_the_contract_format():
     segs = _steer_segments(np.random.default_rng(9), noise=(0.001, 0.001, 0.0003))
-    res = W.calibrate('steered_wheel', segs, _params('steered_wheel'))
+    res = S.calibrate('steered_wheel', segs, _params('steered_wheel'))
     d = yaml.safe_load(res.to_yaml())
     assert list(d)[0] == 'drive_type' and d['drive_type'] == 'steered_wheel'
-    for k in W.STEER_KEYS:
+    for k in P.STEER_KEYS:
         assert isinstance(d[k], float) and isinstance(d[k + '_std'], float)
     assert d['segments_used'] == res.segments_used and d['verdict'] == res.verdict
     assert list(d)[-2:] == ['segments_used', 'verdict']
-    seed = W.SeedSteeredCalibrator(_params('steered_wheel', mode='seed')).result()
+    seed = SeedSteeredCalibrator(_params('steered_wheel', mode='seed')).result()
     d = yaml.safe_load(seed.to_yaml())
     assert math.isnan(d['wheel_base_std'])
 
@@ -259,7 +263,7 @@ def _stream(drive, truth, wrap_steering=False, wrap_traction=False, fail_every=0
     """Yield wheel samples and scans of a drive with straights and turns both ways."""
     from robot_calib.core import types as T
     world = _TruthWorld(drive, truth, fail_every)
-    keys = W.keys_of(drive)
+    keys = P.keys_of(drive)
     x = np.array([truth[k] for k in keys])
     dt = 0.02
     pose = np.zeros(3)
@@ -281,7 +285,7 @@ def _stream(drive, truth, wrap_steering=False, wrap_traction=False, fail_every=0
             step = np.array([[da, 0.5 * (b + reading) if i else reading]])
             a, b = a + da, reading
             names, pos = ('traction_joint', 'steering_joint'), (a, b)
-        pose = K.compose(pose, W.base_motion(drive, x, step[None])[0])
+        pose = K.compose(pose, S.base_motion(drive, x, step[None])[0])
         pa, pb = pos
         if wrap_traction:
             pa = math.remainder(pa, 2 * math.pi)
@@ -301,41 +305,42 @@ def test_front_end_exact_stream(drive):
     truth = DIFF_TRUTH if drive == 'differential' else STEER_TRUTH
     world, samples = _stream(drive, truth)
     p = _params(drive)
-    cal = W.WheelCalibrator(p, matcher=None, prepare=world.prepare)
-    cal._deskewed_points = lambda scan: scan  # the fake matcher needs the scan identity
-    cal.matcher = lambda src, tgt, guess: world.matcher(src, tgt, guess)
-    res = cal.run(samples)
-    for k in W.keys_of(drive):
+    cal = ImprovedWheelCalibrator(p, matcher=world.matcher, prepare=world.prepare,
+                                  periodic=False)
+    cal.front.deskewed_points = lambda scan: scan  # the fake matcher needs the scan identity
+    res = run_batch(cal, samples).result
+    for k in P.keys_of(drive):
         assert res.values[k] == pytest.approx(truth[k], abs=1e-5), k
     if drive == 'steered_wheel':
-        assert cal.counts['stages'] >= 3
+        assert res.counts['stages'] >= 3
 
 
 def test_front_end_steering_encoder_wraps_and_traction_wraps():
     world, samples = _stream('steered_wheel', STEER_TRUTH, wrap_steering=True,
                              wrap_traction=True)
-    cal = W.WheelCalibrator(_params('steered_wheel'), prepare=world.prepare)
-    cal._deskewed_points = lambda scan: scan
-    cal.matcher = world.matcher
-    res = cal.run(samples)
-    assert cal.counts['encoder_unwraps'] > 0
+    cal = ImprovedWheelCalibrator(_params('steered_wheel'), matcher=world.matcher,
+                                  prepare=world.prepare, periodic=False)
+    cal.front.deskewed_points = lambda scan: scan
+    res = run_batch(cal, samples).result
+    assert res.counts['encoder_unwraps'] > 0
     assert res.values['steering_offset'] == pytest.approx(STEER_TRUTH['steering_offset'],
                                                           abs=1e-5)
 
 
 def test_front_end_failed_matches_give_a_clear_verdict():
     world, samples = _stream('differential', DIFF_TRUTH, fail_every=3)
-    cal = W.WheelCalibrator(_params('differential'), prepare=world.prepare)
-    cal._deskewed_points = lambda scan: scan
-    cal.matcher = world.matcher
-    res = cal.run(samples)
+    cal = ImprovedWheelCalibrator(_params('differential'), matcher=world.matcher,
+                                  prepare=world.prepare, periodic=False)
+    cal.front.deskewed_points = lambda scan: scan
+    res = run_batch(cal, samples).result
     assert 'failed to match' in res.verdict
 
 
 def test_front_end_without_wheel_data():
     from robot_calib.core import types as T
-    cal = W.WheelCalibrator(_params('differential'))
-    res = cal.run([T.ScanSample(0.1 * i, 0.0, 0.1, np.full(10, 2.0)) for i in range(20)])
+    cal = ImprovedWheelCalibrator(_params('differential'), periodic=False)
+    res = run_batch(cal, [T.ScanSample(0.1 * i, 0.0, 0.1, np.full(10, 2.0))
+                          for i in range(20)]).result
     assert 'no wheel data' in res.verdict.lower() and res.segments_used == 0
 
 
@@ -345,14 +350,14 @@ def test_censi_reproduces_the_authors(shared_data):
     folder = shared_data / 'censi_calibration'
     segs = censi.load_tuples(folder / 'l90_0.tuple')
     ref = censi.load_results(folder / 'l90_0_results.json')
-    out = W.censi_calibrate(segs)
-    got = dict(zip(W.DIFF_KEYS, out['x']))
+    out = S.censi_calibrate(segs)
+    got = dict(zip(P.DIFF_KEYS, out['x']))
     for k in ('left_wheel_radius', 'right_wheel_radius'):
         assert abs(got[k] - ref[k]) < 0.05e-3  # diameter within 0.1 mm
     assert abs(got['track_width'] - ref['track_width']) < 0.3e-3
     assert abs(got['lidar_yaw'] - ref['lidar_yaw']) < math.radians(0.1)
     p = _params('differential', wheel_radius=0.02, track_width=0.09)
-    res = W.calibrate('differential', segs, p)
+    res = S.calibrate('differential', segs, p)
     assert abs(res.values['track_width'] - ref['track_width']) < 0.3e-3
     assert res.stds['track_width'] < 1e-3
 
@@ -362,8 +367,8 @@ def test_tricycle_first_half_calibration_beats_nominal(shared_data):
     data = tricycle.load(shared_data / 'tricycle' / 'dataset.txt')
     n = len(data.t)
     half = n // 2
-    p = W.WheelCalibParams(drive_type='steered_wheel', **data.nominal)
-    res = W.calibrate('steered_wheel', tricycle.segments(data, 0, half, 20), p)
+    p = P.WheelCalibParams(drive_type='steered_wheel', **data.nominal)
+    res = S.calibrate('steered_wheel', tricycle.segments(data, 0, half, 20), p)
 
     def mean_error(values):
         pred = tricycle.dead_reckon(data, values, half, n - 1)
@@ -374,7 +379,7 @@ def test_tricycle_first_half_calibration_beats_nominal(shared_data):
 
 def test_seed_mode_differential_is_censi_faithful():
     segs = _diff_segments(np.random.default_rng(10), n=200, noise=(0.001, 0.001, 0.0005))
-    res = W.solve(_params('differential', mode='seed'), segs)
-    for k in W.DIFF_KEYS:
+    res = S.censi_result(segs, _params('differential', mode='seed'))
+    for k in P.DIFF_KEYS:
         assert abs(res.values[k] - DIFF_TRUTH[k]) < 5 * res.stds[k], k
     assert res.segments_used < 200  # the authors' trimming drops ~1 % per pass

@@ -7,7 +7,7 @@ import math
 import numpy as np
 import pytest
 from robot_calib.core import types as T
-from robot_calib.methods.wheel_odometry_calibration.estimator import WheelCalibParams
+from robot_calib.methods.wheel_odometry_calibration.params import WheelCalibParams
 from robot_calib.methods.wheel_odometry_calibration.pipeline import WheelCalibrationPipeline
 from ros_helpers import spin_until
 import yaml
@@ -54,7 +54,7 @@ def test_pipeline_short_agv_drive_is_not_confident():
     assert values['drive_type'] == 'steered_wheel' and values['final'] == 'true'
     assert values['verdict'] != 'converged' and status.level == 1
     # the lidar pose came from /tf_static (sim lidar at x = 0.5), not the parameter (0.3)
-    assert pipe.calib.sensor_pose[0] == pytest.approx(0.5)
+    assert pipe.result.nominal_lidar_pose[0] == pytest.approx(0.5)
     text = pipe.artifacts()['wheel_calibration.yaml']
     d = yaml.safe_load(text)
     assert d['verdict'] == values['verdict'] and 'steering_offset_std' in d
@@ -72,7 +72,7 @@ def test_pipeline_odom_only_and_bad_joint_names():
     # odom instead of joint_states: virtual wheel rotations from the nominal geometry
     pipe = WheelCalibrationPipeline(WheelCalibParams(drive_type='differential'))
     _feed(pipe, res.messages, topics=('odom', 'scan', 'tf_static'))
-    assert len(pipe.calib.segments) > 5
+    assert pipe.result.segments > 5
     assert 'no wheel data' not in pipe.result.verdict.lower()
 
 

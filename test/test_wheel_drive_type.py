@@ -6,7 +6,7 @@ import json
 
 import pytest
 from robot_calib.methods.wheel_odometry_calibration import drive_detect as D
-from robot_calib.methods.wheel_odometry_calibration.estimator import WheelCalibParams
+from robot_calib.methods.wheel_odometry_calibration.params import WheelCalibParams
 from robot_calib.methods.wheel_odometry_calibration.pipeline import WheelCalibrationPipeline
 from test_wheel_calib_nodes import _feed, _sim
 import yaml
@@ -68,14 +68,14 @@ def test_configured_drive_contradicted_by_the_joints_never_converges():
     # the differential robot's joints, the steered drive configured
     pipe = WheelCalibrationPipeline(WheelCalibParams(drive_type='steered_wheel'))
     _feed(pipe, res.messages, topics=('joint_states', 'odom', 'scan', 'tf_static'))
-    assert pipe.calib.segments, 'the odometry fallback produced no segments'
+    assert pipe.result.segments, 'the odometry fallback produced no segments'
     verdict = pipe.result.verdict
     assert verdict != 'converged'
     assert 'looks differential' in verdict and 'set drive_type' in verdict
     # the same drive with the right (detected) drive type: joints used, drive not in question
     pipe = WheelCalibrationPipeline(WheelCalibParams(wheel_radius=0.05, track_width=0.3))
     _feed(pipe, res.messages, topics=('joint_states', 'odom', 'scan', 'tf_static'))
-    assert pipe.calib.drive == 'differential'
+    assert pipe.result.drive_type == 'differential'
     assert pipe.summary()['inputs']['joint_states']['accepted'] > 100
     assert 'drive' not in pipe.result.verdict
 
@@ -84,7 +84,7 @@ def test_odometry_alone_cannot_tell_the_drive():
     res = _sim('diff_segments', 40.0)
     pipe = WheelCalibrationPipeline(WheelCalibParams(wheel_radius=0.05, track_width=0.3))
     _feed(pipe, res.messages, topics=('odom', 'scan', 'tf_static'))
-    assert len(pipe.calib.segments) > 5
+    assert pipe.result.segments > 5
     assert pipe.result.verdict.startswith('Drive type unknown')
     # told explicitly, the same odometry is calibrated
     pipe = WheelCalibrationPipeline(WheelCalibParams(drive_type='differential'))

@@ -1,0 +1,203 @@
+# Copyright 2026 robot_calib contributors
+# SPDX-License-Identifier: Apache-2.0
+"""
+The wheel data of a calibration drive: positions, their steps and the nominal odometry.
+
+A traction or wheel position that jumps by about 2 pi is unwrapped (using
+the joint velocity when present), a steering reading is wrapped to (-pi, pi].
+The whole drive is kept (8 bytes a value) for the final re-deskew.
+"""
+
+from __future__ import annotations
+
+from array import array
+import bisect
+import math
+from typing import Any, Callable, Optional
+
+import numpy as np
+from robot_calib.core import kinematics as K
+from robot_calib.core.geometry import wrap_angle
+from robot_calib.core.series import Rows
+
+
+class WheelHistory:
+    """
+    Wheel positions of one drive type and the odometry they integrate to.
+
+    Differential drive: (phi_l, phi_r) (rad); steered drive wheel: (traction
+    rad, steering reading rad). ``x_nom`` holds the nominal parameters in
+    :func:`robot_calib.methods.wheel_odometry_calibration.params.keys_of`
+    order (read, never written).
+    """
+
+    def __init__(self, drive: str, x_nom: np.ndarray, max_wheel_gap: float):
+        """Start an empty history for ``drive``; steps over gaps > ``max_wheel_gap`` (s) fail."""
+        self.drive = drive
+        self.x_nom = x_nom
+        self.max_wheel_gap = max_wheel_gap
+        self.t, self.a, self.b = array('d'), array('d'), array('d')
+        self.pose = Rows(3)
+        self._last_raw: Optional[tuple] = None
+
+    def _step_pose(self, da: float, b0: float, b1: float) -> np.ndarray:
+        """Return the nominal base motion of one wheel step."""
+        x = self.x_nom
+        if self.drive == 'differential':
+            ds, dth = K.diff_arc(da, b1 - b0, x[0], x[1], x[2])
+        else:
+            ds, dth = K.steered_arc(da, 0.5 * (b0 + b1), x[2], x[3], x[0], x[1])
+        return K.arc_pose(ds, dth)
+
+    def add(self, t: float, a: float, b: float, va: float = math.nan,
+            vb: float = math.nan) -> int:
+        """
+        Add one wheel sample; return how many of its positions were unwrapped (0 to 2).
+
+        :param t: time (s)
+        :param a: left wheel / traction joint position (rad)
+        :param b: right wheel position / steering reading (rad)
+        :param va: velocity of ``a`` (rad/s, NaN when unknown), used to unwrap
+        :param vb: velocity of ``b`` (rad/s, NaN when unknown)
+        """
+        if self.drive == 'steered_wheel':
+            b = wrap_angle(b)
+        if self._last_raw is None:
+            self.t.append(t)
+            self.a.append(a)
+            self.b.append(b)
+            self.pose.append(np.zeros(3))
+            self._last_raw = (t, a, b)
+            return 0
+        t0, a0, b0 = self._last_raw
+        da, ka = _unwrap(a - a0, va, t - t0)
+        db, kb = _unwrap(b - b0, vb, t - t0) if self.drive == 'differential' else (0.0, 0)
+        self._last_raw = (t, a, b)
+        na = self.a[-1] + da
+        nb = self.b[-1] + db if self.drive == 'differential' else b
+        step = self._step_pose(da, self.b[-1], nb)
+        self.pose.append(K.compose(self.pose[-1], step))
+        self.t.append(t)
+        self.a.append(na)
+        self.b.append(nb)
+        return int(ka != 0) + int(kb != 0)
+
+    def virtual_rotations(self, rel: np.ndarray, nominal: dict) -> tuple[float, float]:
+        """
+        Return the wheel positions (rad) after a base motion ``rel`` (m, m, rad) (odometry).
+
+        The nominal geometry inverts the motion into wheel rotations (so the
+        nominal parameters must be those the odometry source uses).
+        """
+        dth = wrap_angle(rel[2])
+        chord = math.hypot(rel[0], rel[1])
+        arc = 1.0 if abs(dth) < 1e-9 else (dth / 2) / math.sin(dth / 2)
+        ds = math.copysign(chord, rel[0]) * arc
+        n = nominal
+        if self.drive == 'differential':
+            dl = (ds - n['track_width'] * dth / 2) / n['left_wheel_radius']
+            dr = (ds + n['track_width'] * dth / 2) / n['right_wheel_radius']
+            return self.a[-1] + dl, self.b[-1] + dr
+        lat = n['wheel_base'] * dth
+        dw = math.copysign(math.hypot(ds, lat), ds if ds != 0 else 1.0)
+        if abs(dw) < 1e-12:
+            reading = self.b[-1]
+        else:
+            alpha = math.atan2(lat / dw, ds / dw)
+            reading = (alpha - n['steering_offset']) / n['steering_scale']
+        return self.a[-1] + dw / n['wheel_radius'], reading
+
+    def odom_at(self, t: float) -> tuple[np.ndarray, int]:
+        """Return the nominal odometry pose interpolated at ``t`` and the sample index after."""
+        i = bisect.bisect_left(self.t, t)
+        if i == 0:
+            return self.pose[0].copy(), 0
+        if i >= len(self.t):
+            return self.pose[-1].copy(), len(self.t) - 1
+        t0, t1 = self.t[i - 1], self.t[i]
+        w = (t - t0) / (t1 - t0) if t1 > t0 else 1.0
+        p0, p1 = self.pose[i - 1], self.pose[i]
+        return p0 + w * (p1 - p0), i
+
+    def _wheel_at(self, t: float) -> tuple[float, float]:
+        i = min(max(bisect.bisect_left(self.t, t), 1), len(self.t) - 1)
+        t0, t1 = self.t[i - 1], self.t[i]
+        w = (t - t0) / (t1 - t0) if t1 > t0 else 1.0
+        a = self.a[i - 1] + w * (self.a[i] - self.a[i - 1])
+        b = self.b[i - 1] + w * (self.b[i] - self.b[i - 1])
+        return a, b
+
+    def steps(self, t0: float, t1: float) -> Optional[np.ndarray]:
+        """Return the wheel steps between t0 and t1 (s) (None over a data gap)."""
+        i0, i1 = bisect.bisect_right(self.t, t0), bisect.bisect_left(self.t, t1)
+        times = np.concatenate(([t0], self.t[i0:i1], [t1]))
+        if np.max(np.diff(times)) > self.max_wheel_gap:
+            return None
+        a0, b0 = self._wheel_at(t0)
+        a1, b1 = self._wheel_at(t1)
+        aa = np.concatenate(([a0], self.a[i0:i1], [a1]))
+        bb = np.concatenate(([b0], self.b[i0:i1], [b1]))
+        if self.drive == 'differential':
+            return np.column_stack((np.diff(aa), np.diff(bb)))
+        return np.column_stack((np.diff(aa), 0.5 * (bb[1:] + bb[:-1])))
+
+    def poses_with(self, x: np.ndarray) -> list[np.ndarray]:
+        """Return the odometry poses (m, m, rad) of all samples, integrated with ``x``."""
+        a, b = np.asarray(self.a), np.asarray(self.b)
+        if self.drive == 'differential':
+            steps = np.column_stack((np.diff(a), np.diff(b)))
+        else:
+            steps = np.column_stack((np.diff(a), 0.5 * (b[1:] + b[:-1])))
+        if self.drive == 'differential':
+            ds, dth = K.diff_arc(steps[:, 0], steps[:, 1], x[0], x[1], x[2])
+        else:
+            ds, dth = K.steered_arc(steps[:, 0], steps[:, 1], x[2], x[3], x[0], x[1])
+        arcs = K.arc_pose(ds, dth)
+        poses = [np.zeros(3)]
+        for st in arcs:
+            poses.append(K.compose(poses[-1], st))
+        return poses
+
+    def pose_at(self, poses: list, t: float) -> np.ndarray:
+        """Return ``poses`` (one per sample) linearly interpolated at ``t`` (s)."""
+        times = self.t
+        i = min(max(bisect.bisect_left(times, t), 1), len(times) - 1)
+        t0, t1 = times[i - 1], times[i]
+        w = (t - t0) / (t1 - t0) if t1 > t0 else 1.0
+        return poses[i - 1] + w * (poses[i] - poses[i - 1])
+
+    def sensor_motion_during(self, scan: Any, sensor_pose: np.ndarray,
+                             poses: Optional[Any] = None,
+                             ) -> Callable[[np.ndarray], np.ndarray]:
+        """
+        Return the sensor's motion during ``scan`` for :func:`robot_calib.core.frames.scan_points`.
+
+        The returned function maps times after the stamp (s) to the sensor
+        poses (N, 3) (m, m, rad) relative to the sensor at the stamp, from the
+        odometry (nominal, or ``poses``, one per sample) interpolated at each
+        time and the sensor pose (x m, y m, yaw rad) in base_link.
+        """
+        pose_list = self.pose if poses is None else poses
+
+        def motion(dt: np.ndarray) -> np.ndarray:
+            first, last = scan.time_span()
+            lo = max(bisect.bisect_left(self.t, first) - 1, 0)
+            hi = bisect.bisect_right(self.t, last) + 1
+            tt = np.asarray(self.t[lo:hi])
+            rows = np.asarray(pose_list[lo:hi])
+            ti = scan.t + dt
+            at = np.column_stack([np.interp(ti, tt, rows[:, j]) for j in range(3)])
+            a0 = np.array([np.interp(scan.t, tt, rows[:, j]) for j in range(3)])
+            rel = K.compose(np.broadcast_to(K.inverse(a0), at.shape), at)
+            return K.sensor_motion(rel, sensor_pose)
+        return motion
+
+
+def _unwrap(d: float, v: float, dt: float) -> tuple[float, int]:
+    """Return a position step (rad) without its whole turns, and the turns removed."""
+    two_pi = 2 * math.pi
+    if math.isfinite(v):
+        k = round((d - v * dt) / two_pi)
+    else:
+        k = round(d / two_pi) if abs(d) > math.pi else 0
+    return d - k * two_pi, k
