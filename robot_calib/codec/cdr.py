@@ -139,7 +139,7 @@ def _cov36(cov3: np.ndarray) -> list:
 
 
 def imu_to_cdr(s: T.ImuSample) -> bytes:
-    """Serialize an :class:`ImuSample` as convert.serialize does, without building a message."""
+    """Serialize an :class:`ImuSample` as the generic path does, without building a message."""
     buf = _cdr_header(T.stamp_of(s.t, s.stamp_ns), s.frame_id)
     _pad(buf, 8)
     if s.orientation is None:
@@ -154,7 +154,7 @@ def imu_to_cdr(s: T.ImuSample) -> bytes:
 
 
 def odom_to_cdr(s: T.OdomSample) -> bytes:
-    """Serialize an :class:`OdomSample` as convert.serialize does, without building a message."""
+    """Serialize an :class:`OdomSample` as the generic path does, without building a message."""
     buf = _cdr_header(T.stamp_of(s.t, s.stamp_ns), s.frame_id)
     _pad(buf, 4)
     cb = s.child_frame_id.encode()

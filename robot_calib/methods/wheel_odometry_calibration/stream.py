@@ -15,6 +15,7 @@ how it estimates (:meth:`StreamingCalibrator._estimate`).
 
 from __future__ import annotations
 
+import abc
 import dataclasses
 from typing import Any, Callable, Optional
 
@@ -29,7 +30,7 @@ from robot_calib.methods.wheel_odometry_calibration.segmenter import DriveSegmen
 from robot_calib.methods.wheel_odometry_calibration.stages import SeedSteeredCalibrator
 
 
-class StreamingCalibrator:
+class StreamingCalibrator(abc.ABC):
     """
     Calibrate wheel odometry (and the lidar pose) from a stream of wheel data and scans.
 
@@ -181,9 +182,9 @@ class StreamingCalibrator:
             details['seed_stages_needed'] = self.stage_gate.stages_needed
         return dataclasses.replace(res, details=details)
 
+    @abc.abstractmethod
     def _estimate(self, final: bool, problems: list[str]) -> CalibResult:
         """Return the variant's estimate; ``problems`` are what the input lacked."""
-        raise NotImplementedError
 
     def _stream_result(self, calib: CalibResult, final: bool) -> WheelCalibResult:
         front, gate = self.front, self.stage_gate
