@@ -56,9 +56,12 @@ import numpy as np
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 
+from robot_calib.core.estimator import run_batch  # noqa: E402
 from robot_calib.core.geometry import se2_between, se2_compose, se2_inverse  # noqa: E402
-from robot_calib.methods.gyro_line_calibration.estimator import (  # noqa: E402
-    Correction, GyroLineCalibrator, GyroLineParams)
+from robot_calib.methods.gyro_line_calibration.common import Correction  # noqa: E402
+from robot_calib.methods.gyro_line_calibration.params import GyroLineParams  # noqa: E402
+from robot_calib.methods.gyro_line_calibration.pipeline import make_estimator  # noqa: E402
+from robot_calib.methods.gyro_line_calibration.seed import SeedGyroLine  # noqa: E402
 from robot_calib.sim import run_scenario  # noqa: E402
 
 DATA = REPO.parent / 'shared' / 'data'
@@ -67,7 +70,7 @@ DEG = math.pi / 180.0
 DEG_H = DEG / 3600.0
 
 
-class SnapBaseline(GyroLineCalibrator):
+class SnapBaseline(SeedGyroLine):
     """Heuristic drift elimination: snap the heading towards the dominant 90-deg grid."""
 
     def __init__(self, gain: float = 0.5, window: float = 5.0 * DEG, min_length: float = 1.0):
@@ -169,23 +172,23 @@ def run_method(method: str, result, truth: Truth, switch: float):
         p = GyroLineParams(mode='seed' if method == 'seed' else 'improved')
         if method == 'seed':
             p.seed.phase_switch_time = max(switch, 1e-3)
-        core = GyroLineCalibrator(p)
+        core = make_estimator(p)
     est_t, est_h = [], []
     scan_cpu = []
     cpu0 = time.process_time()
     for topic, m in result.messages:
         if topic == '/tf_static':
             for tf in m:
-                core.set_transform(tf)
+                core.set_mounting(tf)
         elif topic == '/imu':
-            core.update_imu(m)
+            core.update(m)
             est_t.append(m.t)
-            est_h.append(core.x[2])
+            est_h.append(core.heading)
         elif topic == '/odom':
-            core.update_odom(m)
+            core.update(m)
         elif topic == '/scan':
             c0 = time.process_time()
-            core.update_scan(m)
+            core.update(m)
             scan_cpu.append(time.process_time() - c0)
     cpu = time.process_time() - cpu0
     est_t = np.array(est_t)
@@ -209,7 +212,7 @@ def run_method(method: str, result, truth: Truth, switch: float):
             'n_after_bad': int((after > 0.5).sum()), 'corrections': len(core.corrections),
             'rms': float(np.sqrt(np.mean(err ** 2))), 'max': float(np.abs(err).max()),
             'wrong': wrong, 'cpu': cpu, 'scan_ms': _scan_stats(scan_cpu),
-            'bias_est': core.gyro_bias, 'counts': dict(core.counts)}
+            'bias_est': core.result().gyro_bias, 'counts': dict(core.counts)}
 
 
 def _scan_stats(scan_cpu: list) -> dict:
@@ -363,11 +366,9 @@ def replay_speed(lines: list, speed: dict, duration: float = 600.0) -> None:
         c0 = time.process_time()
         msgs = list(read_messages([bag], ['/imu', '/odom', '/scan', '/tf_static']))
         read_cpu = time.process_time() - c0
-    core = GyroLineCalibrator()
+    core = make_estimator()
     c0 = time.process_time()
-    for m in msgs:
-        for sample in m.samples:
-            core.update(sample)
+    run_batch(core, (sample for m in msgs for sample in m.samples))
     core_cpu = time.process_time() - c0
     st = [x for x in speed['scan_ms'] if x['n']]
     med = float(np.median([x['median'] for x in st])) if st else float('nan')
@@ -402,7 +403,7 @@ def real(lines: list) -> None:
     from robot_calib.core.scan_match import register
     from robot_calib.io.datasets.carmen import read_log
     log = read_log(path)
-    core = GyroLineCalibrator(GyroLineParams(heading_source='odom'))
+    core = make_estimator(GyroLineParams(heading_source='odom'))
     poses, raw = [], []
     c0 = time.process_time()
     for key, s in log.messages():

@@ -9,10 +9,11 @@ import pytest
 
 from robot_calib.core import types as T
 from robot_calib.core.lines import line_from_endpoints
-from robot_calib.methods.gyro_line_calibration.estimator import (
-    condition2, condition2_many, GyroLineCalibrator, GyroLineParams, MatchParams,
-    seed_calibrated_angle, seed_heading_correction)
-from robot_calib.methods.gyro_line_calibration.pipeline import GyroLinePipeline
+from robot_calib.methods.gyro_line_calibration.improved import ImprovedGyroLine
+from robot_calib.methods.gyro_line_calibration.params import GyroLineParams, MatchParams
+from robot_calib.methods.gyro_line_calibration.pipeline import GyroLinePipeline, make_estimator
+from robot_calib.methods.gyro_line_calibration.seed import (
+    condition2, condition2_many, seed_calibrated_angle, seed_heading_correction, SeedGyroLine)
 from robot_calib.sim import run_scenario
 
 DEG = math.pi / 180.0
@@ -65,7 +66,7 @@ def test_seed_phase_logic_first_length_and_time_recalibration():
     p = GyroLineParams(mode='seed')
     p.seed.recalibration_time = 20.0
     p.seed.recalibration_length_ratio = 1.5
-    c = GyroLineCalibrator(p)
+    c = SeedGyroLine(p)
     wall = _line(0.0, 0.0, 0.0, 2.0)
     side = _line(1.5, 1.0, 90.0, 1.2)
     assert c._seed_step([wall, side], 0.0) == []             # S1: references
@@ -94,7 +95,7 @@ def test_seed_phase_logic_first_length_and_time_recalibration():
 
 # -- improved mode guards (exact geometry) ---------------------------------------------
 def _improved_with(refs, pos_sigma=0.05, heading_sigma=0.2 * DEG):
-    c = GyroLineCalibrator(GyroLineParams())
+    c = ImprovedGyroLine(GyroLineParams())
     c.initialized = True
     c.P = np.diag([pos_sigma ** 2, pos_sigma ** 2, heading_sigma ** 2, 1e-10, 1e-6])
     for line in refs:
@@ -179,12 +180,12 @@ def test_passing_person_never_becomes_a_reference():
 
 # -- simulated vacuum run --------------------------------------------------------------
 def _run(result, params):
-    c = GyroLineCalibrator(params)
+    c = make_estimator(params)
     est = []
     for topic, m in result.messages:
         if topic == '/tf_static':
             for tf in m:
-                c.set_transform(tf)
+                c.set_mounting(tf)
         elif topic in ('/imu', '/odom', '/scan'):
             c.update(m)
             if topic == '/imu':
@@ -205,7 +206,7 @@ def test_vacuum_scenario_automatic_mode_beats_uncorrected_gyro():
     assert abs(raw[-1]) > 1.5
     assert abs(err[-1]) < 0.5
     assert len(c.corrections) > 10
-    assert 0.0 < c.gyro_bias < 2.0 * bias     # learning the bias (slowly: 2 minutes only)
+    assert 0.0 < c.result().gyro_bias < 2.0 * bias     # learning the bias (slowly: 2 minutes only)
 
 
 # -- bad input through the pipeline ----------------------------------------------------

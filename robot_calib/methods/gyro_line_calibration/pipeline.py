@@ -3,8 +3,10 @@
 """
 Pipeline of the ``gyro_line_calibration`` node: imu + odom + scan -> ``gyro_line/odom``.
 
-Glue only: samples go to
-:class:`robot_calib.methods.gyro_line_calibration.estimator.GyroLineCalibrator`.
+Glue only: samples go to the estimator variant that ``mode`` selects
+(:class:`~robot_calib.methods.gyro_line_calibration.seed.SeedGyroLine` or
+:class:`~robot_calib.methods.gyro_line_calibration.improved.ImprovedGyroLine`);
+everything published is read from what ``update`` returns and from ``result()``.
 On every accepted odometry sample the pose with the corrected heading is
 published on ``gyro_line/odom`` (nav_msgs/Odometry, same stamp and frames as
 the input odometry; pose covariance of x, y, yaw from the filter). A
@@ -22,14 +24,27 @@ from __future__ import annotations
 
 import itertools
 import math
-from typing import Any
+from typing import Any, Optional
 
 import numpy as np
 
 from robot_calib.core import types as T
 from robot_calib.core.series import Thinned
-from robot_calib.methods.gyro_line_calibration.estimator import GyroLineCalibrator, GyroLineParams
+from robot_calib.methods.gyro_line_calibration.base import GyroLineBase
+from robot_calib.methods.gyro_line_calibration.common import GyroLineResult
+from robot_calib.methods.gyro_line_calibration.improved import ImprovedGyroLine
+from robot_calib.methods.gyro_line_calibration.params import GyroLineParams
+from robot_calib.methods.gyro_line_calibration.seed import SeedGyroLine
 from robot_calib.pipelines.base import InputSpec, Output, OutputSpec, Pipeline
+
+ESTIMATORS = {'seed': SeedGyroLine, 'improved': ImprovedGyroLine}
+"""The estimator variant of each ``mode``."""
+
+
+def make_estimator(params: Optional[GyroLineParams] = None) -> GyroLineBase:
+    """Return the estimator variant ``params.mode`` selects (defaults when None)."""
+    params = params if params is not None else GyroLineParams()
+    return ESTIMATORS[params.mode](params)
 
 
 class GyroLinePipeline(Pipeline):
@@ -50,84 +65,83 @@ class GyroLinePipeline(Pipeline):
     )
 
     def __init__(self, params: Any = None, log: Any = None):
-        """Create the pipeline and its calibrator."""
+        """Create the pipeline and its estimator."""
         super().__init__(params, log)
-        self.core = GyroLineCalibrator(self.params)
+        self.core = make_estimator(self.params)
         self._next_diag = None
+        self._odom_resets = 0
         self._trace = Thinned()  # (t, x, y, yaw) for the plot
 
     def on_static_transform(self, transform: T.StaticTransform) -> None:
-        """Take the IMU and laser mountings from /tf_static."""
-        self.core.set_transform(transform)
+        """Forward a /tf_static mounting (IMU or laser) to the estimator."""
+        self.core.set_mounting(transform)
 
     def handle(self, key: str, sample: Any) -> list[Output]:
-        """Feed one accepted sample to the core; return the corrected pose and diagnostics."""
-        core = self.core
-        if key == 'imu':
-            core.update_imu(sample)
-            return []
-        if key == 'edge_following':
-            core.set_phase(bool(sample.value), sample.t)
-            return []
+        """Feed one accepted sample to the estimator; return the corrected pose and diagnostics."""
+        made = self.core.update(sample)
         if key == 'scan':
-            before = core.counts.get('corrections', 0)
-            _, reason = core.update_scan(sample)
+            reason = self.core.result().scan_rejected
             if reason is not None:
                 self.reject('scan', reason)
-            if core.counts.get('corrections', 0) > before:
-                c = core.corrections[-1]
+            if made:
+                c = made[-1]
                 self.log('debug', f'heading corrected by {math.degrees(c.delta):+.3f} deg '
                          f'({c.kind}, references {list(c.reference_ids)})')
                 return self._diagnostics(sample, force=True)
             return []
-        resets = core.counts.get('odom_resets', 0)
-        pose = core.update_odom(sample)
-        if core.counts.get('odom_resets', 0) > resets:
-            self.log('warn', 'odometry reset or jump: pose kept, lines distrusted for a while')
-        if not core.initialized:
+        if key != 'odom':
             return []
+        res = self.core.result()
+        resets = res.counts.get('odom_resets', 0)
+        if resets > self._odom_resets:
+            self._odom_resets = resets
+            self.log('warn', 'odometry reset or jump: pose kept, lines distrusted for a while')
+        if not res.initialized:
+            return []
+        pose = res.pose
         if not self._trace or sample.t - self._trace[-1][0] >= 0.1:
             self._trace.append((sample.t, float(pose[0]), float(pose[1]), float(pose[2])))
-        cov = np.array(core.P[:3, :3])
         out = T.OdomSample(sample.t, float(pose[0]), float(pose[1]), float(pose[2]),
-                           sample.vx, sample.vy, core.rate, sample.frame_id,
-                           sample.child_frame_id, cov, sample.twist_cov, sample.z,
+                           sample.vx, sample.vy, res.rate, sample.frame_id,
+                           sample.child_frame_id, res.pose_cov, sample.twist_cov, sample.z,
                            sample.roll, sample.pitch, sample.stamp_ns)
-        return [('odom', out)] + self._diagnostics(sample)
+        return [('odom', out)] + self._diagnostics(sample, res=res)
 
     # -- diagnostics -----------------------------------------------------------------------
-    def _diagnostics(self, sample: Any, force: bool = False) -> list[Output]:
+    def _diagnostics(self, sample: Any, force: bool = False,
+                     res: Optional[GyroLineResult] = None) -> list[Output]:
         if not force and self._next_diag is not None and sample.t < self._next_diag:
             return []
         self._next_diag = sample.t + self.params.diagnostics_period
-        return [('diagnostics', T.DiagnosticSample(sample.t, (self.status(sample.t),),
+        return [('diagnostics', T.DiagnosticSample(sample.t, (self.status(sample.t, res),),
                                                    sample.stamp_ns))]
 
-    def status(self, t: float) -> T.DiagnosticStatus:
-        """Return the diagnostic status at time ``t`` (s)."""
-        core = self.core
-        last = core.corrections[-1] if core.corrections else None
+    def status(self, t: float, res: Optional[GyroLineResult] = None) -> T.DiagnosticStatus:
+        """Return the diagnostic status at time ``t`` (s) (of ``res``, else the latest result)."""
+        res = res if res is not None else self.core.result()
+        last = res.last_correction
+        trusted = res.trusted(t)
         rejected = {f'rejected_{k}.{r[9:]}': v for k, c in self.counts.items()
                     for r, v in c.items() if r.startswith('rejected_')}
         values = [
             ('mode', self.params.mode),
-            ('phase', 'edge_following' if core.edge_following else 'work'),
-            ('corrections', str(core.counts.get('corrections', 0))),
+            ('phase', 'edge_following' if res.edge_following else 'work'),
+            ('corrections', str(res.counts.get('corrections', 0))),
             ('last_correction_deg', f'{math.degrees(last.delta):.4f}' if last else 'none'),
             ('last_correction_time', f'{last.t:.3f}' if last else 'none'),
-            ('references', str(len(core.references))),
-            ('tentative_references', str(len(core.tentative))),
-            ('heading_sigma_deg', f'{math.degrees(core.heading_sigma):.4f}'),
-            ('gyro_bias_deg_per_h', f'{math.degrees(core.gyro_bias) * 3600.0:.3f}'),
-            ('trusted', str(core.trusted(t))),
+            ('references', str(len(res.references))),
+            ('tentative_references', str(res.tentative_references)),
+            ('heading_sigma_deg', f'{math.degrees(res.heading_sigma):.4f}'),
+            ('gyro_bias_deg_per_h', f'{math.degrees(res.gyro_bias) * 3600.0:.3f}'),
+            ('trusted', str(trusted)),
         ]
         values += [(k, str(v)) for k, v in sorted(rejected.items())]
-        values += [(f'events.{k}', str(v)) for k, v in sorted(core.counts.items())
+        values += [(f'events.{k}', str(v)) for k, v in sorted(res.counts.items())
                    if k not in ('lines',)]
         level, msg = 0, 'ok'
-        if not core.trusted(t):
+        if not trusted:
             level, msg = 1, 'lines not used: untrusted data (carried, odometry reset or gap)'
-        elif not core.corrections:
+        elif not res.corrections:
             msg = 'no correction yet'
         return T.DiagnosticStatus('gyro_line_calibration: heading', level, msg,
                                   'gyro_line_calibration', tuple(values))
@@ -135,25 +149,25 @@ class GyroLinePipeline(Pipeline):
     # -- results ---------------------------------------------------------------------------
     def method_summary(self) -> dict[str, Any]:
         """Return corrections, references, bias estimate and event counts."""
-        core = self.core
-        deltas = np.array([c.delta for c in core.corrections])
+        res = self.core.result()
+        deltas = np.array([c.delta for c in res.corrections])
         return {
             'mode': self.params.mode,
-            'corrections': core.counts.get('corrections', 0),
+            'corrections': res.counts.get('corrections', 0),
             'correction_total_deg': float(np.degrees(deltas.sum())) if deltas.size else 0.0,
-            'corrections_kept': len(core.corrections),
+            'corrections_kept': len(res.corrections),
             'correction_abs_max_deg': float(np.degrees(np.abs(deltas).max()))
             if deltas.size else 0.0,
             'corrections_list': [
                 {'t': c.t, 'delta_deg': math.degrees(c.delta), 'kind': c.kind,
                  'angle_error_deg': math.degrees(c.angle_error),
                  'references': list(c.reference_ids)}
-                for c in itertools.islice(core.corrections, 500)],
-            'references': len(core.references),
-            'gyro_bias': core.gyro_bias,
-            'heading_sigma': core.heading_sigma,
-            'final_pose': [float(v) for v in core.pose] if core.initialized else None,
-            'events': dict(core.counts),
+                for c in itertools.islice(res.corrections, 500)],
+            'references': len(res.references),
+            'gyro_bias': res.gyro_bias,
+            'heading_sigma': res.heading_sigma,
+            'final_pose': [float(v) for v in res.pose] if res.initialized else None,
+            'events': dict(res.counts),
         }
 
     def plot(self, out_dir: str) -> list[str]:
@@ -170,13 +184,13 @@ class GyroLinePipeline(Pipeline):
         tr = np.array(list(self._trace))
         fig, ax = plt.subplots(1, 2, figsize=(11, 4.5))
         ax[0].plot(tr[:, 1], tr[:, 2], lw=0.7)
-        for ref in self.core.references:
-            ax[0].plot([ref.line.p1[0], ref.line.p2[0]], [ref.line.p1[1], ref.line.p2[1]],
-                       'k-', lw=1.5)
+        res = self.core.result()
+        for line in res.references:
+            ax[0].plot([line.p1[0], line.p2[0]], [line.p1[1], line.p2[1]], 'k-', lw=1.5)
         ax[0].set_aspect('equal')
         ax[0].set_title('corrected trajectory and reference lines (m)')
-        if self.core.corrections:
-            c = np.array([(x.t, math.degrees(x.delta)) for x in self.core.corrections])
+        if res.corrections:
+            c = np.array([(x.t, math.degrees(x.delta)) for x in res.corrections])
             ax[1].plot(c[:, 0], np.cumsum(c[:, 1]), '.-', ms=2)
         ax[1].set_xlabel('t (s)')
         ax[1].set_ylabel('cumulative heading correction (deg)')
