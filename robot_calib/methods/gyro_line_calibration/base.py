@@ -25,6 +25,7 @@ The seed phase (work or edge following) is input handling too: it comes from
 
 from __future__ import annotations
 
+import abc
 from collections import deque
 import math
 from typing import Any, Optional
@@ -43,7 +44,7 @@ _DEG = math.pi / 180.0
 _LASER_WORDS = ('laser', 'scan', 'lidar')
 
 
-class GyroLineBase:
+class GyroLineBase(abc.ABC):
     """
     Streaming gyro-line heading calibration; feed samples in time order.
 
@@ -436,6 +437,6 @@ class GyroLineBase:
             self.grid.clear()  # its hits were placed with the old pose
         return out
 
+    @abc.abstractmethod
     def _step(self, lines: list[Line], t: float) -> list[Correction]:
         """Use the lines of one trusted scan at ``t`` (s); return the corrections made."""
-        raise NotImplementedError
