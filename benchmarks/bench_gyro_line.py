@@ -60,8 +60,8 @@ from robot_calib.core.estimator import run_batch  # noqa: E402
 from robot_calib.core.geometry import se2_between, se2_compose, se2_inverse  # noqa: E402
 from robot_calib.methods.gyro_line_calibration.common import Correction  # noqa: E402
 from robot_calib.methods.gyro_line_calibration.params import GyroLineParams  # noqa: E402
-from robot_calib.methods.gyro_line_calibration.pipeline import make_estimator  # noqa: E402
 from robot_calib.methods.gyro_line_calibration.seed import SeedGyroLine  # noqa: E402
+from robot_calib.methods.gyro_line_calibration.variants import make_estimator  # noqa: E402
 from robot_calib.sim import run_scenario  # noqa: E402
 
 DATA = REPO.parent / 'shared' / 'data'

@@ -11,9 +11,10 @@ from robot_calib.core import types as T
 from robot_calib.core.lines import line_from_endpoints
 from robot_calib.methods.gyro_line_calibration.improved import ImprovedGyroLine
 from robot_calib.methods.gyro_line_calibration.params import GyroLineParams, MatchParams
-from robot_calib.methods.gyro_line_calibration.pipeline import GyroLinePipeline, make_estimator
+from robot_calib.methods.gyro_line_calibration.pipeline import GyroLinePipeline
 from robot_calib.methods.gyro_line_calibration.seed import (
     condition2, condition2_many, seed_calibrated_angle, seed_heading_correction, SeedGyroLine)
+from robot_calib.methods.gyro_line_calibration.variants import make_estimator
 from robot_calib.sim import run_scenario
 
 DEG = math.pi / 180.0

@@ -30,21 +30,10 @@ import numpy as np
 
 from robot_calib.core import types as T
 from robot_calib.core.series import Thinned
-from robot_calib.methods.gyro_line_calibration.base import GyroLineBase
 from robot_calib.methods.gyro_line_calibration.common import GyroLineResult
-from robot_calib.methods.gyro_line_calibration.improved import ImprovedGyroLine
 from robot_calib.methods.gyro_line_calibration.params import GyroLineParams
-from robot_calib.methods.gyro_line_calibration.seed import SeedGyroLine
+from robot_calib.methods.gyro_line_calibration.variants import make_estimator
 from robot_calib.pipelines.base import InputSpec, Output, OutputSpec, Pipeline
-
-ESTIMATORS = {'seed': SeedGyroLine, 'improved': ImprovedGyroLine}
-"""The estimator variant of each ``mode``."""
-
-
-def make_estimator(params: Optional[GyroLineParams] = None) -> GyroLineBase:
-    """Return the estimator variant ``params.mode`` selects (defaults when None)."""
-    params = params if params is not None else GyroLineParams()
-    return ESTIMATORS[params.mode](params)
 
 
 class GyroLinePipeline(Pipeline):

@@ -12,8 +12,12 @@ from robot_calib.methods.odometry_fusion.params import FusionParams
 from robot_calib.methods.odometry_fusion.seed import SeedFusion
 
 
+VARIANTS = {'seed': SeedFusion, 'improved': ImprovedFusion}
+"""The filter variant of each ``mode``."""
+
+
 def make_estimator(params: Optional[FusionParams] = None,
                    log: Optional[Log] = None) -> FusionFilter:
     """Return the filter selected by ``params.mode`` (``seed`` or ``improved``)."""
     params = params or FusionParams()
-    return SeedFusion(params, log) if params.mode == 'seed' else ImprovedFusion(params, log)
+    return VARIANTS[params.mode](params, log)

@@ -22,14 +22,11 @@ from typing import Any, Optional
 
 from robot_calib.core import types as T
 from robot_calib.methods.wheel_odometry_calibration.common import WheelCalibResult
-from robot_calib.methods.wheel_odometry_calibration.improved import ImprovedWheelCalibrator
 from robot_calib.methods.wheel_odometry_calibration.params import WheelCalibParams
-from robot_calib.methods.wheel_odometry_calibration.seed import SeedWheelCalibrator
+from robot_calib.methods.wheel_odometry_calibration.variants import make_estimator
 from robot_calib.pipelines.base import InputSpec, Output, OutputSpec, Pipeline
 
 STATUS_NAME = 'wheel_odometry_calibration'
-VARIANTS = {'seed': SeedWheelCalibrator, 'improved': ImprovedWheelCalibrator}
-"""The estimator of each ``mode``."""
 
 
 class WheelCalibrationPipeline(Pipeline):
@@ -49,8 +46,7 @@ class WheelCalibrationPipeline(Pipeline):
                  matcher: Any = None, prepare: Any = None):
         """Create the estimator of ``mode``; ``matcher``/``prepare`` replace the registration."""
         super().__init__(params, log)
-        self.estimator = VARIANTS[self.params.mode](self.params, matcher=matcher,
-                                                    prepare=prepare)
+        self.estimator = make_estimator(self.params, matcher=matcher, prepare=prepare)
         self.result: Optional[WheelCalibResult] = None
         self._latest_t = math.nan
         self._latest_stamp = -1
