@@ -368,3 +368,18 @@ def test_pose_graph_baseline_closes_a_loop():
     assert err_before > 0.3 and err_after < 0.05
     assert abs(wrap_angle(out[8, 2] - truth[8, 2])) < math.radians(0.5)
     np.testing.assert_allclose(out[0], truth[0])          # the first node stays fixed
+
+
+def test_variants_are_estimators_with_a_frozen_result():
+    import dataclasses
+    from robot_calib.core.estimator import Estimator
+    msgs, _ = _drive(laps=1, bias=0.0, seed=7)
+    for mode in ('seed', 'improved'):
+        est = make_estimator(lc.LoopClosureParams(mode=mode))
+        assert isinstance(est, Estimator) and est.result().mode == mode
+        run = run_batch(est, [s for _, s in msgs])
+        assert run.outputs and run.outputs == list(run.result.closures)
+        with pytest.raises(dataclasses.FrozenInstanceError):
+            run.result.gyro_bias = 1.0
+        est.reset()
+        assert est.result().keyframes == 0 and est.result().closures == ()
