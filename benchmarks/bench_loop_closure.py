@@ -77,7 +77,7 @@ def _raw_heading(msgs):
 def _run_pipeline(msgs, pipeline_cls, params, core=None):
     pipe = pipeline_cls(params)
     if core is not None:
-        pipe.core = core
+        pipe.estimator = core
     ts, poses = [], []
     start = time.perf_counter()
     for key, s in msgs:
@@ -103,11 +103,11 @@ def _false_closures(reports, tg, truth, wrap_angle):
 def simulated(args, out_lines):
     """Run the simulated part; append markdown to ``out_lines``; return the goal rows."""
     from robot_calib.core.geometry import se2_between, wrap_angle
-    from robot_calib.methods.loop_closure_correction.estimator import LoopClosureParams
-    from robot_calib.methods.loop_closure_correction.pipeline import (heading_rmse,
-                                                                      LoopClosurePipeline)
+    from robot_calib.methods.loop_closure_correction.params import LoopClosureParams
+    from robot_calib.methods.loop_closure_correction.pipeline import LoopClosurePipeline
     from robot_calib.methods.loop_closure_correction.pose_graph import (  # noqa: F401
         GraphCorrector, optimise)
+    from robot_calib.methods.loop_closure_correction.report import heading_rmse
     from robot_calib.sim import run_scenario
 
     rows, lat, cpu, ratios = [], [], [], []
@@ -127,7 +127,8 @@ def simulated(args, out_lines):
             core = GraphCorrector(params) if name == 'global' else None
             pipe, ts, poses, wall = _run_pipeline(msgs, LoopClosurePipeline, params, core)
             row[name] = heading_rmse(ts, poses[:, 2], tg, truth[:, 2])
-            reports = pipe.core.reports
+            result = pipe.estimator.result()
+            reports = result.closures
             false_total[name] += _false_closures(reports, tg, truth, wrap_angle)
             row[name + '_acc'] = sum(r.accepted for r in reports)
             row[name + '_wall'] = wall
@@ -140,15 +141,16 @@ def simulated(args, out_lines):
                 row['cpu_med'] = float(np.median([r.cpu_ms for r in done])) if done \
                     else float('nan')
                 row['refused'] = dict(Counter(r.reason for r in reports if not r.accepted))
-                row['est_bias'] = pipe.core.gyro_bias
-                row['mem'] = pipe.core.memory_bytes()
-                row['kf'] = len(pipe.core.keyframes)
+                row['est_bias'] = result.gyro_bias
+                row['mem'] = result.keyframe_memory_bytes
+                row['kf'] = result.keyframes
             if name == 'global':
-                row['graph_last_ms'] = 1000 * pipe.core.graph_seconds[-1] \
-                    if pipe.core.graph_seconds else float('nan')
-                row['graph_last_cpu_ms'] = 1000 * pipe.core.graph_cpu_seconds[-1] \
-                    if pipe.core.graph_cpu_seconds else float('nan')
-                row['graph_nodes'] = len(pipe.core.keyframes) + len(pipe.core.closure_nodes)
+                graph = pipe.estimator
+                row['graph_last_ms'] = 1000 * graph.graph_seconds[-1] \
+                    if graph.graph_seconds else float('nan')
+                row['graph_last_cpu_ms'] = 1000 * graph.graph_cpu_seconds[-1] \
+                    if graph.graph_cpu_seconds else float('nan')
+                row['graph_nodes'] = graph.graph_nodes()
         row['ratio'] = row['graph_last_ms'] / row['lat_med']
         row['ratio_cpu'] = row['graph_last_cpu_ms'] / row['cpu_med']
         ratios.append(min(row['ratio'], row['ratio_cpu']))
@@ -259,8 +261,8 @@ def render_simulated(data, out_lines):
 
 def mit_csail(out_lines):
     """Run the real part on mit-csail.clf; append markdown."""
-    from robot_calib.methods.loop_closure_correction.estimator import LoopClosureParams
     from robot_calib.io.datasets import carmen
+    from robot_calib.methods.loop_closure_correction.params import LoopClosureParams
     from robot_calib.methods.loop_closure_correction.pipeline import LoopClosurePipeline
 
     path = DATA / 'carmen' / 'mit-csail.clf'
@@ -274,7 +276,8 @@ def mit_csail(out_lines):
     for mode in ('improved', 'seed'):
         pipe, ts, poses, wall = _run_pipeline(msgs, LoopClosurePipeline,
                                               LoopClosureParams(mode=mode))
-        reps = pipe.core.reports
+        result = pipe.estimator.result()
+        reps = result.closures
         acc = [r for r in reps if r.accepted]
         refused = Counter(r.reason for r in reps if not r.accepted and
                           r.reason != 'kidnap_suspected')
@@ -284,7 +287,7 @@ def mit_csail(out_lines):
         pos = max((math.hypot(*r.correction[:2]) for r in acc), default=0.0)
         out_lines.append(
             f'| {mode} | {len(acc)} | {", ".join(f"{k} {v}" for k, v in refused.items())} | '
-            f'{pipe.core.counts.get("kidnaps", 0)} | {math.degrees(corr):.1f} | {pos:.2f} | '
+            f'{result.counts.get("kidnaps", 0)} | {math.degrees(corr):.1f} | {pos:.2f} | '
             f'{np.median(lat):.1f} / {np.percentile(lat, 95):.1f} | '
             f'{np.percentile(cpu, 95):.1f} | {wall:.1f} |')
         print(out_lines[-1], flush=True)

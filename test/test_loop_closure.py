@@ -7,10 +7,14 @@ import math
 import numpy as np
 import pytest
 from robot_calib.core import types as T
+from robot_calib.core.estimator import run_batch
+from robot_calib.core.frames import constant_motion, deskew
 from robot_calib.core.geometry import se2_apply, se2_inverse, wrap_angle
 from robot_calib.core.scan_match import MatchResult
-from robot_calib.methods.loop_closure_correction import estimator as lc
-from robot_calib.methods.loop_closure_correction.pipeline import heading_rmse, LoopClosurePipeline
+from robot_calib.methods.loop_closure_correction import common, improved, params as lc, seed
+from robot_calib.methods.loop_closure_correction.pipeline import LoopClosurePipeline
+from robot_calib.methods.loop_closure_correction.report import heading_rmse
+from robot_calib.methods.loop_closure_correction.variants import make_estimator
 from scipy.spatial import cKDTree
 
 
@@ -118,6 +122,21 @@ def _run(msgs, params=None):
     return pipe, odom, diags
 
 
+def _batch(msgs, params=None):
+    """Run a variant over ``msgs``: its result and the corrected poses at the odometry times."""
+    est = make_estimator(params)
+    ts, poses = [], []
+
+    def samples():
+        for _, s in msgs:
+            yield s
+            if isinstance(s, T.OdomSample):
+                ts.append(s.t)
+                poses.append(est.result().pose)
+    run = run_batch(est, samples())
+    return run.result, np.array(ts), np.array(poses).reshape(-1, 3)
+
+
 def _rmse(odom, truth):
     t = np.array([o.t for o in odom])
     yaw = np.array([o.yaw for o in odom])
@@ -135,18 +154,19 @@ def test_closures_correct_heading_against_ground_truth(loop_run):
     msgs, truth, (pipe, odom, diags) = loop_run
     s = pipe.method_summary()
     assert s['closures_accepted'] >= 3
-    raw = lc.run(msgs, lc.LoopClosureParams(detection=lc.DetectionParams(max_radius=0.0,
-                                                                         base_radius=0.0,
-                                                                         radius_gain=0.0),
-                                            motion=lc.MotionParams(estimate_gyro_bias=False)))
-    assert raw.summary['closures_accepted'] == 0
-    yaw_raw = raw.poses[:, 2]
-    rmse_raw = heading_rmse(raw.t, yaw_raw, truth[:, 0], truth[:, 3])
+    raw, raw_t, raw_poses = _batch(
+        msgs, lc.LoopClosureParams(detection=lc.DetectionParams(max_radius=0.0,
+                                                                base_radius=0.0,
+                                                                radius_gain=0.0),
+                                   motion=lc.MotionParams(estimate_gyro_bias=False)))
+    assert raw.summary()['closures_accepted'] == 0
+    yaw_raw = raw_poses[:, 2]
+    rmse_raw = heading_rmse(raw_t, yaw_raw, truth[:, 0], truth[:, 3])
     rmse = _rmse(odom, truth)
     assert rmse_raw > math.radians(2.0)        # 0.004 rad/s over 80 s of driving
     assert rmse < 0.3 * rmse_raw
     # every accepted closure moved the pose towards the truth (start at (2, 1.5), yaw 0)
-    for r in pipe.core.reports:
+    for r in pipe.estimator.result().closures:
         if not r.accepted:
             continue
         i = np.searchsorted(truth[:, 0], r.t)
@@ -159,7 +179,7 @@ def test_closures_correct_heading_against_ground_truth(loop_run):
 
 def test_diagnostics_report_each_closure(loop_run):
     _, _, (pipe, odom, diags) = loop_run
-    assert len(diags) == len(pipe.core.reports) > 0
+    assert len(diags) == len(pipe.estimator.result().closures) > 0
     st = diags[0].statuses[0]
     keys = dict(st.values)
     for name in ('keyframes_tried', 'scores', 'correction_yaw', 'latency_ms', 'reason'):
@@ -187,13 +207,13 @@ def test_score_counts_inliers_and_outliers():
     cur = np.array([[0.0, 0.0], [1.0, 0.0], [2.0, 0.0], [3.0, 0.0]])
     tree = cKDTree(cur)
     kf = np.array([[0.0, 0.05], [1.0, -0.05], [2.0, 0.5], [10.0, 0.0]])
-    score, inl, out = lc.score_candidate(kf, np.zeros(3), tree, 0.1, 1.0)
+    score, inl, out = common.score_candidate(kf, np.zeros(3), tree, 0.1, 1.0)
     assert (inl, out) == (2, 2) and score == pytest.approx(0.0)
-    score, inl, out = lc.score_candidate(kf, np.zeros(3), tree, 0.1, 0.5)
+    score, inl, out = common.score_candidate(kf, np.zeros(3), tree, 0.1, 0.5)
     assert score == pytest.approx((2 - 0.5 * 2) / 4)
     # shifting the keyframe by the candidate pose changes the count
-    score, inl, _ = lc.score_candidate(kf[:3] - [0, 0.5], np.array([0.0, 0.5, 0.0]), tree,
-                                       0.1, 1.0)
+    score, inl, _ = common.score_candidate(kf[:3] - [0, 0.5], np.array([0.0, 0.5, 0.0]), tree,
+                                           0.1, 1.0)
     assert inl == 2
 
 
@@ -204,37 +224,37 @@ def test_centroid_heading_recovers_exact_heading():
     world = rng.uniform(-4, 4, (50, 2)) + [6, 6]
     kf_pts = se2_apply(se2_inverse(kf_pose), world)
     cur_pts = se2_apply(se2_inverse(cur_pose), world)
-    th = lc.centroid_heading(kf_pose, kf_pts, cur_pose[:2], cur_pts)
+    th = seed.centroid_heading(kf_pose, kf_pts, cur_pose[:2], cur_pts)
     assert th == pytest.approx(1.1, abs=1e-9)
 
 
 def _cand(kid, pose, score, degenerate=False, converged=True):
     m = MatchResult(pose=np.zeros(3), covariance=np.eye(3) * 1e-6, degenerate=degenerate,
                     converged=converged, inlier_ratio=0.9, min_eigenvalue=0.2)
-    return lc.Candidate(kid, 0.9, m, np.asarray(pose, float), score, 90, 10)
+    return common.Candidate(kid, 0.9, m, np.asarray(pose, float), score, 90, 10)
 
 
 def test_choice_and_refusals():
-    c = lc.LoopClosureCorrector()
-    c.sigma_xy, c.sigma_yaw = 0.2, 0.05
+    sp = lc.ScoringParams()
+
+    def refusal(best, cands, here):
+        return improved.refusal(best, cands, here, 0.2, 0.05, sp)
     here = np.zeros(3)
     best = _cand(1, [0.05, 0.0, 0.01], 0.8)
     agree = _cand(2, [0.08, 0.02, 0.012], 0.78)            # same hypothesis: supports it
-    assert c._refusal(best, [best, agree], here) == ''
+    assert refusal(best, [best, agree], here) == ''
     rival = _cand(3, [1.0, 0.0, 0.01], 0.75)                 # a different place, as good
-    assert c._refusal(best, [best, rival], here) == 'ambiguous'
+    assert refusal(best, [best, rival], here) == 'ambiguous'
     weak_rival = _cand(3, [1.0, 0.0, 0.01], 0.5)
-    assert c._refusal(best, [best, weak_rival], here) == ''
-    assert c._refusal(_cand(1, [0.05, 0, 0], 0.1), [], here) == 'low_score'
-    assert c._refusal(_cand(1, [0.05, 0, 0], 0.8, degenerate=True), [], here) == 'degenerate'
-    assert c._refusal(_cand(1, [0.05, 0, 0], 0.8, converged=False), [], here) == \
+    assert refusal(best, [best, weak_rival], here) == ''
+    assert refusal(_cand(1, [0.05, 0, 0], 0.1), [], here) == 'low_score'
+    assert refusal(_cand(1, [0.05, 0, 0], 0.8, degenerate=True), [], here) == 'degenerate'
+    assert refusal(_cand(1, [0.05, 0, 0], 0.8, converged=False), [], here) == \
         'not_converged'
-    assert c._refusal(_cand(1, [3.0, 0, 0], 0.8), [], here) == 'implausible_correction'
-    assert c._refusal(_cand(1, [0.0, 0, 1.0], 0.8), [], here) == 'implausible_correction'
-    seed = lc.LoopClosureCorrector(lc.LoopClosureParams(mode='seed'))
-    seed.sigma_xy = 0.2
+    assert refusal(_cand(1, [3.0, 0, 0], 0.8), [], here) == 'implausible_correction'
+    assert refusal(_cand(1, [0.0, 0, 1.0], 0.8), [], here) == 'implausible_correction'
     # the seed takes the best whatever the rival or the Hessian says
-    assert seed._refusal(_cand(1, [0.05, 0, 0], 0.8, degenerate=True), [rival], here) == ''
+    assert seed.refusal(_cand(1, [0.05, 0, 0], 0.8, degenerate=True), sp) == ''
 
 
 def test_kidnapped_robot_restarts_the_map_and_makes_no_wrong_closure():
@@ -244,10 +264,11 @@ def test_kidnapped_robot_restarts_the_map_and_makes_no_wrong_closure():
     assert s['counts'].get('kidnaps', 0) >= 1
     assert any(d.statuses[0].level == 2 for d in diags)
     # after the kidnap the old map is gone: closures only within the new map, small fixes
-    kidnap_t = min(r.t for r in pipe.core.reports if r.reason == 'kidnap_suspected')
+    reports = pipe.estimator.result().closures
+    kidnap_t = min(r.t for r in reports if r.reason == 'kidnap_suspected')
     carried = 2 * (5.0 / 0.5) + 2 * (4.0 / 0.5) + 3 * (math.pi / 2 / 0.6)
     assert carried < kidnap_t < carried + 6.0     # detected while still being carried
-    later = [r for r in pipe.core.reports if r.accepted and r.t > kidnap_t]
+    later = [r for r in reports if r.accepted and r.t > kidnap_t]
     assert all(np.hypot(*r.correction[:2]) < 0.2 for r in later)
     assert s['segments'] >= 2
 
@@ -263,7 +284,7 @@ def test_moved_furniture_never_gives_a_wrong_correction():
         return segs
     msgs, truth = _drive(laps=2, bias=0.003, world=world, seed=4)
     pipe, odom, diags = _run(msgs)
-    for r in pipe.core.reports:
+    for r in pipe.estimator.result().closures:
         if r.accepted:
             i = np.searchsorted(truth[:, 0], r.t)
             assert abs(wrap_angle(r.pose_after[2] - truth[i, 3])) < math.radians(1.5)
@@ -283,13 +304,13 @@ def test_scans_with_few_valid_beams_are_rejected_and_counted():
     assert pipe.process('scan', bad_geometry) == []
     counts = pipe.summary()['inputs']['scan']
     assert counts['rejected_few_valid_beams'] == 1 and counts['rejected_non_finite'] == 1
-    assert pipe.core.counts['scans_used'] == 0
+    assert pipe.estimator.result().counts['scans_used'] == 0
 
 
 def test_corridor_closure_is_refused_as_degenerate():
     """Driving up and down a featureless corridor: the along-corridor fix is refused."""
     corridor = np.array([(-40, -1, 40, -1), (-40, 1, 40, 1)], dtype=float)
-    c = lc.LoopClosureCorrector()
+    c = improved.ImprovedLoopClosure()
     rng = np.random.default_rng(2)
     t = 0.0
     x = 0.0
@@ -297,29 +318,28 @@ def test_corridor_closure_is_refused_as_degenerate():
         for _ in range(60):          # 6 m per leg at 0.5 m/s, 10 Hz
             t += 0.1
             x += 0.05 * leg
-            c.update_odom(t, x, 0.0, 0.0)
-            a = np.arange(360) * 2 * math.pi / 360
+            c.update(T.OdomSample(t, x, 0.0, 0.0))
             r = _ranges(corridor, (x, 0.0, 0.0), rng=rng)
-            ok = np.isfinite(r)
-            c.update_scan(t, np.column_stack((r[ok] * np.cos(a[ok]), r[ok] * np.sin(a[ok]))))
-    reasons = [r.reason for r in c.reports]
+            c.update(T.ScanSample(t, 0.0, 2 * math.pi / 360, r))
+    reports = c.result().closures
+    reasons = [r.reason for r in reports]
     assert 'degenerate' in reasons or 'no_similar_keyframe' in reasons
-    assert not any(r.accepted for r in c.reports)
+    assert not any(r.accepted for r in reports)
 
 
 def test_memory_is_bounded_by_the_grid():
     params = lc.LoopClosureParams(keyframes=lc.KeyframeParams(max_per_cell=2, cell_size=5.0))
     msgs, _ = _drive(laps=3, bias=0.0, seed=6)
-    res = lc.run(msgs, params)
-    assert res.summary['keyframes'] <= 2 * 4          # the rectangle spans 4 cells of 5 m
-    assert res.summary['counts']['keyframes_skipped_full'] > 0
+    res = run_batch(make_estimator(params), [s for _, s in msgs]).result
+    assert res.summary()['keyframes'] <= 2 * 4          # the rectangle spans 4 cells of 5 m
+    assert res.summary()['counts']['keyframes_skipped_full'] > 0
 
 
 def test_voxel_thin_and_deskew():
     pts = np.array([[0.0, 0.0], [0.01, 0.01], [0.5, 0.5], [0.51, 0.5]])
-    assert len(lc.voxel_thin(pts, 0.1)) == 2
+    assert len(common.voxel_thin(pts, 0.1)) == 2
     p = np.array([[1.0, 0.0]])
-    out = lc.deskew(p, np.array([0.1]), 1.0, math.pi / 2)
+    out = deskew(p, constant_motion(1.0, math.pi / 2)(np.array([0.1])))
     th = math.pi / 20
     np.testing.assert_allclose(out, [[math.cos(th) + 0.1, math.sin(th)]])
 
@@ -348,3 +368,18 @@ def test_pose_graph_baseline_closes_a_loop():
     assert err_before > 0.3 and err_after < 0.05
     assert abs(wrap_angle(out[8, 2] - truth[8, 2])) < math.radians(0.5)
     np.testing.assert_allclose(out[0], truth[0])          # the first node stays fixed
+
+
+def test_variants_are_estimators_with_a_frozen_result():
+    import dataclasses
+    from robot_calib.core.estimator import Estimator
+    msgs, _ = _drive(laps=1, bias=0.0, seed=7)
+    for mode in ('seed', 'improved'):
+        est = make_estimator(lc.LoopClosureParams(mode=mode))
+        assert isinstance(est, Estimator) and est.result().mode == mode
+        run = run_batch(est, [s for _, s in msgs])
+        assert run.outputs and run.outputs == list(run.result.closures)
+        with pytest.raises(dataclasses.FrozenInstanceError):
+            run.result.gyro_bias = 1.0
+        est.reset()
+        assert est.result().keyframes == 0 and est.result().closures == ()

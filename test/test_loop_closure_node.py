@@ -101,7 +101,7 @@ def test_node_publishes_corrected_odometry_and_diagnostics(ros):
     assert math.isfinite(last.pose.covariance[0])
     counts = node.pipeline.summary()['inputs']['scan']
     assert counts.get('rejected_few_valid_beams', 0) == 1
-    assert node.pipeline.core.counts['scans_used'] >= 15
+    assert node.pipeline.estimator.result().counts['scans_used'] >= 15
     node.destroy_node()
     peer.destroy_node()
 
@@ -119,7 +119,7 @@ def revisit_bag(tmp_path_factory):
 def test_replay_of_the_simulated_revisit_scenario(revisit_bag, tmp_path):
     from robot_calib.cli import main
     from robot_calib.io.bags import read_messages
-    from robot_calib.methods.loop_closure_correction.pipeline import heading_rmse
+    from robot_calib.methods.loop_closure_correction.report import heading_rmse
     out = tmp_path / 'replay'
     assert main(['replay', str(revisit_bag), '--out', str(out),
                  '--nodes', 'loop_closure_correction']) == 0

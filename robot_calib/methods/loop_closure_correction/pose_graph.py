@@ -11,8 +11,9 @@ loop closures' registrations; :func:`optimise` solves the nonlinear least
 squares problem with ``scipy.optimize.least_squares`` (trust-region
 reflective, sparse finite-difference Jacobian), the first node fixed.
 
-:class:`GraphCorrector` is a :class:`~robot_calib.methods.loop_closure_correction.estimator.
-LoopClosureCorrector` that, instead of the seed's direct correction, adds each
+:class:`GraphCorrector` is the improved variant
+(:class:`~robot_calib.methods.loop_closure_correction.improved.ImprovedLoopClosure`)
+that, instead of the seed's direct correction, adds each
 accepted closure to the graph, re-optimises all of it, and continues from the
 optimised pose of the current frame (the global-optimisation way).
 """
@@ -26,8 +27,9 @@ from typing import Optional
 
 import numpy as np
 from robot_calib.core.geometry import se2_between, se2_compose, se2_inverse, wrap_angle
-from robot_calib.methods.loop_closure_correction.estimator import (Candidate, LoopClosureCorrector,
-                                                                   LoopClosureParams)
+from robot_calib.methods.loop_closure_correction.common import Candidate
+from robot_calib.methods.loop_closure_correction.improved import ImprovedLoopClosure
+from robot_calib.methods.loop_closure_correction.params import LoopClosureParams
 from scipy.optimize import least_squares
 from scipy.sparse import lil_matrix
 
@@ -86,7 +88,7 @@ def optimise(poses: np.ndarray, edges: list, max_nfev: int = 50) -> tuple[np.nda
                  'cost': float(sol.cost), 'nodes': n, 'edges': len(edges)}
 
 
-class GraphCorrector(LoopClosureCorrector):
+class GraphCorrector(ImprovedLoopClosure):
     """
     Loop closures applied by global pose-graph optimisation (the benchmark baseline).
 
@@ -102,19 +104,28 @@ class GraphCorrector(LoopClosureCorrector):
     def __init__(self, params: Optional[LoopClosureParams] = None,
                  odom_sigma: tuple = (0.02, 0.002)):
         """Create the corrector and an empty graph."""
+        self.odom_sigma = odom_sigma
         super().__init__(params)
+
+    def reset(self) -> None:
+        """Forget the state and the graph; keep the parameters and mountings."""
+        super().reset()
         # closure nodes: the frames where closures were made (t, raw pose, pose, kf id, z)
         self.closure_nodes: list[dict] = []
         self.graph_seconds: list[float] = []
         self.graph_cpu_seconds: list[float] = []
-        self.odom_sigma = odom_sigma
+
+    def graph_nodes(self) -> int:
+        """Return the nodes of the graph: keyframes (the local-check reference included)."""
+        return len(self.map.keyframes) + len(self.closure_nodes)
 
     def _apply(self, t: float, best: Candidate, pose: np.ndarray) -> None:
-        kfs = [k for k in self.keyframes.values() if k.kid >= 0]
+        keyframes = self.map.keyframes
+        kfs = [k for k in keyframes.values() if k.kid >= 0]
         z_new = se2_inverse(best.match.pose)               # current frame seen from the kf
         current = {'t': t, 'raw': self.raw.copy(), 'pose': pose.copy(),
                    'kf': best.keyframe, 'z': z_new}
-        self.closure_nodes = [c for c in self.closure_nodes if c['kf'] in self.keyframes]
+        self.closure_nodes = [c for c in self.closure_nodes if c['kf'] in keyframes]
         nodes = [('k', k.t, k.raw, k.pose, k) for k in kfs]
         nodes += [('c', c['t'], c['raw'], c['pose'], c) for c in self.closure_nodes + [current]]
         nodes.sort(key=lambda n: n[1])
@@ -143,6 +154,5 @@ class GraphCorrector(LoopClosureCorrector):
         new = current['pose']
         self.correction = se2_compose(new, se2_inverse(self.raw))
         self.sigma_xy, self.sigma_yaw = 0.02, 0.005
-        self._last_fix_t = t
-        self._last_fix_kf = self._next_id
+        self._last_fix_kf = self.map.next_id
         self.counts['closures_accepted'] += 1

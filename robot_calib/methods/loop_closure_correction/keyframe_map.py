@@ -1,0 +1,143 @@
+# Copyright 2026 robot_calib contributors
+# SPDX-License-Identifier: Apache-2.0
+"""
+The keyframe map both variants keep, and the similarity check of loop detection.
+
+Keyframes sit in a spatial grid (``cell_size`` m): at most ``max_per_cell``
+per cell (the oldest are kept) and ``max_keyframes`` overall, so memory
+grows with the area covered, not with the time driven. A keyframe that does
+not fit is kept only as the reference of the local (kidnap) check, under
+id -1.
+"""
+
+from __future__ import annotations
+
+from collections import defaultdict
+import math
+from typing import Optional
+
+import numpy as np
+from robot_calib.core.geometry import se2_apply
+from robot_calib.methods.loop_closure_correction.common import Keyframe
+from robot_calib.methods.loop_closure_correction.params import DetectionParams, KeyframeParams
+from scipy.spatial import cKDTree
+
+
+class KeyframeMap:
+    """Keyframes by id (``keyframes``) and by grid cell (``grid``); ids count up from 0."""
+
+    def __init__(self, params: KeyframeParams):
+        """Start empty."""
+        self.params = params
+        self.keyframes: dict[int, Keyframe] = {}
+        self.grid: dict[tuple, list] = defaultdict(list)
+        self.next_id = 0
+        self._stats: Optional[tuple[int, int]] = None
+
+    def cell(self, pose: np.ndarray) -> tuple[int, int]:
+        """Return the grid cell of a pose (m, m, rad)."""
+        size = self.params.cell_size
+        return (int(math.floor(pose[0] / size)), int(math.floor(pose[1] / size)))
+
+    def add(self, kf: Keyframe) -> bool:
+        """
+        Store ``kf`` under the next id; return False when its cell or the map is full.
+
+        A keyframe that does not fit replaces the previous one kept under id -1
+        (the reference of the local check only).
+        """
+        kp = self.params
+        self._stats = None
+        self.keyframes.pop(-1, None)
+        if len(self.grid[kf.cell]) >= kp.max_per_cell or len(self.keyframes) >= kp.max_keyframes:
+            kf.kid = -1
+            self.keyframes[-1] = kf
+            return False
+        kf.kid = self.next_id
+        self.next_id += 1
+        self.keyframes[kf.kid] = kf
+        self.grid[kf.cell].append(kf.kid)
+        return True
+
+    def move(self, kf: Keyframe, pose: np.ndarray) -> None:
+        """Give ``kf`` a new pose (m, m, rad), and its new cell in the grid."""
+        kf.pose = pose
+        cell = self.cell(pose)
+        if cell != kf.cell:
+            if kf.kid in self.grid.get(kf.cell, []):
+                self.grid[kf.cell].remove(kf.kid)
+            self.grid[cell].append(kf.kid)
+            kf.cell = cell
+
+    def clear(self) -> None:
+        """Drop every keyframe (a new map); ids keep counting up."""
+        self._stats = None
+        self.keyframes.clear()
+        self.grid.clear()
+
+    def near(self, pose: np.ndarray, radius: float, path: float, min_travel: float,
+             count: int) -> list[int]:
+        """
+        Return the ids of the ``count`` nearest keyframes within ``radius`` (m) of ``pose``.
+
+        Only keyframes made at least ``min_travel`` m of driving before ``path``
+        (m, the distance driven now) are loop candidates.
+        """
+        reach = int(math.ceil(radius / self.params.cell_size))
+        cx, cy = self.cell(pose)
+        found = []
+        for ix in range(cx - reach, cx + reach + 1):
+            for iy in range(cy - reach, cy + reach + 1):
+                for kid in self.grid.get((ix, iy), ()):
+                    kf = self.keyframes[kid]
+                    if path - kf.path < min_travel:
+                        continue
+                    dist = math.hypot(kf.pose[0] - pose[0], kf.pose[1] - pose[1])
+                    if dist <= radius:
+                        found.append((dist, kid))
+        found.sort()
+        return [kid for _, kid in found[:count]]
+
+    def stored(self) -> int:
+        """Return the number of keyframes in the map (the id -1 reference excluded)."""
+        return self._statistics()[0]
+
+    def memory_bytes(self) -> int:
+        """Return the bytes held by keyframe points and poses (B)."""
+        return self._statistics()[1]
+
+    def _statistics(self) -> tuple[int, int]:
+        if self._stats is None:
+            self._stats = (len([k for k in self.keyframes if k >= 0]),
+                           int(sum(kf.points.nbytes + kf.pose.nbytes
+                                   for kf in self.keyframes.values())))
+        return self._stats
+
+
+def similarity(kf: Keyframe, guess: np.ndarray, tree: cKDTree, detection: DetectionParams,
+               sigma_yaw: float) -> tuple[float, float]:
+    """
+    Return the best overlap fraction of ``kf`` with the current scan, and its yaw offset (rad).
+
+    ``guess`` is the keyframe frame seen from the current frame (m, m, rad),
+    ``tree`` the KD-tree of the current scan; the yaw grid spans +- 3
+    ``sigma_yaw`` (rad), at most 30 deg.
+    """
+    dp = detection
+    pts = kf.points.astype(float)
+    if len(pts) > 120:
+        pts = pts[::max(1, len(pts) // 120)]
+    n = dp.similarity_yaw_steps
+    span = min(math.radians(30.0), 3.0 * sigma_yaw)
+    offsets = np.linspace(-span, span, n) if n > 1 else np.zeros(1)
+    # All yaw hypotheses in one query: rotate the predicted keyframe points about
+    # the current origin by each offset.
+    base = se2_apply(guess, pts)
+    c, s = np.cos(offsets), np.sin(offsets)
+    xs = c[:, None] * base[None, :, 0] - s[:, None] * base[None, :, 1]
+    ys = s[:, None] * base[None, :, 0] + c[:, None] * base[None, :, 1]
+    dist, _ = tree.query(np.column_stack((xs.ravel(), ys.ravel())),
+                         distance_upper_bound=dp.similarity_gate)
+    frac = np.isfinite(dist).reshape(len(offsets), -1).mean(axis=1)
+    k = int(np.argmax(frac))
+    return float(frac[k]), float(offsets[k])
