@@ -37,17 +37,36 @@ def rotation_matrix(transform: StaticTransform) -> np.ndarray:
     return quat_to_matrix(np.asarray(transform.rotation, dtype=float))
 
 
-def constant_motion(v: float, w: float) -> Callable[[np.ndarray], np.ndarray]:
+class ConstantMotion:
     """
-    Return the motion of a robot at constant forward speed ``v`` (m/s) and yaw rate ``w`` (rad/s).
+    A robot at constant forward speed ``v`` (m/s) and yaw rate ``w`` (rad/s) during one scan.
 
-    The returned function maps times after the stamp (s) to poses (N, 3)
-    relative to the pose at the stamp, to first order (``(v dt, 0, w dt)``).
+    Called with times after the stamp (s) it gives the poses (N, 3) relative to
+    the pose at the stamp, to first order (``(v dt, 0, w dt)``); :meth:`apply`
+    de-skews points with it directly.
     """
-    def motion(dt: np.ndarray) -> np.ndarray:
+
+    def __init__(self, v: float, w: float):
+        """Keep the speed (m/s) and yaw rate (rad/s)."""
+        self.v = float(v)
+        self.w = float(w)
+
+    def __call__(self, dt: np.ndarray) -> np.ndarray:
+        """Return the relative poses (N, 3) at times ``dt`` (s) after the stamp."""
         dt = np.asarray(dt, dtype=float)
-        return np.column_stack((v * dt, np.zeros_like(dt), w * dt))
-    return motion
+        return np.column_stack((self.v * dt, np.zeros_like(dt), self.w * dt))
+
+    def apply(self, points: np.ndarray, dt: np.ndarray) -> np.ndarray:
+        """Return ``R(w dt) p + (v dt, 0)``: points measured ``dt`` s after the stamp, at it."""
+        th = self.w * dt
+        c, s = np.cos(th), np.sin(th)
+        x, y = points[:, 0], points[:, 1]
+        return np.column_stack((c * x - s * y + self.v * dt, s * x + c * y))
+
+
+def constant_motion(v: float, w: float) -> ConstantMotion:
+    """Return the motion of a robot at constant speed ``v`` (m/s) and yaw rate ``w`` (rad/s)."""
+    return ConstantMotion(v, w)
 
 
 def deskew(points: np.ndarray, relative: np.ndarray) -> np.ndarray:
@@ -83,5 +102,7 @@ def scan_points(scan: ScanSample, sensor_pose: Optional[Sequence[float]] = None,
         pts = deskew(pts, np.broadcast_to(np.array([x, y, yaw]), (len(pts), 3)))
     if motion is not None and len(pts) and scan.time_increment != 0.0 \
             and math.isfinite(scan.time_increment):
-        pts = deskew(pts, motion(scan.beam_times(idx)))
+        dt = scan.beam_times(idx)
+        pts = motion.apply(pts, dt) if isinstance(motion, ConstantMotion) else deskew(
+            pts, motion(dt))
     return pts, idx
