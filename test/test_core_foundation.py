@@ -149,3 +149,11 @@ def test_pipeline_base_counts_bad_samples_per_reason():
     assert counts['gaps'] == 1
     assert pipe.summary()['outputs'] == {'out': 2}
     assert pipe.summary()['params']['mode'] == 'improved'
+
+
+def test_wrap_scalar_is_wrap_angle_for_floats():
+    """The float fast path gives what the numpy wrap gives, edges included."""
+    rng = np.random.default_rng(3)
+    for a in list(rng.uniform(-40.0, 40.0, 500)) + [math.pi, -math.pi, 3 * math.pi, 0.0]:
+        assert G.wrap_scalar(float(a)) == pytest.approx(G.wrap_angle(float(a)), abs=1e-12)
+    assert G.wrap_scalar(-math.pi) == math.pi

@@ -23,6 +23,15 @@ def wrap_angle(angle):
     return wrapped
 
 
+def wrap_scalar(a: float) -> float:
+    """Wrap one angle (rad, a Python float) to (-pi, pi]: :func:`wrap_angle` without numpy."""
+    if -math.pi < a <= math.pi:
+        return a
+    a = math.fmod(a + math.pi, 2.0 * math.pi)
+    a = a + math.pi if a <= 0.0 else a - math.pi
+    return a if a != -math.pi else math.pi
+
+
 def wrap_half_pi(angle):
     """Wrap an undirected line angle (rad) to (-pi/2, pi/2]: lines are equal modulo pi."""
     wrapped = np.mod(np.asarray(angle, dtype=float) + np.pi / 2, np.pi) - np.pi / 2

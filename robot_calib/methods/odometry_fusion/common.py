@@ -30,15 +30,6 @@ def chi2_ppf(probability: float, dof: float) -> float:
     return float(chdtri(dof, 1.0 - probability))
 
 
-def wrap(a: float) -> float:
-    """Wrap a scalar angle (rad) to (-pi, pi] (fast path of geometry.wrap_angle)."""
-    if -math.pi < a <= math.pi:
-        return a
-    a = math.fmod(a + math.pi, 2.0 * math.pi)
-    a = a + math.pi if a <= 0.0 else a - math.pi
-    return a if a != -math.pi else math.pi
-
-
 def lidar_accuracy(d: float, d_lidar: float) -> tuple[float, bool]:
     """
     Return the seed's accuracy ``1 - |d - d_l| / d_l`` and whether it is valid (>= 0.95).

@@ -20,8 +20,9 @@ from typing import Any, Callable, Optional, Union
 
 import numpy as np
 from robot_calib.core import types as T
+from robot_calib.core.geometry import wrap_scalar
 from robot_calib.methods.odometry_fusion.common import (
-    FusionOutput, FusionResult, lidar_accuracy, LidarOdomSample, Rejected, wheel_twist, wrap)
+    FusionOutput, FusionResult, lidar_accuracy, LidarOdomSample, Rejected, wheel_twist)
 from robot_calib.methods.odometry_fusion.frontend import chain_rotation, ImuFrontEnd
 from robot_calib.methods.odometry_fusion.params import FusionParams
 
@@ -191,7 +192,7 @@ class FusionFilter(abc.ABC):
             c, sn = math.cos(last.yaw), math.sin(last.yaw)
             dx, dy = s.x - last.x, s.y - last.y
             fwd = c * dx + sn * dy
-            dyaw = wrap(s.yaw - last.yaw)
+            dyaw = wrap_scalar(s.yaw - last.yaw)
             moved = math.hypot(dx, dy)
             twist_zero = s.vx == 0.0 and s.wz == 0.0 and last.vx == 0.0 and last.wz == 0.0
             expect = max(abs(s.vx), abs(last.vx)) * dt

@@ -35,7 +35,8 @@ from typing import Optional
 
 import numpy as np
 from robot_calib.core import types as T
-from robot_calib.methods.odometry_fusion.common import chi2_ppf, FusionOutput, wrap
+from robot_calib.core.geometry import wrap_scalar
+from robot_calib.methods.odometry_fusion.common import chi2_ppf, FusionOutput
 from robot_calib.methods.odometry_fusion.filter_base import FusionFilter
 from robot_calib.methods.odometry_fusion.improved_consistency import NisMonitor, NoiseAdapter
 
@@ -139,7 +140,7 @@ class ImprovedFusion(FusionFilter):
         dx, dy = v * c * dt, v * s * dt
         x[IX] += dx
         x[IY] += dy
-        x[IYAW] = wrap(yaw + w_in * dt)
+        x[IYAW] = wrap_scalar(yaw + w_in * dt)
         v += a_in * dt
         x[IV] = v if abs(v) <= p.max_speed else math.copysign(p.max_speed, v)
         acc = self._cov_acc
