@@ -473,7 +473,7 @@ def real(lines: list) -> None:
                  f'{largest:.2f} deg) |')
     lines.append(f'| references kept | {len(core.references)} |')
     lines.append(f'| gyro (odometry yaw) bias estimate | '
-                 f'{math.degrees(core.gyro_bias) * 3600:+.1f} deg/h |')
+                 f'{math.degrees(core.result().gyro_bias) * 3600:+.1f} deg/h |')
     lines.append(f'| revisit events (scans >= 20 s apart, within 2 m and 45 deg by the corrected '
                  f'or the raw poses; up to 8 pairs tried per event) scan-matched (6 starts, '
                  f'converged, inliers >= 60 %) | {len(e_cor)} of {len(events)} |')

@@ -157,3 +157,16 @@ def test_wrap_scalar_is_wrap_angle_for_floats():
     for a in list(rng.uniform(-40.0, 40.0, 500)) + [math.pi, -math.pi, 3 * math.pi, 0.0]:
         assert G.wrap_scalar(float(a)) == pytest.approx(G.wrap_angle(float(a)), abs=1e-12)
     assert G.wrap_scalar(-math.pi) == math.pi
+
+
+def test_wrap_fast_paths_match_the_array_arithmetic():
+    """One float wraps bit for bit as in an array; infinities give NaN as numpy does."""
+    rng = np.random.default_rng(4)
+    edges = [math.pi, -math.pi, math.pi / 2, -math.pi / 2, 0.0, 7 * math.pi]
+    angles = np.concatenate([rng.uniform(-30.0, 30.0, 2000), edges])
+    full, half = G.wrap_angle(angles), G.wrap_half_pi(angles)
+    for k, a in enumerate(angles.tolist()):
+        assert G.wrap_angle(a) == full[k]
+        assert G.wrap_half_pi(a) == half[k]
+    with np.errstate(invalid='ignore'):
+        assert math.isnan(G.wrap_angle(math.inf)) and math.isnan(G.wrap_half_pi(-math.inf))

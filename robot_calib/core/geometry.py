@@ -16,6 +16,11 @@ import numpy as np
 
 def wrap_angle(angle):
     """Wrap an angle or array of angles (rad) to (-pi, pi]."""
+    if isinstance(angle, float) and math.isfinite(angle):  # one angle, without numpy
+        wrapped = math.fmod(angle + math.pi, 2.0 * math.pi)
+        if wrapped <= 0.0:
+            wrapped += 2.0 * math.pi
+        return wrapped - math.pi
     wrapped = np.mod(np.asarray(angle, dtype=float) + np.pi, 2.0 * np.pi) - np.pi
     wrapped = np.where(wrapped == -np.pi, np.pi, wrapped)
     if np.ndim(wrapped) == 0:
@@ -24,7 +29,12 @@ def wrap_angle(angle):
 
 
 def wrap_scalar(a: float) -> float:
-    """Wrap one angle (rad, a Python float) to (-pi, pi]: :func:`wrap_angle` without numpy."""
+    """
+    Wrap one angle (rad, a Python float) to (-pi, pi], returning one already there unchanged.
+
+    :func:`wrap_angle` computes ``(a + pi) mod 2 pi - pi`` even inside the range,
+    which may move the last bit; the fusion filter's state keeps its angle as is.
+    """
     if -math.pi < a <= math.pi:
         return a
     a = math.fmod(a + math.pi, 2.0 * math.pi)
@@ -34,6 +44,9 @@ def wrap_scalar(a: float) -> float:
 
 def wrap_half_pi(angle):
     """Wrap an undirected line angle (rad) to (-pi/2, pi/2]: lines are equal modulo pi."""
+    if isinstance(angle, float) and math.isfinite(angle):  # one angle, without numpy
+        wrapped = (angle + math.pi / 2) % math.pi - math.pi / 2
+        return math.pi / 2 if wrapped == -math.pi / 2 else wrapped
     wrapped = np.mod(np.asarray(angle, dtype=float) + np.pi / 2, np.pi) - np.pi / 2
     wrapped = np.where(wrapped == -np.pi / 2, np.pi / 2, wrapped)
     if np.ndim(wrapped) == 0:

@@ -28,7 +28,7 @@ from __future__ import annotations
 import abc
 from collections import deque
 import math
-from typing import Any, Optional
+from typing import Any, Optional, Union
 
 import numpy as np
 
@@ -37,7 +37,7 @@ from robot_calib.core.frames import constant_motion, planar_pose, rotation_matri
 from robot_calib.core.geometry import quat_from_rpy, quat_to_matrix, rot2, wrap_angle
 from robot_calib.core.lines import extract_lines, Line, ObstacleGrid
 from robot_calib.methods.gyro_line_calibration.common import (
-    Correction, frozen_counts, GyroLineResult, Reference)
+    Correction, frozen_counts, GyroLineResult, PoseEstimate, Reference)
 from robot_calib.methods.gyro_line_calibration.params import GyroLineParams
 
 _DEG = math.pi / 180.0
@@ -110,16 +110,19 @@ class GyroLineBase(abc.ABC):
         elif any(k in child for k in _LASER_WORDS):
             self.laser_pose = np.array(planar_pose(transform))
 
-    def update(self, sample: Any) -> Optional[tuple[Correction, ...]]:
+    def update(self, sample: Any) -> Union[None, PoseEstimate, tuple[Correction, ...]]:
         """
         Process one core sample (IMU, odometry, scan, phase Bool, static transform).
 
-        Returns the heading corrections this sample made (a scan), or None.
+        Returns the pose estimate after an odometry sample, the heading corrections
+        a scan made (None when it made none), and None for the other samples.
         """
         if isinstance(sample, T.ImuSample):
             self._update_imu(sample)
         elif isinstance(sample, T.OdomSample):
             self._update_odom(sample)
+            return PoseEstimate(self.initialized, self.pose, np.array(self.P[:3, :3]),
+                                self.rate, self.counts.get('odom_resets', 0))
         elif isinstance(sample, T.ScanSample):
             out = self._update_scan(sample)
             return tuple(out) if out else None

@@ -66,6 +66,25 @@ class Correction:
 
 
 @dataclass(frozen=True)
+class PoseEstimate:
+    """
+    What one odometry sample produced: the corrected pose, its covariance and rate.
+
+    :ivar initialized: True once the first odometry sample set the pose.
+    :ivar pose: estimated pose (x m, y m, yaw rad in (-pi, pi]) in the odometry frame.
+    :ivar pose_cov: covariance (3, 3) of x, y, yaw (m^2, m rad, rad^2).
+    :ivar rate: corrected yaw speed (rad/s).
+    :ivar odom_resets: odometry resets or jumps seen so far.
+    """
+
+    initialized: bool
+    pose: np.ndarray
+    pose_cov: np.ndarray
+    rate: float
+    odom_resets: int
+
+
+@dataclass(frozen=True)
 class GyroLineResult:
     """
     Everything estimated so far (both variants).

@@ -80,21 +80,19 @@ class GyroLinePipeline(Pipeline):
             return []
         if key != 'odom':
             return []
-        res = self.core.result()
-        resets = res.counts.get('odom_resets', 0)
-        if resets > self._odom_resets:
-            self._odom_resets = resets
+        if made.odom_resets > self._odom_resets:
+            self._odom_resets = made.odom_resets
             self.log('warn', 'odometry reset or jump: pose kept, lines distrusted for a while')
-        if not res.initialized:
+        if not made.initialized:
             return []
-        pose = res.pose
+        pose = made.pose
         if not self._trace or sample.t - self._trace[-1][0] >= 0.1:
             self._trace.append((sample.t, float(pose[0]), float(pose[1]), float(pose[2])))
         out = T.OdomSample(sample.t, float(pose[0]), float(pose[1]), float(pose[2]),
-                           sample.vx, sample.vy, res.rate, sample.frame_id,
-                           sample.child_frame_id, res.pose_cov, sample.twist_cov, sample.z,
+                           sample.vx, sample.vy, made.rate, sample.frame_id,
+                           sample.child_frame_id, made.pose_cov, sample.twist_cov, sample.z,
                            sample.roll, sample.pitch, sample.stamp_ns)
-        return [('odom', out)] + self._diagnostics(sample, res=res)
+        return [('odom', out)] + self._diagnostics(sample)
 
     # -- diagnostics -----------------------------------------------------------------------
     def _diagnostics(self, sample: Any, force: bool = False,
