@@ -120,7 +120,7 @@ def _pad(buf: bytearray, align: int) -> None:
 
 
 def _cov9(cov: Optional[np.ndarray], unknown: float) -> list:
-    """Return 9 covariance values as convert._cov_out does (unknown in [0] when absent)."""
+    """Return 9 covariance values as messages._cov_out does (unknown in [0] when absent)."""
     if cov is not None:
         c = np.asarray(cov, dtype=float).ravel().tolist()
         if len(c) == 9 and all(map(math.isfinite, c)):
@@ -129,7 +129,7 @@ def _cov9(cov: Optional[np.ndarray], unknown: float) -> list:
 
 
 def _cov36(cov3: np.ndarray) -> list:
-    """Return a 6x6 covariance as convert._cov6 builds it (1e6 on z, roll, pitch)."""
+    """Return a 6x6 covariance as messages._cov6 builds it (1e6 on z, roll, pitch)."""
     out = [0.0] * 36
     out[14] = out[21] = out[28] = 1e6
     isf = math.isfinite
