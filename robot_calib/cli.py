@@ -71,6 +71,10 @@ def build_parser() -> argparse.ArgumentParser:
                    help='publish the bag through rclpy at the recorded rate with /clock')
     p.add_argument('--rate', type=float, default=1.0,
                    help='--live playback rate factor (default 1.0)')
+    p.add_argument('--loop', action='store_true',
+                   help='--live: play the recording again and again until interrupted')
+    p.add_argument('--topics', nargs='+', default=None, metavar='TOPIC',
+                   help='--live: publish only these bag topics (after --remap)')
     p.add_argument('--start-offset', type=float, default=0.0, metavar='S',
                    help='skip the first S seconds of the recording')
     p.add_argument('--duration', type=float, default=None, metavar='S',
@@ -147,14 +151,18 @@ def _replay(args: argparse.Namespace) -> int:
         from robot_calib import live
         if args.rate <= 0 or args.rate != args.rate:
             raise ValueError(f'bad --rate {args.rate}: expected a positive factor')
-        stats = live.play(args.bags, rate=args.rate, remaps=args.remap,
-                          start_offset=args.start_offset, duration=args.duration)
+        stats = live.play(args.bags, rate=args.rate, remaps=args.remap, topics=args.topics,
+                          start_offset=args.start_offset, duration=args.duration,
+                          loops=0 if args.loop else 1)
         print(f'published {stats["messages"]} messages on {len(stats["topics"])} topics '
               f'in {stats["wall_seconds"]:.1f} s')
         for topic, why in stats['skipped'].items():
             print(f'not published {topic}: {why}')
         _warn_corrupt(stats['corrupt_chunks'])
         return 0
+    if args.loop or args.topics is not None:
+        raise ValueError('--loop and --topics belong to --live (offline replay reads the '
+                         'topics its nodes need); add --live or drop them')
     if not args.out:
         raise ValueError('replay needs --out DIR (or --live)')
     from robot_calib.replay import replay

@@ -16,7 +16,7 @@ from __future__ import annotations
 
 import os
 import time
-from typing import Any, Iterable, Iterator, Mapping, Optional, Sequence, Union
+from typing import Any, Callable, Iterable, Iterator, Mapping, Optional, Sequence, Union
 
 from robot_calib.io.bags import BagError, BagSet, normalize_topic
 
@@ -94,13 +94,21 @@ class _Player:
                 p.get_subscription_count() == 0 for p in waited):
             time.sleep(0.01)
 
-    def publish(self, stream: Any, time_ns: int, raw: bytes, skipped: dict[str, str]) -> None:
-        """Publish ``/clock`` when due, then the message as ROS 2 CDR bytes."""
+    def tick(self, time_ns: int) -> None:
+        """Publish ``/clock`` at bag time ``time_ns`` when one is due (every clock period)."""
         if self.clock_pub is not None and (self._next_clock is None
                                            or time_ns >= self._next_clock):
             self.clock_pub.publish(self._clock_msg(clock=self._time_msg(
                 sec=time_ns // _NS, nanosec=time_ns % _NS)))
             self._next_clock = time_ns + self.clock_period_ns
+
+    def restart_clock(self) -> None:
+        """Let ``/clock`` start over (a new loop begins at the bag's start again)."""
+        self._next_clock = None
+
+    def publish(self, stream: Any, time_ns: int, raw: bytes, skipped: dict[str, str]) -> None:
+        """Publish ``/clock`` when due, then the message as ROS 2 CDR bytes."""
+        self.tick(time_ns)
         pub, topic, s = self.by_stream[id(stream)]
         try:
             data = s.to_cdr(raw)
@@ -121,12 +129,15 @@ def _check_play_args(rate: float, start_offset: float, duration: Optional[float]
 
 
 def _paced(bagset: BagSet, streams: list, rate: float, start_offset: float,
-           duration: Optional[float], span: list) -> Iterator[tuple]:
+           duration: Optional[float], span: list,
+           tick: Optional[tuple[Callable[[int], None], float]] = None) -> Iterator[tuple]:
     """
     Yield ``(stream, time_ns, raw)`` at the recorded pace divided by ``rate``.
 
     ``span`` is filled with the bag times (ns) of the first and last message
-    played; latched messages from before the start go out at once.
+    played; latched messages from before the start go out at once. While
+    waiting for the next message, ``tick = (call, period s)`` is called with
+    the bag time (ns) every ``period`` of bag time (``/clock`` keeps running).
     """
     wall0 = time.monotonic()
     t_lo = bagset.start_ns + int(round(start_offset * _NS))
@@ -138,11 +149,31 @@ def _paced(bagset: BagSet, streams: list, rate: float, start_offset: float,
             break
         if not span:
             span[:] = [max(time_ns, t_lo)] * 2
-        span[1] = max(time_ns, span[0])
-        wait = wall0 + (span[1] - span[0]) / _NS / rate - time.monotonic()
-        if wait > 0:
-            time.sleep(wait)
+        previous, span[1] = span[1], max(time_ns, span[0])
+        _wait_until(wall0 + (span[1] - span[0]) / _NS / rate, (previous, span[1]), span[0],
+                    wall0, rate, tick)
         yield stream, time_ns, raw
+
+
+def _wait_until(deadline: float, bag_ns: tuple[int, int], first_ns: int, wall0: float,
+                rate: float, tick: Optional[tuple[Callable[[int], None], float]]) -> None:
+    """
+    Sleep until the monotonic time ``deadline``, ticking the bag clock meanwhile.
+
+    ``bag_ns`` is the bag time (ns) of the message played last and of the next
+    one; the ticks stay between the two.
+    """
+    while True:
+        now = time.monotonic()
+        if now >= deadline:
+            return
+        if tick is None:
+            time.sleep(deadline - now)
+            return
+        call, period = tick
+        time.sleep(min(deadline - now, period / rate))
+        elapsed = first_ns + int((time.monotonic() - wall0) * rate * _NS)
+        call(min(max(bag_ns[0], elapsed), bag_ns[1]))
 
 
 def play(bags: Union[str, os.PathLike, Sequence[Union[str, os.PathLike]]], rate: float = 1.0,
@@ -150,7 +181,7 @@ def play(bags: Union[str, os.PathLike, Sequence[Union[str, os.PathLike]]], rate:
          topics: Optional[Iterable[str]] = None, clock: bool = True, delay: float = 0.5,
          clock_period: float = 0.01, wait_for_subscribers: float = 0.0,
          node_name: str = 'robot_calib_player', start_offset: float = 0.0,
-         duration: Optional[float] = None) -> dict[str, Any]:
+         duration: Optional[float] = None, loops: int = 1) -> dict[str, Any]:
     """
     Publish the messages of ``bags`` on their topics at ``rate`` times the recorded speed.
 
@@ -166,11 +197,15 @@ def play(bags: Union[str, os.PathLike, Sequence[Union[str, os.PathLike]]], rate:
     :param node_name: name of the player node.
     :param start_offset: skip the first ``start_offset`` seconds of the recording (s).
     :param duration: play at most this many seconds after the start offset (s).
+    :param loops: play the recording this many times (0: until interrupted); the bag
+        time, and so ``/clock``, starts over with each loop.
     :return: ``{'messages', 'topics': {topic: count}, 'skipped': {topic: reason},
         'wall_seconds', 'bag_seconds', 'corrupt_chunks': [...]}`` (the mcap chunks
         skipped as corrupt, see :attr:`robot_calib.io.bags.BagSet.corrupt_chunks`).
     """
     _check_play_args(rate, start_offset, duration)
+    if loops < 0:
+        raise ValueError(f'bad loops {loops}: expected 0 (forever) or a count')
     bag_list = [bags] if isinstance(bags, (str, os.PathLike)) else list(bags)
     import rclpy
     from robot_calib.nodes.base import message_class
@@ -191,9 +226,15 @@ def play(bags: Union[str, os.PathLike, Sequence[Union[str, os.PathLike]]], rate:
             if delay > 0:
                 time.sleep(delay)
             wall0 = time.monotonic()
-            for stream, time_ns, raw in _paced(bagset, [s for s, _, _ in chosen], rate,
-                                               start_offset, duration, span):
-                player.publish(stream, time_ns, raw, skipped)
+            tick = (player.tick, clock_period) if clock else None
+            loop = 0
+            while loops <= 0 or loop < loops:
+                loop += 1
+                span.clear()
+                player.restart_clock()
+                for stream, time_ns, raw in _paced(bagset, [s for s, _, _ in chosen], rate,
+                                                   start_offset, duration, span, tick):
+                    player.publish(stream, time_ns, raw, skipped)
         finally:
             if node is not None:
                 node.destroy_node()

@@ -202,3 +202,12 @@ def test_pipeline_errors_are_reported_but_not_fatal(bag, tmp_path, capsys):
     assert code == 0
     assert 'warning: broken raised errors' in err and 'boom' in err
     assert (tmp_path / 'o' / 'summary.json').is_file()
+
+
+def test_live_only_flags_without_live(bag, tmp_path, capsys):
+    """--loop and --topics belong to --live: one line, exit 2, nothing written."""
+    out = tmp_path / 'o'
+    for extra in (['--loop'], ['--topics', '/imu']):
+        _one_line_error(capsys, main(['replay', str(bag), '--out', str(out)] + extra),
+                        '--live')
+        assert not out.exists()

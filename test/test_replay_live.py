@@ -28,30 +28,20 @@ def _write(path, n=50):
                 w.write('/cmd_vel', T.TwistSample(ns * 1e-9, 0.2), ns)
 
 
-def test_live_publishes_bag_with_clock(tmp_path):
-    from geometry_msgs.msg import Twist
-    from rosgraph_msgs.msg import Clock
-    from sensor_msgs.msg import Imu
-    from robot_calib.nodes.base import message_class
-    tf_cls = message_class('tf2_msgs/msg/TFMessage')  # not on PyPI; present on a ROS install
-    path = tmp_path / 'bag'
-    _write(path)
+def _listen(play_kwargs: dict, subscriptions: dict) -> tuple[dict, dict]:
+    """
+    Run ``live.play(**play_kwargs)`` in a thread while a listener node records messages.
+
+    ``subscriptions`` maps a name to (message class, topic, QoS); returns (play's
+    result, {name: messages received}).
+    """
     own = not rclpy.ok()
     if own:  # a domain of its own: other tests on this machine publish /imu too
         rclpy.init(domain_id=100 + os.getpid() % 100)
-    imu_topic = f'/live_test_{os.getpid()}/imu'
     node = rclpy.create_node('live_test_listener')
-    got = {'imu': [], 'clock': [], 'tf': [], 'cmd': []}
-    reliable = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=100,
-                          reliability=ReliabilityPolicy.RELIABLE)
-    latched = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1,
-                         reliability=ReliabilityPolicy.RELIABLE,
-                         durability=DurabilityPolicy.TRANSIENT_LOCAL)
-    node.create_subscription(Imu, imu_topic, got['imu'].append, reliable)
-    node.create_subscription(Clock, '/clock', got['clock'].append, reliable)
-    if tf_cls is not None:
-        node.create_subscription(tf_cls, '/tf_static', got['tf'].append, latched)
-    node.create_subscription(Twist, '/cmd_vel', got['cmd'].append, reliable)
+    got = {name: [] for name in subscriptions}
+    for name, (cls, topic, qos) in subscriptions.items():
+        node.create_subscription(cls, topic, got[name].append, qos)
     executor = SingleThreadedExecutor()
     executor.add_node(node)
     result = {}
@@ -59,8 +49,7 @@ def test_live_publishes_bag_with_clock(tmp_path):
 
     def run():
         try:
-            result.update(live.play([path], rate=2.0, remaps=[f'/imu/data:={imu_topic}'],
-                                    wait_for_subscribers=10.0, delay=0.3))
+            result.update(live.play(**play_kwargs))
         except Exception as exc:  # noqa: B902 - reported by the main thread
             errors.append(exc)
 
@@ -78,6 +67,32 @@ def test_live_publishes_bag_with_clock(tmp_path):
         if own:
             rclpy.try_shutdown()
     assert not errors, errors
+    return result, got
+
+
+RELIABLE = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=100,
+                      reliability=ReliabilityPolicy.RELIABLE)
+LATCHED = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1,
+                     reliability=ReliabilityPolicy.RELIABLE,
+                     durability=DurabilityPolicy.TRANSIENT_LOCAL)
+
+
+def test_live_publishes_bag_with_clock(tmp_path):
+    from geometry_msgs.msg import Twist
+    from rosgraph_msgs.msg import Clock
+    from sensor_msgs.msg import Imu
+    from robot_calib.nodes.base import message_class
+    tf_cls = message_class('tf2_msgs/msg/TFMessage')  # not on PyPI; present on a ROS install
+    path = tmp_path / 'bag'
+    _write(path)
+    imu_topic = f'/live_test_{os.getpid()}/imu'
+    subs = {'imu': (Imu, imu_topic, RELIABLE), 'clock': (Clock, '/clock', RELIABLE),
+            'cmd': (Twist, '/cmd_vel', RELIABLE)}
+    if tf_cls is not None:
+        subs['tf'] = (tf_cls, '/tf_static', LATCHED)
+    result, got = _listen({'bags': [path], 'rate': 2.0,
+                           'remaps': [f'/imu/data:={imu_topic}'],
+                           'wait_for_subscribers': 10.0, 'delay': 0.3}, subs)
     assert result['messages'] == sum(result['topics'].values())
     if tf_cls is None:
         assert 'not installed' in result['skipped']['/tf_static']
@@ -88,12 +103,37 @@ def test_live_publishes_bag_with_clock(tmp_path):
     # Paced at twice the recorded rate (lower bound only: no upper timing assertion).
     assert result['wall_seconds'] >= 0.49 / 2 * 0.9
     assert len(got['imu']) == 50 and len(got['cmd']) == 10
-    assert len(got['tf']) == (0 if tf_cls is None else 1)
+    assert len(got.get('tf', [])) == (0 if tf_cls is None else 1)
     # Bytes went through unchanged: decode with the shared conversion layer.
     first = codec.from_msg('sensor_msgs/msg/Imu', got['imu'][7])[0]
     assert first.stamp_ns == 10**9 + 7 * 10_000_000 and first.gyro[2] == pytest.approx(0.07)
     stamps = [c.clock.sec * 10**9 + c.clock.nanosec for c in got['clock']]
     assert stamps == sorted(stamps) and stamps[0] == 10**9 and len(stamps) >= 40
+
+
+def test_live_loops_selected_topics_and_keeps_the_clock_running(tmp_path):
+    """--loop plays twice, --topics leaves /cmd_vel out, /clock ticks through a 0.6 s gap."""
+    from rosgraph_msgs.msg import Clock
+    from sensor_msgs.msg import Imu
+    path = tmp_path / 'bag'
+    with bags.BagWriter(path) as w:
+        for ns in (10**9, 16 * 10**8):
+            w.write('/imu/data', T.ImuSample(ns * 1e-9, np.zeros(3), np.array([0, 0, 9.81]),
+                                             stamp_ns=ns), ns)
+            w.write('/cmd_vel', T.TwistSample(ns * 1e-9, 0.2), ns)
+    imu_topic = f'/live_loop_{os.getpid()}/imu'
+    result, got = _listen({'bags': [path], 'rate': 2.0, 'loops': 2, 'clock_period': 0.05,
+                           'remaps': [f'/imu/data:={imu_topic}'], 'topics': [imu_topic],
+                           'wait_for_subscribers': 10.0, 'delay': 0.3},
+                          {'imu': (Imu, imu_topic, RELIABLE),
+                           'clock': (Clock, '/clock', RELIABLE)})
+    assert result['topics'] == {imu_topic: 4} and len(got['imu']) == 4
+    stamps = [c.clock.sec * 10**9 + c.clock.nanosec for c in got['clock']]
+    restart = next(i for i in range(1, len(stamps)) if stamps[i] < stamps[i - 1])
+    first_loop = stamps[:restart]
+    assert first_loop[0] == 10**9 and 15 * 10**8 < first_loop[-1] <= 16 * 10**8
+    between = [s for s in first_loop if 10**9 < s < 16 * 10**8]
+    assert len(between) >= 5  # 0.6 s of bag time at a 0.05 s clock period: about 11
 
 
 def test_live_bad_input(tmp_path):
@@ -107,3 +147,5 @@ def test_live_bad_input(tmp_path):
         live.play([path], duration=-1.0)
     with pytest.raises(bags.BagError, match='not in the bag'):
         live.play([path], topics=['/scan'])
+    with pytest.raises(ValueError, match='loops'):
+        live.play([path], loops=-1)
