@@ -2,6 +2,7 @@
 # SPDX-License-Identifier: Apache-2.0
 """ROS 2 conventions of the nodes, in-process through rclpy: parameter files under a namespace."""
 
+import os
 from pathlib import Path
 
 import pytest
@@ -56,3 +57,58 @@ def test_replay_reads_namespaced_and_wildcard_keys(tmp_path):
     assert load_params_file(params) == {'/**': {'output_dir': 'x'},
                                         'tilt_detection': {'fall_angle': 1.0,
                                                            'clear_duration': 2.0}}
+
+
+def _tilt_node(context_args=(), **overrides):
+    import rclpy
+    from rclpy.parameter import Parameter
+    from robot_calib.methods.tilt_detection.pipeline import TiltPipeline
+    from robot_calib.nodes.base import PipelineNode
+    ctx = rclpy.Context()
+    rclpy.init(args=list(context_args), context=ctx)
+    node = PipelineNode(TiltPipeline, context=ctx, namespace=f'stop{os.getpid()}',
+                        parameter_overrides=[Parameter(k, value=v) for k, v in overrides.items()])
+    return node, ctx
+
+
+def _cmd_vel_types(node) -> list:
+    return [types for topic, types in node.get_publisher_names_and_types_by_node(
+        node.get_name(), node.get_namespace()) if topic.endswith('/cmd_vel')]
+
+
+@pytest.mark.parametrize('overrides,expected', [
+    ({}, []),
+    ({'stop_on_alert': True}, [['geometry_msgs/msg/TwistStamped']]),
+    ({'stop_on_alert': True, 'stop_message': 'Twist'}, [['geometry_msgs/msg/Twist']]),
+])
+def test_tilt_advertises_cmd_vel_only_when_it_may_stop_the_robot(overrides, expected):
+    """No cmd_vel publisher unless stop_on_alert; TwistStamped by default (Jazzy controllers)."""
+    node, ctx = _tilt_node(**overrides)
+    try:
+        assert _cmd_vel_types(node) == expected
+    finally:
+        node.destroy_node()
+        ctx.try_shutdown()
+
+
+def test_tilt_stop_command_is_a_stamped_twist_on_the_wire():
+    """A fall with stop_on_alert gives zero TwistStamped commands in base_link, stamped."""
+    import numpy as np
+    from robot_calib import codec
+    from robot_calib.core import types as T
+    from robot_calib.methods.tilt_detection.params import TiltParams
+    from robot_calib.methods.tilt_detection.pipeline import TiltPipeline
+    pipe = TiltPipeline(TiltParams(stop_on_alert=True))
+    outs = []
+    for k in range(200):
+        outs += pipe.process('imu', T.ImuSample(k * 0.005, np.zeros(3),
+                                                np.array([0.0, 0.0, -9.80665]), 'imu_link'))
+    stops = [s for key, s in outs if key == 'cmd_vel_stamped']
+    assert stops and not [s for key, s in outs if key == 'cmd_vel']
+    msgtype, raw = codec.serialize(stops[0])
+    assert msgtype == 'geometry_msgs/msg/TwistStamped'
+    msg = codec.typestore().deserialize_cdr(raw, msgtype)
+    assert msg.header.frame_id == 'base_link' and msg.twist.linear.x == 0.0
+    assert msg.header.stamp.sec * 10**9 + msg.header.stamp.nanosec == stops[0].stamp_ns
+    back = codec.deserialize(msgtype, raw)[0]  # and a cmd_vel input reads it back
+    assert isinstance(back, T.TwistSample) and codec.accepts('cmd_vel', msgtype)

@@ -83,7 +83,7 @@ def test_stop_on_alert_publishes_zero_cmd_vel_only_when_enabled():
     for enabled in (False, True):
         pipe = TiltPipeline(TiltParams(stop_on_alert=enabled))
         outs = _feed(pipe, [_imu(k * DT, acc=(0.0, 0.0, -G)) for k in range(100)])
-        stops = [o for k, o in outs if k == 'cmd_vel']
+        stops = [o for k, o in outs if k in ('cmd_vel', 'cmd_vel_stamped')]
         if enabled:
             assert stops and all(s.vx == 0.0 and s.wz == 0.0 for s in stops)
         else:

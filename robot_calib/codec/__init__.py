@@ -42,7 +42,7 @@ def supported(msgtype: str) -> bool:
 def accepts(kind: str, msgtype: str) -> bool:
     """Return whether an input of sample ``kind`` can read messages of ``msgtype``."""
     row = TYPES.get(normalize_type(msgtype))
-    return row is not None and row.kind == kind
+    return row is not None and (row.kind == kind or kind in row.read_as)
 
 
 def _row(msgtype: str) -> MessageType:

@@ -243,6 +243,13 @@ def twist_to_msg(s: T.TwistSample) -> Any:
     return _types()['geometry_msgs/msg/Twist'](_v3((s.vx, s.vy, 0.0)), _v3((0.0, 0.0, s.wz)))
 
 
+def twist_stamped_to_msg(s: T.StampedTwistSample) -> Any:
+    """Build a geometry_msgs/TwistStamped from a :class:`StampedTwistSample`."""
+    ty = _types()
+    twist = twist_to_msg(T.TwistSample(s.t, s.vx, s.vy, s.wz))
+    return ty['geometry_msgs/msg/TwistStamped'](header(s.t, s.stamp_ns, s.frame_id), twist)
+
+
 def bool_to_msg(s: T.BoolSample) -> Any:
     """Build a std_msgs/Bool."""
     return _types()['std_msgs/msg/Bool'](bool(s.value))

@@ -37,11 +37,12 @@ class MessageType:
     """
     One row: a ROS 2 message type and how it becomes core samples and back.
 
-    ``kind`` is the sample kind pipelines name their inputs and outputs by;
-    ``primary`` marks the type a kind is published as (TwistStamped is read as
-    ``cmd_vel`` but Twist is written). ``from_msg(msg, bag_time_ns)`` returns a
-    list of samples (a TF message holds several); messages without a header
-    take the bag receive time.
+    ``kind`` is the sample kind pipelines name their inputs and outputs by, and
+    an input of a kind in ``read_as`` reads it too (a ``cmd_vel`` input takes
+    TwistStamped as well as Twist); ``primary`` marks the type a kind is
+    published as. ``from_msg(msg, bag_time_ns)`` returns a list of samples (a TF
+    message holds several); messages without a header take the bag receive
+    time. ``sample_type`` is the core type written as this message.
     """
 
     msgtype: str
@@ -50,6 +51,7 @@ class MessageType:
     from_msg: Callable[[Any, Optional[int]], list]
     to_msg: Optional[Callable[[Any], Any]] = None
     primary: bool = True
+    read_as: tuple[str, ...] = ()
     fast: FastPaths = field(default_factory=FastPaths, compare=False)
 
 
@@ -73,8 +75,8 @@ ROWS = (
                 _stamped(M.joint_state_from_msg), M.joint_state_to_msg),
     MessageType('geometry_msgs/msg/Twist', 'cmd_vel', T.TwistSample,
                 _bag_timed(M.twist_from_msg), M.twist_to_msg),
-    MessageType('geometry_msgs/msg/TwistStamped', 'cmd_vel', T.TwistSample,
-                _bag_timed(M.twist_from_msg), primary=False),
+    MessageType('geometry_msgs/msg/TwistStamped', 'cmd_vel_stamped', T.StampedTwistSample,
+                _bag_timed(M.twist_from_msg), M.twist_stamped_to_msg, read_as=('cmd_vel',)),
     MessageType('sensor_msgs/msg/NavSatFix', 'fix', T.NavSatSample, _stamped(M.navsat_from_msg),
                 M.navsat_to_msg),
     MessageType('std_msgs/msg/Bool', 'bool', T.BoolSample, _bag_timed(M.bool_from_msg),
@@ -89,7 +91,8 @@ TYPES: dict[str, MessageType] = {row.msgtype: row for row in ROWS}
 """ROS 2 message type -> its row."""
 KINDS: dict[str, MessageType] = {row.kind: row for row in ROWS if row.primary}
 """Sample kind -> the row of the type it is published as."""
-BY_SAMPLE: dict[type, MessageType] = {row.sample_type: row for row in ROWS if row.primary}
+BY_SAMPLE: dict[type, MessageType] = {row.sample_type: row for row in ROWS
+                                      if row.primary and row.to_msg is not None}
 """Core sample type -> the row it is written as (a list of transforms: ``tf_static``)."""
 
 

@@ -173,6 +173,18 @@ class TwistSample:
 
 
 @dataclass(frozen=True, slots=True)
+class StampedTwistSample:
+    """A stamped velocity command (geometry_msgs/TwistStamped): vx, vy (m/s), wz (rad/s)."""
+
+    t: float
+    vx: float
+    vy: float = 0.0
+    wz: float = 0.0
+    stamp_ns: int = -1
+    frame_id: str = 'base_link'
+
+
+@dataclass(frozen=True, slots=True)
 class NavSatSample:
     """A GNSS fix: latitude, longitude (deg), altitude (m), status (-1 no fix)."""
 

@@ -23,7 +23,7 @@ from robot_calib import codec
 
 IMU_TYPE = codec.KINDS['imu'].msgtype
 ODOM_TYPE = codec.KINDS['odom'].msgtype
-TWIST_TYPES = tuple(row.msgtype for row in codec.ROWS if row.kind == 'cmd_vel')
+TWIST_TYPES = tuple(row.msgtype for row in codec.ROWS if codec.accepts('cmd_vel', row.msgtype))
 
 IMU_FIELDS = ('angular_velocity.x', 'angular_velocity.y', 'angular_velocity.z',
               'linear_acceleration.x', 'linear_acceleration.y', 'linear_acceleration.z')

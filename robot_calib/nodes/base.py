@@ -82,7 +82,7 @@ class PipelineNode(Node):
         self.undecodable = 0
         self._errors = 0
         self._pubs = {}
-        for spec in pipeline_cls.outputs:
+        for spec in self.pipeline.active_outputs():
             msgtype = codec.KINDS[spec.kind].msgtype
             cls = message_class(msgtype)
             self._pubs[spec.key] = self.create_publisher(cls, spec.topic, _QOS[spec.qos])
@@ -107,7 +107,7 @@ class PipelineNode(Node):
         self.create_timer(HEALTH_PERIOD, self._publish_health)
         self.log('info', f'{pipeline_cls.name} ready (mode {getattr(params, "mode", "n/a")}): '
                  f'inputs {[s.topic for s in pipeline_cls.inputs]}, '
-                 f'outputs {[s.topic for s in pipeline_cls.outputs]}')
+                 f'outputs {[s.topic for s in self.pipeline.active_outputs()]}')
 
     def _log(self, level: str, message: str) -> None:
         """Log for the pipeline: each distinct message at most once every 5 s."""

@@ -220,6 +220,10 @@ class Pipeline(abc.ABC):
     def handle(self, key: str, sample: Any) -> list[Output]:
         """Process one accepted sample; return outputs."""
 
+    def active_outputs(self) -> tuple[OutputSpec, ...]:
+        """Return the outputs this instance publishes (a node advertises only these)."""
+        return self.outputs
+
     def on_static_transform(self, transform: T.StaticTransform) -> None:
         """React to a static transform (e.g. the IMU mounting); default: keep it."""
 

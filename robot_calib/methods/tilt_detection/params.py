@@ -105,7 +105,10 @@ class TiltParams:
     max_dt: float = param(0.5, 's', 'Gap between samples above which the filter restarts from '
                           'the accelerometer', minimum=0.0)
     stop_on_alert: bool = param(False, '', 'Publish a zero-velocity cmd_vel while the fall '
-                                'alert is raised')
+                                'alert is raised (cmd_vel is advertised only then)')
+    stop_message: str = param('TwistStamped', '', 'Message type of the stop command: '
+                              "TwistStamped (what Jazzy's diff_drive_controller takes) or "
+                              'Twist', choices=('TwistStamped', 'Twist'))
     diagnostics_period: float = param(1.0, 's', 'Period of /diagnostics messages (0: every '
                                       'sample)', minimum=0.0)
     seed: SeedFilterParams = field(default_factory=SeedFilterParams)

@@ -19,8 +19,9 @@ Outputs:
   ``tilt_detection`` every ``diagnostics_period`` s of data time and on every
   alert change: level ERROR while fallen, WARN after a filter restart or
   rejected samples in the period, OK otherwise; reason and margins as values.
-- ``cmd_vel`` (geometry_msgs/Twist): zero velocity while fallen, only with
-  ``stop_on_alert`` (off by default; the seed's "cut the drive").
+- ``cmd_vel`` (geometry_msgs/TwistStamped, or Twist with ``stop_message``):
+  zero velocity while fallen, only with ``stop_on_alert`` (off by default; the
+  seed's "cut the drive"); not even advertised without it.
 
 Bad input: non-finite values, repeated or backwards stamps (base class),
 specific force above ``max_accel``, rates above ``max_gyro`` and an all-zero
@@ -55,7 +56,8 @@ class TiltPipeline(Pipeline):
     outputs = (OutputSpec('imu', 'tilt/imu', 'imu'),
                OutputSpec('fall_alert', 'tilt/fall_alert', 'bool', qos='latched'),
                OutputSpec('diagnostics', '/diagnostics', 'diagnostics'),
-               OutputSpec('cmd_vel', 'cmd_vel', 'cmd_vel'))
+               OutputSpec('cmd_vel', 'cmd_vel', 'cmd_vel'),
+               OutputSpec('cmd_vel_stamped', 'cmd_vel', 'cmd_vel_stamped'))
     max_gap = 0.5
 
     def __init__(self, params: Optional[TiltParams] = None, log: Any = None):
@@ -124,7 +126,7 @@ class TiltPipeline(Pipeline):
             self._last_diag = sample.t
         if p.stop_on_alert and s.alert and (self._last_stop is None or s.changed
                                             or sample.t - self._last_stop >= 0.05):
-            outs.append(('cmd_vel', T.TwistSample(sample.t, 0.0, 0.0, 0.0, stamp)))
+            outs.append(self._stop(sample.t, stamp))
             self._last_stop = sample.t
         self._first = False
         return outs
@@ -151,6 +153,19 @@ class TiltPipeline(Pipeline):
                             f'{math.degrees(p.effective_clear_angle()):.1f} deg for '
                             f'{p.clear_duration:.2f} s')
             self.log('info', f'fall alert cleared at t = {s.t:.3f} s')
+
+    def active_outputs(self) -> tuple[OutputSpec, ...]:
+        """Return the outputs to advertise: the stop command only with ``stop_on_alert``."""
+        p = self.params
+        stop = ('cmd_vel_stamped' if p.stop_message == 'TwistStamped' else 'cmd_vel') \
+            if p.stop_on_alert else None
+        return tuple(o for o in self.outputs if o.topic != 'cmd_vel' or o.key == stop)
+
+    def _stop(self, t: float, stamp: int) -> Output:
+        if self.params.stop_message == 'TwistStamped':
+            return ('cmd_vel_stamped', T.StampedTwistSample(t, 0.0, 0.0, 0.0, stamp,
+                                                            self.params.base_frame))
+        return ('cmd_vel', T.TwistSample(t, 0.0, 0.0, 0.0, stamp))
 
     def _diagnostics(self, s: TiltState, stamp: int) -> T.DiagnosticSample:
         """Return the /diagnostics status for the last sample."""
