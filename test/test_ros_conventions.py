@@ -112,3 +112,22 @@ def test_tilt_stop_command_is_a_stamped_twist_on_the_wire():
     assert msg.header.stamp.sec * 10**9 + msg.header.stamp.nanosec == stops[0].stamp_ns
     back = codec.deserialize(msgtype, raw)[0]  # and a cmd_vel input reads it back
     assert isinstance(back, T.TwistSample) and codec.accepts('cmd_vel', msgtype)
+
+
+def test_input_health_compares_each_input_rate_with_its_kind():
+    """An IMU read at 3 Hz over the period warns against its 20 Hz floor; 200 Hz is OK."""
+    from robot_calib.nodes.health import input_health, MIN_RATE_HZ, OK, WARN
+    before = {'imu': {'read': 100, 'accepted': 100}}
+    slow = {'imu': {'read': 103, 'accepted': 103}}
+    level, message, values = input_health(slow, before, {'imu': 0.1}, ['imu'], 5.0, 1.0,
+                                          {'imu': 'imu'})
+    assert level == WARN and 'imu at 3.0 Hz, expected at least 20 Hz' in message
+    assert ('imu.rate_hz', '3.0') in values
+    assert ('imu.expected_min_hz', f'{MIN_RATE_HZ["imu"]:.1f}') in values
+    fast = {'imu': {'read': 300, 'accepted': 300}}
+    level, message, _ = input_health(fast, before, {'imu': 0.01}, ['imu'], 5.0, 1.0,
+                                     {'imu': 'imu'})
+    assert level == OK and message == 'inputs OK'
+    # the first period after the input starts measures nothing yet
+    _, _, values = input_health(slow, {}, {'imu': 0.1}, ['imu'], 5.0, 1.0, {'imu': 'imu'})
+    assert not [k for k, _ in values if k.endswith('rate_hz')]

@@ -101,6 +101,8 @@ class PipelineNode(Node):
         self._health_pub = self.create_publisher(message_class(codec.KINDS['diagnostics'].msgtype),
                                                  '/diagnostics', DEFAULT_QOS)
         self._health_prev: dict = {}
+        self._health_t: Optional[float] = None
+        self._kinds = {s.key: s.kind for s in pipeline_cls.inputs}
         self._last_input: dict[str, float] = {}
         self._required = [s.key for s in pipeline_cls.inputs
                           if not s.optional and s.kind != 'tf_static']
@@ -131,9 +133,10 @@ class PipelineNode(Node):
         now = time.monotonic()
         counts = {k: dict(v) for k, v in self.pipeline.counts.items()}
         idle = {k: now - t for k, t in self._last_input.items()}
+        period = now - self._health_t if self._health_t is not None else 0.0
         level, message, values = input_health(counts, self._health_prev, idle,
-                                              self._required, STALE_AFTER)
-        self._health_prev = counts
+                                              self._required, STALE_AFTER, period, self._kinds)
+        self._health_prev, self._health_t = counts, now
         if level == 2:
             self.log('warn', f'{message}: no output until valid input arrives',
                      throttle_s=10.0, key='all_rejected')

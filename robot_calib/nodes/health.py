@@ -10,7 +10,9 @@ What every node says about itself: a logger safe at any severity, and its input 
   own clock), so two different warnings never silence each other.
 - :func:`input_health`: from the pipeline's counters, one diagnostic status
   per period: waiting for data, input stale, every message rejected (with the
-  reasons), or OK; the values are the counters per input.
+  reasons), an input slower than its kind's expected minimum rate
+  (:data:`MIN_RATE_HZ`), or OK; the values are the counters and the measured
+  rate per input.
 """
 
 from __future__ import annotations
@@ -20,6 +22,14 @@ from typing import Any, Optional
 
 LEVELS = ('debug', 'info', 'warn', 'error')
 OK, WARN, ERROR, STALE = 0, 1, 2, 3
+
+MIN_RATE_HZ = {'imu': 20.0, 'odom': 5.0, 'joint_states': 5.0, 'scan': 2.0}
+"""The slowest rate (Hz) an input of each kind is expected at; slower is a warning.
+
+Far below what these sensors publish (IMU 100-1000 Hz, wheel odometry 20-100
+Hz, 2D lidar 5-40 Hz) and near where the methods stop working: the attitude
+and heading integrations need the gyro often, the wheel steps and scan-to-scan
+matching need small motions."""
 
 
 class NodeLog:
@@ -67,7 +77,8 @@ def _reasons(counts: dict) -> str:
 
 
 def input_health(counts: dict, previous: dict, idle_s: dict, inputs: list,
-                 stale_s: float) -> tuple[int, str, list]:
+                 stale_s: float, period_s: float = 0.0,
+                 kinds: Optional[dict] = None) -> tuple[int, str, list]:
     """
     Return (level, message, key-values) of a node's inputs over the last period.
 
@@ -77,6 +88,8 @@ def input_health(counts: dict, previous: dict, idle_s: dict, inputs: list,
     :param idle_s: seconds since each input's last message (missing: never)
     :param inputs: the required input keys
     :param stale_s: silence (s) after which an input that was arriving is stale
+    :param period_s: seconds since ``previous`` (0: no rate is measured)
+    :param kinds: the sample kind of each input key (for :data:`MIN_RATE_HZ`)
     """
     level, problems, values = OK, [], []
     for key in inputs:
@@ -86,6 +99,11 @@ def input_health(counts: dict, previous: dict, idle_s: dict, inputs: list,
         values += [(f'{key}.read', str(now.get('read', 0))),
                    (f'{key}.accepted', str(now.get('accepted', 0))),
                    (f'{key}.rejected', _reasons(now))]
+        expected = MIN_RATE_HZ.get((kinds or {}).get(key, key), 0.0)
+        rate = read / period_s if period_s > 0 and key in previous else None
+        if rate is not None:
+            values += [(f'{key}.rate_hz', f'{rate:.1f}'),
+                       (f'{key}.expected_min_hz', f'{expected:.1f}')]
         if key not in idle_s:
             level = max(level, WARN)
             problems.append(f'waiting for {key}')
@@ -95,4 +113,7 @@ def input_health(counts: dict, previous: dict, idle_s: dict, inputs: list,
         elif idle_s[key] > stale_s:
             level = max(level, STALE)
             problems.append(f'{key} stale: nothing for {idle_s[key]:.1f} s')
+        elif rate is not None and rate < expected:
+            level = max(level, WARN)
+            problems.append(f'{key} at {rate:.1f} Hz, expected at least {expected:.0f} Hz')
     return level, '; '.join(problems) or 'inputs OK', values
