@@ -471,3 +471,17 @@ def test_output_bag_is_one_mcap_file_even_when_empty(tmp_path):
     umask = os.umask(0o022)
     os.umask(umask)
     assert (tmp_path / 'o').stat().st_mode & 0o777 == 0o777 & ~umask
+
+
+def test_output_chunks_are_zstd_compressed(bag, tmp_path):
+    """output.mcap has zstd chunks (as rosbag2 writes by default) and the same messages."""
+    from rosbags.highlevel import AnyReader
+    replay(bag, tmp_path / 'z', nodes=ECHO, progress=False)
+    replay(bag, tmp_path / 'plain', nodes=ECHO, progress=False, compress=False)
+    data = (tmp_path / 'z' / 'output.mcap').read_bytes()
+    assert b'zstd' in data and b'zstd' not in (tmp_path / 'plain' / 'output.mcap').read_bytes()
+
+    def messages(folder):
+        with AnyReader([folder]) as reader:
+            return [(c.topic, t, bytes(raw)) for c, t, raw in reader.messages()]
+    assert messages(tmp_path / 'z') == messages(tmp_path / 'plain') != []

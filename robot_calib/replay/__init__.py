@@ -77,7 +77,7 @@ def replay(bags: Union[str, os.PathLike, Sequence[Union[str, os.PathLike]]],
            overrides: Union[None, Mapping[str, Any], Iterable[str]] = None,
            progress: Optional[bool] = None,
            storage: str = 'mcap', start_offset: float = 0.0,
-           duration: Optional[float] = None) -> dict:
+           duration: Optional[float] = None, compress: bool = True) -> dict:
     """
     Replay ``bags`` through pipelines and write ``out_dir``; return the summary dict.
 
@@ -96,6 +96,7 @@ def replay(bags: Union[str, os.PathLike, Sequence[Union[str, os.PathLike]]],
     :param start_offset: skip the first ``start_offset`` seconds of the recording (s);
         static transforms are delivered all the same.
     :param duration: replay at most this many seconds after the start offset (s).
+    :param compress: zstd-compress the chunks of ``output.mcap``, as rosbag2 does by default.
     :return: the summary written to ``summary.json``.
     """
     wall0 = time.perf_counter()
@@ -115,7 +116,7 @@ def replay(bags: Union[str, os.PathLike, Sequence[Union[str, os.PathLike]]],
                       ', '.join(map(str, bag_list)))
         tmp = prepare_out_dir(out_dir)
         try:
-            stats = run(bagset, chosen, tmp, progress, storage, window)
+            stats = run(bagset, chosen, tmp, progress, storage, window, compress)
             wall_seconds = time.perf_counter() - wall0
             artifacts = write_artifacts(chosen, tmp)
             summary = build_summary(bag_list, bagset, chosen, stats, artifacts, storage,

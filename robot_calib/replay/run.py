@@ -176,8 +176,8 @@ def _place_output_bag(bag_dir: Path, tmp: Path, storage: str) -> None:
 
 
 def run(bagset: BagSet, plan: Plan, tmp: Path, progress: Optional[bool], storage: str,
-        window: tuple[float, Optional[float]] = (0.0, None)) -> RunStats:
-    """Run the planned nodes over the bags; write the output bag into ``tmp``."""
+        window: tuple[float, Optional[float]] = (0.0, None), compress: bool = True) -> RunStats:
+    """Run the planned nodes over the bags; write the output bag (zstd chunks) into ``tmp``."""
     wall0 = time.perf_counter()
     stats = RunStats()
     routes = _routes(plan)
@@ -195,7 +195,7 @@ def run(bagset: BagSet, plan: Plan, tmp: Path, progress: Optional[bool], storage
     bar = _progress_bar(sum(s.count for s in streams), progress)
     bag_dir = tmp / Path(OUTPUT_BAG).stem  # a ROS 2 bag folder, flattened below
     latched = [t for r in plan.runs for (t, _, is_latched) in r.outputs.values() if is_latched]
-    with BagWriter(bag_dir, storage=storage, latched=latched) as writer:
+    with BagWriter(bag_dir, storage=storage, latched=latched, compress=compress) as writer:
         emit = _Emitter(writer, stats)
         # Fewer, cheaper garbage collections while samples are created at a high rate
         # (restored below): existing objects are frozen out of the collector's scans.
