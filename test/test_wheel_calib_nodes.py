@@ -48,8 +48,9 @@ def test_pipeline_short_agv_drive_is_not_confident():
     res = _sim('agv_segments', 40.0)
     pipe = WheelCalibrationPipeline(WheelCalibParams(**AGV))
     outs = _feed(pipe, res.messages)
-    assert outs and outs[-1][0] == 'status'
-    status = outs[-1][1].statuses[0]
+    statuses = [o for k, o in outs if k == 'status']
+    assert statuses and [o for k, o in outs if k == 'diagnostics'] == statuses  # both topics
+    status = statuses[-1].statuses[0]
     values = dict(status.values)
     assert values['drive_type'] == 'steered_wheel' and values['final'] == 'true'
     assert values['verdict'] != 'converged' and status.level == 1

@@ -11,7 +11,8 @@ DiagnosticArray) every ``update_period`` seconds of data time and at the end,
 one status named ``wheel_odometry_calibration`` whose key-values are the
 result keys of the contract (``drive_type``, the estimates and their ``_std``
 twins, ``segments_used``, ``verdict``) plus progress counters; level OK when
-converged, WARN while the drive still lacks something. The artifact
+converged, WARN while the drive still lacks something. The same status goes
+to ``/diagnostics`` (where monitors and rqt_robot_monitor look). The artifact
 ``wheel_calibration.yaml`` is the contract's flat YAML result.
 """
 
@@ -38,7 +39,8 @@ class WheelCalibrationPipeline(Pipeline):
               InputSpec('joint_states', 'joint_states', 'joint_states', optional=True),
               InputSpec('scan', 'scan', 'scan'),
               InputSpec('tf_static', '/tf_static', 'tf_static', optional=True))
-    outputs = (OutputSpec('status', 'wheel_calibration/status', 'diagnostics'),)
+    outputs = (OutputSpec('status', 'wheel_calibration/status', 'diagnostics'),
+               OutputSpec('diagnostics', '/diagnostics', 'diagnostics'))
     max_gap = 1.0
     artifact_names = ('wheel_calibration.yaml',)
 
@@ -66,7 +68,7 @@ class WheelCalibrationPipeline(Pipeline):
         self._latest_t, self._latest_stamp = sample.t, T.stamp_of(sample.t, sample.stamp_ns)
         if out is not None and out.status is not None:
             self.result = out.status
-            return [('status', self._status(out.status))]
+            return self._both(self._status(out.status))
         return []
 
     def finish(self) -> list[Output]:
@@ -74,7 +76,12 @@ class WheelCalibrationPipeline(Pipeline):
         self.result = self.estimator.result()
         if not math.isfinite(self._latest_t):
             return []
-        return [('status', self._status(self.result))]
+        return self._both(self._status(self.result))
+
+    @staticmethod
+    def _both(status: T.DiagnosticSample) -> list[Output]:
+        """Publish a status on the method's own topic and on ``/diagnostics``."""
+        return [('status', status), ('diagnostics', status)]
 
     def _status(self, res: WheelCalibResult) -> T.DiagnosticSample:
         values = [(k, f'{v:.9g}' if isinstance(v, float) else str(v))
