@@ -2,6 +2,7 @@
 # SPDX-License-Identifier: Apache-2.0
 """ROS 2 conventions of the nodes, in-process through rclpy: parameter files under a namespace."""
 
+import math
 import os
 from pathlib import Path
 
@@ -131,3 +132,41 @@ def test_input_health_compares_each_input_rate_with_its_kind():
     # the first period after the input starts measures nothing yet
     _, _, values = input_health(slow, {}, {'imu': 0.1}, ['imu'], 5.0, 1.0, {'imu': 'imu'})
     assert not [k for k, _ in values if k.endswith('rate_hz')]
+
+
+def _tilted(pipe, angle, t0, seconds=1.0):
+    """Feed ``seconds`` of an IMU tilted by ``angle`` (rad) about x; return the alert changes."""
+    import numpy as np
+    from robot_calib.core import types as T
+    g = 9.80665
+    acc = np.array([0.0, g * math.sin(angle), g * math.cos(angle)])
+    outs = []
+    for k in range(int(seconds / 0.005)):
+        outs += pipe.process('imu', T.ImuSample(t0 + k * 0.005, np.zeros(3), acc, 'imu_link'))
+    return [s.value for key, s in outs if key == 'fall_alert']
+
+
+def test_live_parameters_apply_or_are_refused_with_a_reason():
+    """fall_angle set live changes the next decision; bad values and read-only ones are refused."""
+    from rclpy.parameter import Parameter
+    node, ctx = _tilt_node()
+    try:
+        assert not node.describe_parameter('fall_angle').read_only
+        assert node.describe_parameter('fall_angle').floating_point_range[0].from_value == 0.0
+        assert node.describe_parameter('mode').read_only
+        assert node.describe_parameter('output_dir').read_only
+        ok = node.set_parameters([Parameter('fall_angle', value=1.3)])[0]
+        assert ok.successful and node.pipeline.params.fall_angle == pytest.approx(1.3)
+        assert _tilted(node.pipeline, math.radians(60), 0.0) == [False]  # 60 deg < 1.3 rad
+        for name, value in (('fall_angle', -5.0), ('fall_angle', 'steep'),
+                            ('clear_angle', 1.4), ('mode', 'seed'), ('output_dir', '/')):
+            refused = node.set_parameters([Parameter(name, value=value)])[0]
+            assert not refused.successful and refused.reason, (name, value)
+        assert node.pipeline.params.fall_angle == pytest.approx(1.3)
+        assert node.get_parameter('fall_angle').value == pytest.approx(1.3)
+        assert node.pipeline.params.mode == 'improved'
+        ok = node.set_parameters([Parameter('fall_angle', value=0.5)])[0]
+        assert ok.successful and _tilted(node.pipeline, math.radians(60), 2.0)[-1] is True
+    finally:
+        node.destroy_node()
+        ctx.try_shutdown()

@@ -24,6 +24,7 @@ import time
 from typing import Any, Optional
 
 import numpy as np
+from rcl_interfaces.msg import ParameterDescriptor, SetParametersResult
 import rclpy
 from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
@@ -32,7 +33,7 @@ from rclpy.qos import (DurabilityPolicy, HistoryPolicy, qos_profile_sensor_data,
 
 from robot_calib import codec
 from robot_calib.core import types as T
-from robot_calib.core.params import ParamError
+from robot_calib.core.params import from_flat, ParamError, to_flat
 from robot_calib.nodes.health import input_health, NodeLog
 from robot_calib.nodes.ros_params import declare_params
 from robot_calib.pipelines.base import Pipeline
@@ -72,12 +73,15 @@ class PipelineNode(Node):
         """Declare parameters, build the pipeline, and create subscriptions and publishers."""
         super().__init__(pipeline_cls.name, **kwargs)
         self.log = NodeLog(self.get_logger())
-        params = declare_params(self, pipeline_cls.params_type)
-        self.declare_parameter('output_dir', '.')
+        params = declare_params(self, pipeline_cls.params_type, pipeline_cls.live_params)
+        self.declare_parameter('output_dir', '.', ParameterDescriptor(
+            description='folder where the node writes result files at shutdown',
+            read_only=True))
         self._warn_unknown_parameters()
         if pipeline_cls.artifact_names:
             check_output_dir(self.get_parameter('output_dir').value)
         self.pipeline = pipeline_cls(params, log=self._log)
+        self.add_on_set_parameters_callback(self._on_set_parameters)
         self.callback_seconds: list[float] = []
         self.undecodable = 0
         self._errors = 0
@@ -114,6 +118,21 @@ class PipelineNode(Node):
     def _log(self, level: str, message: str) -> None:
         """Log for the pipeline: each distinct message at most once every 5 s."""
         self.log(level, message, throttle_s=5.0)
+
+    def _on_set_parameters(self, changed: list) -> SetParametersResult:
+        """Check a live parameter change against the params dataclass and apply it."""
+        live = set(self.pipeline.live_params)
+        mine = {p.name: p.value for p in changed if p.name in live}
+        if not mine:
+            return SetParametersResult(successful=True)
+        try:
+            params = from_flat(type(self.pipeline.params),
+                               {**to_flat(self.pipeline.params), **mine})
+        except ParamError as exc:
+            return SetParametersResult(successful=False, reason=str(exc))
+        self.pipeline.apply_params(params)
+        self.log('info', 'parameters applied: ' + ', '.join(f'{k}={v}' for k, v in mine.items()))
+        return SetParametersResult(successful=True)
 
     def _warn_unknown_parameters(self) -> None:
         """Warn (one line) about ``-p`` overrides that name no parameter of this node."""

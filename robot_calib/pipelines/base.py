@@ -82,6 +82,8 @@ class Pipeline(abc.ABC):
     """Files :meth:`artifacts` writes (a node checks its ``output_dir`` when there are any)."""
     clock_jump: ClassVar[float] = 60.0
     """A step ahead between samples of one input longer than this is a clock jump (s)."""
+    live_params: ClassVar[tuple[str, ...]] = ()
+    """Parameters :meth:`apply_params` takes while running; a node makes the others read-only."""
 
     def __init__(self, params: Any = None, log: Optional[Callable[[str, str], None]] = None):
         """Create the pipeline with a params instance (defaults when None) and a logger."""
@@ -219,6 +221,10 @@ class Pipeline(abc.ABC):
     @abc.abstractmethod
     def handle(self, key: str, sample: Any) -> list[Output]:
         """Process one accepted sample; return outputs."""
+
+    def apply_params(self, params: Any) -> None:
+        """Take new parameters that differ from the current ones only in :attr:`live_params`."""
+        self.params = params
 
     def active_outputs(self) -> tuple[OutputSpec, ...]:
         """Return the outputs this instance publishes (a node advertises only these)."""

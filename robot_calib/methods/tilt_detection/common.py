@@ -215,6 +215,18 @@ class TiltEstimatorBase(abc.ABC):
         if transform.child == self._imu_frame:
             self._apply_transform(transform)
 
+    def set_alert_params(self, params: TiltParams) -> None:
+        """
+        Take new alert thresholds (``fall_angle``, ``fall_min_duration``, ``clear_*``) live.
+
+        The attitude, the alert state and its timers are kept; the next sample
+        is judged against the new thresholds.
+        """
+        self.params = params
+        d = self._detector
+        d.fall_angle, d.min_duration = params.fall_angle, params.fall_min_duration
+        d.clear_angle, d.clear_duration = params.effective_clear_angle(), params.clear_duration
+
     def reset(self) -> None:
         """Forget the attitude, the alert and its history; keep parameters and mountings."""
         p = self.params

@@ -59,6 +59,8 @@ class TiltPipeline(Pipeline):
                OutputSpec('cmd_vel', 'cmd_vel', 'cmd_vel'),
                OutputSpec('cmd_vel_stamped', 'cmd_vel', 'cmd_vel_stamped'))
     max_gap = 0.5
+    live_params = ('fall_angle', 'fall_min_duration', 'clear_angle', 'clear_duration',
+                   'diagnostics_period')
 
     def __init__(self, params: Optional[TiltParams] = None, log: Any = None):
         """Create the estimator from ``params`` (defaults when None)."""
@@ -153,6 +155,11 @@ class TiltPipeline(Pipeline):
                             f'{math.degrees(p.effective_clear_angle()):.1f} deg for '
                             f'{p.clear_duration:.2f} s')
             self.log('info', f'fall alert cleared at t = {s.t:.3f} s')
+
+    def apply_params(self, params: TiltParams) -> None:
+        """Take new alert thresholds and diagnostics period while running."""
+        super().apply_params(params)
+        self.est.set_alert_params(params)
 
     def active_outputs(self) -> tuple[OutputSpec, ...]:
         """Return the outputs to advertise: the stop command only with ``stop_on_alert``."""
