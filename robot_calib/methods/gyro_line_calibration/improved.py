@@ -45,7 +45,7 @@ class ImprovedGyroLine(GyroLineBase):
     The automatic estimator: a Kalman filter corrected by matched, supported wall lines.
 
     An :class:`~robot_calib.core.estimator.Estimator`: ``set_mounting``,
-    ``update`` (returns the corrections a scan made), ``result``
+    ``update`` (the pose estimate of an odometry sample, the corrections of a scan), ``result``
     (:class:`~robot_calib.methods.gyro_line_calibration.common.GyroLineResult`), ``reset``.
 
     :param params: the parameters (defaults when None; ``mode`` is not read).

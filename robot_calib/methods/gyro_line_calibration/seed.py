@@ -98,7 +98,7 @@ class SeedGyroLine(GyroLineBase):
     The seed-faithful estimator: store references in the work phase, correct when edge-following.
 
     An :class:`~robot_calib.core.estimator.Estimator`: ``set_mounting``,
-    ``update`` (returns the corrections a scan made), ``result``
+    ``update`` (the pose estimate of an odometry sample, the corrections of a scan), ``result``
     (:class:`~robot_calib.methods.gyro_line_calibration.common.GyroLineResult`), ``reset``.
 
     :param params: the parameters (defaults when None; ``mode`` is not read).
