@@ -241,6 +241,16 @@ class Pipeline(abc.ABC):
         """Return method-specific results for ``summary.json`` (estimates, corrections...)."""
         return {}
 
+    @staticmethod
+    def headline(summary: dict[str, Any]) -> dict[str, Any]:
+        """
+        Return what a fleet table tracks from this node's ``summary.json`` section.
+
+        Numbers by name (an estimate's standard deviation as ``<name>_std``), plus
+        ``verdict`` (text) and ``alerts`` (a count) where the method has them.
+        """
+        return {}
+
     def artifacts(self) -> dict[str, str]:
         """Return extra files to write next to the replay output: {file name: text}."""
         return {}

@@ -134,6 +134,12 @@ class GyroLinePipeline(Pipeline):
                                   'gyro_line_calibration', tuple(values))
 
     # -- results ---------------------------------------------------------------------------
+    @staticmethod
+    def headline(summary: dict[str, Any]) -> dict[str, Any]:
+        """Return the gyro bias (rad/s), the corrections and the heading uncertainty (rad)."""
+        return {k: summary[k] for k in ('gyro_bias', 'corrections', 'heading_sigma')
+                if isinstance(summary.get(k), (int, float))}
+
     def method_summary(self) -> dict[str, Any]:
         """Return corrections, references, bias estimate and event counts."""
         res = self.core.result()

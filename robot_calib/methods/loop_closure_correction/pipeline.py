@@ -94,6 +94,13 @@ class LoopClosurePipeline(Pipeline):
                             pose_cov=cov, twist_cov=sample.twist_cov,
                             stamp_ns=T.stamp_of(sample.t, sample.stamp_ns))
 
+    @staticmethod
+    def headline(summary: dict[str, Any]) -> dict[str, Any]:
+        """Return the gyro bias (rad/s), the closures accepted and the heading correction (rad)."""
+        return {k: summary[k] for k in ('gyro_bias', 'closures_accepted',
+                                        'total_heading_correction')
+                if isinstance(summary.get(k), (int, float))}
+
     def method_summary(self) -> dict:
         """Return closures (tried keyframes, scores, correction, time), counts and latency."""
         return report.summary(self.estimator.result())

@@ -149,6 +149,12 @@ class FusionPipeline(Pipeline):
         """Return the current diagnostic status: level, message and key-values."""
         return report.diagnostic_status(self.estimator.result(), self.params, self.counts)
 
+    @staticmethod
+    def headline(summary: dict[str, Any]) -> dict[str, Any]:
+        """Return the learned sensor errors (gyro bias, yaw-rate scale, ...) with their stds."""
+        return {k: v for k, v in (summary.get('estimates') or {}).items()
+                if isinstance(v, (int, float)) and not isinstance(v, bool)}
+
     def method_summary(self) -> dict[str, Any]:
         """Return estimates, adaptation state, NIS consistency, warnings and counters."""
         out = report.summary(self.estimator.result(), self.params, self._ignored_cov)

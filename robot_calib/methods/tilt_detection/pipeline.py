@@ -215,6 +215,14 @@ class TiltPipeline(Pipeline):
                                   stamp)
 
     # -- results ---------------------------------------------------------------------------
+    @staticmethod
+    def headline(summary: dict[str, Any]) -> dict[str, Any]:
+        """Return the fall alerts, the largest tilt (deg) and the gyro bias per axis (rad/s)."""
+        out = {'alerts': summary.get('alerts', 0), 'max_tilt_deg': summary.get('max_tilt_deg')}
+        for axis, value in zip('xyz', summary.get('gyro_bias') or ()):
+            out[f'gyro_bias_{axis}'] = value
+        return out
+
     def method_summary(self) -> dict[str, Any]:
         """Return alert episodes, final state, restarts and the gyro bias for summary.json."""
         r: TiltResult = self.est.result()
@@ -231,25 +239,6 @@ class TiltPipeline(Pipeline):
             'mounting': r.mounting_source,
             'mounting_quat': list(r.mounting),
         }
-
-
-def fall_alert_onsets(pipeline: TiltPipeline, messages: list) -> list[float]:
-    """
-    Feed ``(topic, sample)`` messages of a recording and return the alert onset times (s).
-
-    ``/tf_static`` messages (lists of static transforms) and ``/imu`` samples are
-    used, as :func:`robot_calib.sim.run_scenario` gives them; other topics are skipped.
-    """
-    onsets = []
-    for topic, sample in messages:
-        if topic == '/tf_static':
-            for transform in sample:
-                pipeline.process('tf_static', transform)
-        elif topic == '/imu':
-            for key, out in pipeline.process('imu', sample):
-                if key == 'fall_alert' and out.value:
-                    onsets.append(out.t)
-    return onsets
 
 
 PIPELINE = TiltPipeline

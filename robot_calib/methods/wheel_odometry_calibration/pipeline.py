@@ -96,6 +96,15 @@ class WheelCalibrationPipeline(Pipeline):
         status = T.DiagnosticStatus(STATUS_NAME, level, msg, '', tuple(values))
         return T.DiagnosticSample(self._latest_t, (status,), self._latest_stamp)
 
+    @staticmethod
+    def headline(summary: dict[str, Any]) -> dict[str, Any]:
+        """Return the calibrated values with their standard deviations, and the verdict."""
+        result = summary.get('result', {})
+        out = {k: v for k, v in result.items()
+               if isinstance(v, (int, float)) and not isinstance(v, bool)}
+        out['verdict'] = result.get('verdict')
+        return out
+
     def method_summary(self) -> dict[str, Any]:
         """Return the result, the drive content and the front end's counters."""
         res = self.result or self.estimator.result()
