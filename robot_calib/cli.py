@@ -106,6 +106,26 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument('--set', dest='overrides', action='append', default=[], metavar='KEY=VALUE',
                    help='imu_xyz, imu_rpy, gravity, rel_noise, max_window, drive_type, '
                         'wheel_radius, track_width, wheel_base (repeatable)')
+
+    p = sub.add_parser('fleet', help="run every robot's bags through the nodes, in parallel",
+                       description='Replay every bag of a fleet (a folder with one subfolder '
+                                   'per robot, or a manifest) on worker processes; writes '
+                                   'DIR/results.csv and .parquet, DIR/flags.csv, DIR/report.md '
+                                   'and each replay under DIR/bags/<robot>/<bag>/.')
+    p.add_argument('source', metavar='SOURCE', help='fleet folder or manifest (.csv/.yaml)')
+    p.add_argument('--out', required=True, metavar='DIR', help='result folder')
+    p.add_argument('--nodes', default=None, help='comma-separated nodes (default: every node '
+                                                 'whose inputs are in the bag)')
+    p.add_argument('--workers', type=int, default=None, metavar='N',
+                   help='worker processes (default: the CPU count)')
+    p.add_argument('--force', action='store_true',
+                   help='replay bags already done with the same code and parameters again')
+    p.add_argument('--params', default=None, metavar='FILE', help='ROS 2 parameter YAML')
+    p.add_argument('--set', dest='overrides', action='append', default=[],
+                   metavar='NODE.PARAM=VALUE', help='override one node parameter (repeatable)')
+    p.add_argument('--flag-sigma', type=float, default=4.0, metavar='K',
+                   help='flag an estimate that moves more than K sigma from its history')
+    p.add_argument('--no-progress', action='store_true', help='never show a progress bar')
     return parser
 
 
@@ -253,6 +273,17 @@ def _sigterm_as_interrupt() -> Iterator[None]:
         signal.signal(signal.SIGTERM, previous)
 
 
+def _fleet(args: argparse.Namespace) -> int:
+    from robot_calib.fleet import run_fleet
+    nodes = [n.strip() for n in args.nodes.split(',') if n.strip()] if args.nodes else None
+    res = run_fleet(args.source, args.out, nodes=nodes, workers=args.workers, force=args.force,
+                    params_file=args.params, overrides=args.overrides,
+                    flag_sigma=args.flag_sigma, progress=False if args.no_progress else None)
+    print(f'{res["bags"]} bags in {res["seconds"]:.1f} s: {res["failed"]} failed, '
+          f'{res["flags"]} flags; wrote {args.out}/results.csv, flags.csv, report.md')
+    return 0
+
+
 def main(argv: Optional[Sequence[str]] = None) -> int:
     """Run ``robot-calib`` with ``argv`` (default: sys.argv); return the exit status."""
     parser = build_parser()
@@ -260,7 +291,8 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
         args = parser.parse_args(argv)
     except SystemExit as exc:
         return int(exc.code or 0) if not isinstance(exc.code, str) else _EXIT_BAD_INPUT
-    verbs = {'simulate': _simulate, 'replay': _replay, 'mismatch': _mismatch, 'ideal': _ideal}
+    verbs = {'simulate': _simulate, 'replay': _replay, 'mismatch': _mismatch, 'ideal': _ideal,
+             'fleet': _fleet}
     try:
         with _sigterm_as_interrupt():
             return verbs[args.verb](args)

@@ -1,0 +1,103 @@
+# Copyright 2026 robot_calib contributors
+# SPDX-License-Identifier: Apache-2.0
+"""
+Which bags a fleet run processes: a folder tree (one subfolder per robot) or a manifest.
+
+A folder SOURCE holds one first-level subfolder per robot, its bags at any depth
+(ROS 2 bag folders with ``metadata.yaml``, bare ``.mcap`` files, ROS 1 ``.bag``
+files). A manifest (``.csv`` or ``.yaml``) lists rows with ``robot`` and ``bag``
+and optionally ``date`` (ISO 8601) and ``params`` (a per-robot parameter file);
+relative paths are relative to the manifest.
+"""
+
+from __future__ import annotations
+
+import csv
+from dataclasses import dataclass
+from pathlib import Path
+import re
+from typing import Optional
+
+import yaml
+
+
+class FleetError(ValueError):
+    """A fleet source or argument that cannot be used (one-line message)."""
+
+
+@dataclass(frozen=True)
+class Job:
+    """One bag of one robot: where it is, its date if known, its parameter file if any."""
+
+    robot: str
+    bag: Path
+    date: Optional[str] = None
+    params: Optional[Path] = None
+
+    @property
+    def name(self) -> str:
+        """Return the bag's file or folder name without its suffix (its output folder)."""
+        return self.bag.stem if self.bag.is_file() else self.bag.name
+
+
+def _bags_below(folder: Path) -> list[Path]:
+    found = []
+    for path in sorted(folder.rglob('*')):
+        if any(parent in found for parent in path.parents):
+            continue  # inside a bag folder already found
+        if path.is_dir() and (path / 'metadata.yaml').is_file():
+            found.append(path)
+        elif path.is_file() and path.suffix in ('.mcap', '.bag') \
+                and not (path.parent / 'metadata.yaml').is_file():
+            found.append(path)
+    return found
+
+
+def _from_folder(root: Path) -> list[Job]:
+    robots = sorted(p for p in root.iterdir() if p.is_dir() and not p.name.startswith('.'))
+    return [Job(robot.name, bag) for robot in robots for bag in _bags_below(robot)]
+
+
+def _from_manifest(path: Path) -> list[Job]:
+    try:
+        if path.suffix == '.csv':
+            with open(path, newline='') as f:
+                rows = list(csv.DictReader(f))
+        else:
+            rows = yaml.safe_load(path.read_text()) or []
+    except (OSError, UnicodeDecodeError, csv.Error, yaml.YAMLError) as exc:
+        raise FleetError(f'cannot read manifest {path}: {" ".join(str(exc).split())}') from None
+    if not isinstance(rows, list) or not all(isinstance(r, dict) for r in rows):
+        raise FleetError(f'manifest {path}: expected rows with columns robot, bag')
+    jobs = []
+    for i, row in enumerate(rows, 1):
+        robot, bag = str(row.get('robot') or '').strip(), str(row.get('bag') or '').strip()
+        if not robot or not bag:
+            raise FleetError(f'manifest {path} row {i}: robot and bag are required')
+        params = str(row.get('params') or '').strip()
+        date = str(row.get('date') or '').strip() or None
+        jobs.append(Job(robot, (path.parent / bag).resolve(), date,
+                        (path.parent / params).resolve() if params else None))
+    return jobs
+
+
+def discover(source: Path) -> list[Job]:
+    """Return the jobs of ``source`` (a folder tree or a manifest), robot by robot."""
+    source = Path(source)
+    if source.is_dir():
+        jobs = _from_folder(source)
+    elif source.is_file() and source.suffix in ('.csv', '.yaml', '.yml'):
+        jobs = _from_manifest(source)
+    else:
+        raise FleetError(f'fleet source {source} is neither a folder (one subfolder per robot) '
+                         'nor a manifest (.csv or .yaml)')
+    if not jobs:
+        raise FleetError(f'no bags found in {source}')
+    names = [(j.robot, j.name) for j in jobs]
+    dup = sorted({f'{r}/{n}' for r, n in names if names.count((r, n)) > 1})
+    if dup:
+        raise FleetError(f'two bags of one robot share a name: {", ".join(dup[:5])}')
+    bad = sorted({j.robot for j in jobs if not re.fullmatch(r'[\w.-]+', j.robot)})
+    if bad:
+        raise FleetError(f'robot names must be letters, digits, _ . -: {", ".join(bad[:5])}')
+    return jobs
