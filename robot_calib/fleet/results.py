@@ -5,9 +5,11 @@ The fleet result set: the table (CSV and Parquet), the flags and the report.
 
 Flags, per robot and node, in date order:
 
-- ``moved``: an estimate more than ``k`` sigma from the median of that robot's
-  earlier bags, sigma being the larger of the estimate's own standard deviation
-  and the spread (standard deviation) of the earlier values (at least two);
+- ``moved``: an estimate that comes with its standard deviation (``<name>_std``)
+  more than ``k`` sigma from the median of that robot's earlier bags (at least
+  two), sigma combining the estimate's own standard deviation and the spread of
+  the earlier values; numbers without an uncertainty (counts, adaptive noise
+  scales) are tabled but not flagged, as their normal spread is unknown;
 - ``stopped_converging``: a verdict other than ``converged`` after a converged one;
 - ``alert``: a method raised alerts (a fall);
 - ``failed``: the bag could not be processed (the reason is the evidence).
@@ -70,10 +72,10 @@ def _number(value: Any) -> float:
 
 
 def _moved(history: list[float], value: float, std: float, k: float) -> str:
-    if len(history) < 2 or not math.isfinite(value):
+    if len(history) < 2 or not (math.isfinite(value) and math.isfinite(std)):
         return ''
     centre = statistics.median(history)
-    sigma = max(std if math.isfinite(std) else 0.0, statistics.stdev(history))
+    sigma = math.hypot(std, statistics.stdev(history))
     if sigma > 0.0 and abs(value - centre) > k * sigma:
         return (f'moved to {value:.6g} from {centre:.6g} (median of {len(history)} earlier bags), '
                 f'{abs(value - centre) / sigma:.1f} sigma')
