@@ -13,10 +13,10 @@ export ROS_AUTOMATIC_DISCOVERY_RANGE ?= LOCALHOST
 
 venv: $(STAMP)
 
-$(STAMP): requirements.txt requirements-bench.txt setup.py
+$(STAMP): requirements.txt requirements-bench.txt requirements-ray.txt setup.py
 	test -x $(PY) || $(PYTHON) -m venv $(VENV)
 	$(PY) -m pip install --quiet --upgrade pip
-	$(PY) -m pip install --quiet -r requirements.txt -r requirements-bench.txt
+	$(PY) -m pip install --quiet -r requirements.txt -r requirements-bench.txt -r requirements-ray.txt
 	$(PY) -m pip install --quiet --no-deps -e .
 	touch $(STAMP)
 

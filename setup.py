@@ -24,6 +24,7 @@ setup(
         ('share/' + package_name + '/launch', glob('launch/*.launch.py')),
     ],
     install_requires=['setuptools'],
+    extras_require={'ray': ['ray']},  # robot-calib fleet --ray (see requirements-ray.txt)
     zip_safe=True,
     maintainer='robot_calib maintainers',
     maintainer_email='maintainers@robot-calib.dev',

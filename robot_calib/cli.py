@@ -118,6 +118,9 @@ def build_parser() -> argparse.ArgumentParser:
                                                  'whose inputs are in the bag)')
     p.add_argument('--workers', type=int, default=None, metavar='N',
                    help='worker processes (default: the CPU count)')
+    p.add_argument('--ray', default=None, metavar='ADDRESS',
+                   help='run on a Ray cluster at ADDRESS, or "auto" for a local Ray (needs '
+                        'the optional extra: pip install -r requirements-ray.txt)')
     p.add_argument('--force', action='store_true',
                    help='replay bags already done with the same code and parameters again')
     p.add_argument('--params', default=None, metavar='FILE', help='ROS 2 parameter YAML')
@@ -278,7 +281,8 @@ def _fleet(args: argparse.Namespace) -> int:
     nodes = [n.strip() for n in args.nodes.split(',') if n.strip()] if args.nodes else None
     res = run_fleet(args.source, args.out, nodes=nodes, workers=args.workers, force=args.force,
                     params_file=args.params, overrides=args.overrides,
-                    flag_sigma=args.flag_sigma, progress=False if args.no_progress else None)
+                    flag_sigma=args.flag_sigma, progress=False if args.no_progress else None,
+                    ray=args.ray)
     print(f'{res["bags"]} bags in {res["seconds"]:.1f} s: {res["failed"]} failed, '
           f'{res["flags"]} flags; wrote {args.out}/results.csv, flags.csv, report.md')
     return 0

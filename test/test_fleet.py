@@ -88,3 +88,13 @@ def test_bad_fleet_arguments_are_one_line_errors(tmp_path, capsys):
         run_fleet(tmp_path / 'empty', tmp_path / 'o', progress=False)
     with pytest.raises(FleetError, match='workers'):
         run_fleet(tmp_path / 'empty', tmp_path / 'o', workers=0, progress=False)
+
+
+def test_ray_executor_gives_the_same_rows(fleet, tmp_path):
+    """A local Ray (the optional extra) runs the same jobs into the same table."""
+    pytest.importorskip('ray')
+    pool = run_fleet(fleet, tmp_path / 'pool', nodes=NODES, workers=1, progress=False)
+    ray = run_fleet(fleet, tmp_path / 'ray', nodes=NODES, workers=2, progress=False, ray='auto')
+    assert _table(ray['rows']) == _table(pool['rows'])
+    assert (tmp_path / 'ray' / 'flags.csv').read_text() == \
+        (tmp_path / 'pool' / 'flags.csv').read_text()

@@ -1,14 +1,15 @@
 # Copyright 2026 robot_calib contributors
 # SPDX-License-Identifier: Apache-2.0
 """
-``robot-calib fleet``: every robot's recordings through the same replay code, on a process pool.
+``robot-calib fleet``: every robot's recordings through the same replay code, in parallel.
 
 :func:`run_fleet` finds the bags (:mod:`~robot_calib.fleet.source`), runs each
-through replay in worker processes (:mod:`~robot_calib.fleet.runner`: resumable,
-a failing bag never stops the others), and writes the result set
+through replay (:mod:`~robot_calib.fleet.runner`: resumable, a failing bag never
+stops the others) on a local process pool, or on a Ray cluster (``ray``, an
+optional extra: ``pip install -r requirements-ray.txt``), and writes the result set
 (:mod:`~robot_calib.fleet.results`): ``results.csv`` and ``results.parquet`` (one
 row per bag and node), ``flags.csv`` and ``report.md``. The rows do not depend
-on the number of workers.
+on the number of workers or on the executor.
 """
 
 from __future__ import annotations
@@ -54,11 +55,40 @@ def _run_all(jobs: list[Job], settings: Settings, workers: int, bar: Any) -> lis
     return rows
 
 
+def _run_ray(jobs: list[Job], settings: Settings, address: str, workers: int,
+             bar: Any) -> list[dict]:
+    """Run the jobs as Ray tasks: ``address`` of a cluster, or ``auto`` for a local Ray."""
+    try:
+        import ray
+    except ImportError:
+        raise FleetError('--ray needs Ray, an optional extra: pip install -r '
+                         'requirements-ray.txt (or pip install .[ray])') from None
+    started = not ray.is_initialized()
+    if started:
+        if address == 'auto':
+            ray.init(num_cpus=workers, include_dashboard=False, log_to_driver=False)
+        else:
+            ray.init(address=address, log_to_driver=False)
+    try:
+        task = ray.remote(run_job)
+        pending = [task.remote(job, settings) for job in jobs]
+        rows: list[dict] = []
+        while pending:
+            done, pending = ray.wait(pending, num_returns=1)
+            rows += ray.get(done[0])
+            if bar is not None:
+                bar.update(1)
+        return rows
+    finally:
+        if started:
+            ray.shutdown()
+
+
 def run_fleet(source: Union[str, os.PathLike], out: Union[str, os.PathLike],
               nodes: Optional[Iterable[str]] = None, workers: Optional[int] = None,
               force: bool = False, params_file: Optional[Union[str, os.PathLike]] = None,
               overrides: Iterable[str] = (), flag_sigma: float = 4.0,
-              progress: Optional[bool] = None) -> dict[str, Any]:
+              progress: Optional[bool] = None, ray: Optional[str] = None) -> dict[str, Any]:
     """
     Run the fleet job; return ``{'bags', 'failed', 'flags', 'rows', 'seconds'}``.
 
@@ -71,6 +101,8 @@ def run_fleet(source: Union[str, os.PathLike], out: Union[str, os.PathLike],
     :param overrides: ``NODE.PARAM=VALUE`` items
     :param flag_sigma: how far (in sigma) an estimate may move before it is flagged
     :param progress: show a progress bar across bags (default: when stderr is a terminal)
+    :param ray: run on Ray instead of the process pool: a cluster address, or ``auto`` for a
+        local Ray with ``workers`` CPUs
     """
     t0 = time.perf_counter()
     if not flag_sigma > 0:
@@ -86,7 +118,11 @@ def run_fleet(source: Union[str, os.PathLike], out: Union[str, os.PathLike],
                         tuple(overrides), force)
     bar = _progress(len(jobs), progress)
     try:
-        rows = results.sort_rows(_run_all(jobs, settings, min(workers, len(jobs)), bar))
+        if ray:
+            done = _run_ray(jobs, settings, ray, workers, bar)
+        else:
+            done = _run_all(jobs, settings, min(workers, len(jobs)), bar)
+        rows = results.sort_rows(done)
     finally:
         if bar is not None:
             bar.close()
