@@ -31,13 +31,8 @@ class _Parser(argparse.ArgumentParser):
                                    f'(see {self.prog} --help)\n')
 
 
-def build_parser() -> argparse.ArgumentParser:
-    """Return the argument parser of ``robot-calib``."""
-    parser = _Parser(prog='robot-calib',
-                     description='Calibration and estimation for low-cost wheeled robots.')
-    sub = parser.add_subparsers(dest='verb', metavar='VERB', parser_class=_Parser)
-    sub.required = True
-
+def _add_simulate(sub: Any) -> None:
+    """Add the ``simulate`` verb."""
     p = sub.add_parser('simulate', help='write a simulated ROS 2 bag with ground truth',
                        description='Simulate a scenario and write a ROS 2 bag plus '
                                    '<out>.truth.json.')
@@ -50,6 +45,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument('--storage', choices=('mcap', 'sqlite3'), default='mcap',
                    help='bag storage (default mcap)')
 
+
+def _add_replay(sub: Any) -> None:
+    """Add the ``replay`` verb."""
     p = sub.add_parser('replay', help='run the nodes over bags offline (or --live)',
                        description="Replay bags through the nodes' core code as fast as "
                                    'possible; writes DIR/output.mcap, DIR/summary.json, '
@@ -81,6 +79,9 @@ def build_parser() -> argparse.ArgumentParser:
                    help='replay (or play) at most S seconds')
     p.add_argument('--no-progress', action='store_true', help='never show a progress bar')
 
+
+def _add_mismatch(sub: Any) -> None:
+    """Add the ``mismatch`` verb."""
     p = sub.add_parser('mismatch', help='compare a simulated and a real recording',
                        description='Explain what a simulation left out: writes '
                                    'DIR/findings.json and a report.')
@@ -92,6 +93,9 @@ def build_parser() -> argparse.ArgumentParser:
                         'are compared on what they share (an IMU yaw rate with an odometry '
                         "yaw rate, a velocity command's speed with an odometry speed)")
 
+
+def _add_ideal(sub: Any) -> None:
+    """Add the ``ideal`` verb."""
     p = sub.add_parser('ideal', help='derive ideal sensors from a ground-truth recording',
                        description='Write the recording a perfect robot would have made '
                                    '(/imu, /odom, and /joint_states with --set drive_type=...) '
@@ -107,6 +111,9 @@ def build_parser() -> argparse.ArgumentParser:
                    help='imu_xyz, imu_rpy, gravity, rel_noise, max_window, drive_type, '
                         'wheel_radius, track_width, wheel_base (repeatable)')
 
+
+def _add_fleet(sub: Any) -> None:
+    """Add the ``fleet`` verb."""
     p = sub.add_parser('fleet', help="run every robot's bags through the nodes, in parallel",
                        description='Replay every bag of a fleet (a folder with one subfolder '
                                    'per robot, or a manifest) on worker processes; writes '
@@ -129,6 +136,16 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument('--flag-sigma', type=float, default=4.0, metavar='K',
                    help='flag an estimate that moves more than K sigma from its history')
     p.add_argument('--no-progress', action='store_true', help='never show a progress bar')
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """Return the argument parser of ``robot-calib``."""
+    parser = _Parser(prog='robot-calib',
+                     description='Calibration and estimation for low-cost wheeled robots.')
+    sub = parser.add_subparsers(dest='verb', metavar='VERB', parser_class=_Parser)
+    sub.required = True
+    for add in (_add_simulate, _add_replay, _add_mismatch, _add_ideal, _add_fleet):
+        add(sub)
     return parser
 
 
