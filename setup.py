@@ -32,6 +32,6 @@ setup(
     license='Apache-2.0',
     tests_require=['pytest'],
     entry_points={
-        'console_scripts': NODE_SCRIPTS + ['robot-calib = robot_calib.cli:main'],
+        'console_scripts': NODE_SCRIPTS + ['robot-calib = robot_calib.cli:entry'],
     },
 )

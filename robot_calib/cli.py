@@ -14,6 +14,8 @@ from __future__ import annotations
 import argparse
 import contextlib
 import importlib
+import logging
+import os
 from pathlib import Path
 import signal
 import sys
@@ -335,5 +337,22 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
         return 1
 
 
+def entry() -> None:
+    """
+    Run :func:`main` as the ``robot-calib`` command and exit with its status.
+
+    Every output file is closed and moved into place before ``main`` returns, and
+    worker pools and Ray are shut down by their verbs; what is left is the
+    interpreter's teardown, freeing every module and array one by one (0.3-0.7 s
+    after a replay, a third of a short bag's run). So the buffered streams and
+    log handlers are flushed and the process ends at once.
+    """
+    code = main()
+    logging.shutdown()
+    sys.stdout.flush()
+    sys.stderr.flush()
+    os._exit(code)
+
+
 if __name__ == '__main__':
-    sys.exit(main())
+    entry()

@@ -17,6 +17,7 @@ import re
 from typing import Any
 
 import numpy as np
+from robot_calib.core import figures
 
 _MAX_POINTS = 20000
 GROUND_TRUTH = '/ground_truth/odom'
@@ -41,16 +42,13 @@ def generic_plots(plot_dir: Path, inputs: dict[str, np.ndarray], outputs: dict[s
     """
     if not inputs and not outputs:
         return []
-    import matplotlib
-    matplotlib.use('Agg')
-    import matplotlib.pyplot as plt
     plot_dir = Path(plot_dir)
     plot_dir.mkdir(parents=True, exist_ok=True)
     series = [(t, a, 'input') for t, a in sorted(inputs.items())] + \
         [(t, a, 'output') for t, a in sorted(outputs.items())]
     written = []
 
-    fig, ax = plt.subplots(figsize=(7, 6))
+    fig, ax = figures.new_figure(7, 6)
     for topic, arr, kind in series:
         a = _thin(arr)
         ax.plot(a[:, 1], a[:, 2], **_style(topic, kind))
@@ -61,12 +59,10 @@ def generic_plots(plot_dir: Path, inputs: dict[str, np.ndarray], outputs: dict[s
     ax.grid(True, alpha=0.3)
     ax.legend(fontsize=8)
     ax.set_title('Odometry trajectories (each in its own odom frame)')
-    fig.tight_layout()
-    fig.savefig(plot_dir / 'trajectories.png', dpi=100)
-    plt.close(fig)
+    figures.save(fig, plot_dir / 'trajectories.png', dpi=100)
     written.append('plots/trajectories.png')
 
-    fig, ax = plt.subplots(figsize=(9, 4))
+    fig, ax = figures.new_figure(9, 4)
     for topic, arr, kind in series:
         a = _thin(arr)
         ax.plot(a[:, 0] - t0, np.degrees(np.unwrap(a[:, 3])), **_style(topic, kind))
@@ -75,9 +71,7 @@ def generic_plots(plot_dir: Path, inputs: dict[str, np.ndarray], outputs: dict[s
     ax.grid(True, alpha=0.3)
     ax.legend(fontsize=8)
     ax.set_title('Heading over time (unwrapped)')
-    fig.tight_layout()
-    fig.savefig(plot_dir / 'heading.png', dpi=100)
-    plt.close(fig)
+    figures.save(fig, plot_dir / 'heading.png', dpi=100)
     written.append('plots/heading.png')
     return written
 

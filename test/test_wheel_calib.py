@@ -82,6 +82,21 @@ def test_arc_pose_straight_quarter_circle_and_compose_inverse():
                                atol=1e-12)
 
 
+def test_integrate_steps_equals_composing_step_by_step():
+    rng = np.random.default_rng(4)
+    steps = rng.normal(size=(6, 40, 3)) * [0.05, 0.01, 0.2]
+    steps[2, 25:] = 0.0                               # a shorter, zero-padded segment
+    expected = np.zeros((6, 3))
+    for k in range(steps.shape[1]):
+        expected = K.compose(expected, steps[:, k])
+    np.testing.assert_allclose(K.integrate_steps(steps), expected, atol=1e-12)
+    # a circle of 8 equal arcs comes back to its start, heading one turn on
+    arc = K.arc_pose(math.pi / 4, math.pi / 4)
+    np.testing.assert_allclose(K.integrate_steps(np.tile(arc, (1, 8, 1))),
+                               [[0.0, 0.0, 2 * math.pi]], atol=1e-12)
+    assert K.integrate_steps(np.zeros((2, 0, 3))).shape == (2, 3)
+
+
 def test_steered_and_diff_arc_by_hand():
     # steered wheel at 30 deg, 1 rad of a 0.1 m wheel, wheel base 0.5:
     ds, dth = K.steered_arc(1.0, 0.5236 - 0.01, 0.1, 0.5, offset=0.01)

@@ -102,10 +102,14 @@ def integrate_steps(steps: np.ndarray) -> np.ndarray:
     Padding steps must be zero poses. Yaw is not wrapped (segments stay short).
     """
     steps = np.asarray(steps, dtype=float)
-    out = np.zeros(steps.shape[:1] + (3,))
-    for k in range(steps.shape[1]):
-        out = compose(out, steps[:, k, :])
-    return out
+    # a (+) b (+) c ... : step k is rotated by the heading summed over the steps before it
+    heading = np.cumsum(steps[..., 2], axis=1)
+    before = heading - steps[..., 2]
+    c, s = np.cos(before), np.sin(before)
+    x = np.sum(c * steps[..., 0] - s * steps[..., 1], axis=1)
+    y = np.sum(s * steps[..., 0] + c * steps[..., 1], axis=1)
+    return np.stack((x, y, heading[:, -1] if steps.shape[1] else np.zeros(len(steps))),
+                    axis=-1)
 
 
 def sensor_motion(base_motion: np.ndarray, sensor_pose) -> np.ndarray:

@@ -24,11 +24,12 @@ from __future__ import annotations
 
 import itertools
 import math
+from pathlib import Path
 from typing import Any, Optional
 
 import numpy as np
 
-from robot_calib.core import types as T
+from robot_calib.core import figures, types as T
 from robot_calib.core.series import Thinned
 from robot_calib.methods.gyro_line_calibration.common import GyroLineResult
 from robot_calib.methods.gyro_line_calibration.params import GyroLineParams
@@ -167,15 +168,10 @@ class GyroLinePipeline(Pipeline):
         """Draw the corrected trajectory and the heading corrections over time."""
         if not self._trace:
             return []
-        try:
-            import matplotlib
-            matplotlib.use('Agg')
-            import matplotlib.pyplot as plt
-        except ImportError:
+        if not figures.available():
             return []
-        from pathlib import Path
         tr = np.array(list(self._trace))
-        fig, ax = plt.subplots(1, 2, figsize=(11, 4.5))
+        fig, ax = figures.new_figure(11, 4.5, cols=2)
         ax[0].plot(tr[:, 1], tr[:, 2], lw=0.7)
         res = self.core.result()
         for line in res.references:
@@ -187,11 +183,7 @@ class GyroLinePipeline(Pipeline):
             ax[1].plot(c[:, 0], np.cumsum(c[:, 1]), '.-', ms=2)
         ax[1].set_xlabel('t (s)')
         ax[1].set_ylabel('cumulative heading correction (deg)')
-        fig.tight_layout()
-        name = 'gyro_line_calibration.png'
-        fig.savefig(Path(out_dir) / name, dpi=90)
-        plt.close(fig)
-        return [name]
+        return [figures.save(fig, Path(out_dir) / 'gyro_line_calibration.png')]
 
 
 PIPELINE = GyroLinePipeline

@@ -12,12 +12,14 @@ from __future__ import annotations
 
 from collections import Counter
 from dataclasses import dataclass, field
-from typing import Mapping
+from typing import Mapping, TYPE_CHECKING
 
 import numpy as np
 from robot_calib.core.geometry import se2_apply
 from robot_calib.core.scan_match import MatchResult
-from scipy.spatial import cKDTree
+
+if TYPE_CHECKING:  # the KD-tree is built in core.scan_match
+    from scipy.spatial import cKDTree
 
 
 @dataclass

@@ -14,13 +14,15 @@ from __future__ import annotations
 
 from collections import defaultdict
 import math
-from typing import Optional
+from typing import Optional, TYPE_CHECKING
 
 import numpy as np
 from robot_calib.core.geometry import se2_apply
 from robot_calib.methods.loop_closure_correction.common import Keyframe
 from robot_calib.methods.loop_closure_correction.params import DetectionParams, KeyframeParams
-from scipy.spatial import cKDTree
+
+if TYPE_CHECKING:  # the KD-tree is built in core.scan_match
+    from scipy.spatial import cKDTree
 
 
 class KeyframeMap:

@@ -30,8 +30,6 @@ from robot_calib.core.geometry import se2_between, se2_compose, se2_inverse, wra
 from robot_calib.methods.loop_closure_correction.common import Candidate
 from robot_calib.methods.loop_closure_correction.improved import ImprovedLoopClosure
 from robot_calib.methods.loop_closure_correction.params import LoopClosureParams
-from scipy.optimize import least_squares
-from scipy.sparse import lil_matrix
 
 
 @dataclass
@@ -74,6 +72,9 @@ def optimise(poses: np.ndarray, edges: list, max_nfev: int = 50) -> tuple[np.nda
         r = rel - z
         r[:, 2] = np.angle(np.exp(1j * r[:, 2]))
         return (r * w).ravel()
+
+    from scipy.optimize import least_squares  # here: 0.3 s of start-up
+    from scipy.sparse import lil_matrix
 
     sparsity = lil_matrix((3 * len(edges), 3 * (n - 1)), dtype=int)
     for k, (i, j) in enumerate(zip(ii, jj)):

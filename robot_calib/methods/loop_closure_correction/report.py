@@ -11,10 +11,11 @@ and a :class:`~robot_calib.methods.loop_closure_correction.common.LoopClosureRes
 from __future__ import annotations
 
 import math
+from pathlib import Path
 from typing import Sequence
 
 import numpy as np
-from robot_calib.core import types as T
+from robot_calib.core import figures, types as T
 from robot_calib.methods.loop_closure_correction.common import ClosureReport, LoopClosureResult
 
 NAME = 'loop_closure_correction'
@@ -76,11 +77,8 @@ def plot(track: Sequence[tuple], result: LoopClosureResult, out_dir: str) -> lis
     """
     if not track:
         return []
-    import matplotlib
-    matplotlib.use('Agg')
-    import matplotlib.pyplot as plt
     tr = np.array(list(track))
-    fig, ax = plt.subplots(figsize=(7, 6))
+    fig, ax = figures.new_figure(7, 6)
     ax.plot(tr[:, 4], tr[:, 5], color='0.6', lw=1, label='dead reckoning (raw)')
     ax.plot(tr[:, 1], tr[:, 2], color='C0', lw=1.2, label='corrected')
     acc = [r for r in result.closures if r.accepted]
@@ -96,10 +94,7 @@ def plot(track: Sequence[tuple], result: LoopClosureResult, out_dir: str) -> lis
     ax.set_ylabel('y (m)')
     ax.set_title(NAME)
     ax.legend(fontsize=8)
-    name = 'loop_closure.png'
-    fig.savefig(f'{out_dir}/{name}', dpi=90)
-    plt.close(fig)
-    return [name]
+    return [figures.save(fig, Path(out_dir) / 'loop_closure.png')]
 
 
 def heading_rmse(t_est: np.ndarray, yaw_est: np.ndarray, t_true: np.ndarray,

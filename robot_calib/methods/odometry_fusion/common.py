@@ -22,11 +22,11 @@ from typing import Any, Mapping, Optional
 import numpy as np
 from robot_calib.core import types as T
 from robot_calib.methods.odometry_fusion.params import FusionParams
-from scipy.special import chdtri
 
 
 def chi2_ppf(probability: float, dof: float) -> float:
     """Return the chi-square quantile of ``probability`` with ``dof`` degrees of freedom."""
+    from scipy.special import chdtri  # here: scipy.special costs 0.2 s of start-up
     return float(chdtri(dof, 1.0 - probability))
 
 

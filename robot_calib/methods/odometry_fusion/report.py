@@ -16,7 +16,7 @@ from pathlib import Path
 from typing import Any, Mapping
 
 import numpy as np
-from robot_calib.core import types as T
+from robot_calib.core import figures, types as T
 from robot_calib.methods.odometry_fusion.common import FusionResult
 from robot_calib.methods.odometry_fusion.params import FusionParams
 
@@ -103,28 +103,21 @@ def plot(r: FusionResult, params: FusionParams, trajectory: list, out_dir: str) 
     """
     if not trajectory:
         return []
-    import matplotlib
-    matplotlib.use('Agg')
-    import matplotlib.pyplot as plt
     tr = np.array(trajectory)
     names = []
-    fig, ax = plt.subplots(figsize=(6, 6))
+    fig, ax = figures.new_figure(6, 6)
     ax.plot(tr[:, 1], tr[:, 2], lw=1)
     ax.set_aspect('equal')
     ax.set_xlabel('x (m)')
     ax.set_ylabel('y (m)')
     ax.set_title(f'odometry_fusion ({params.mode}) trajectory')
-    fig.savefig(Path(out_dir) / 'odometry_fusion_trajectory.png', dpi=100)
-    plt.close(fig)
-    names.append('odometry_fusion_trajectory.png')
+    names.append(figures.save(fig, Path(out_dir) / 'odometry_fusion_trajectory.png', dpi=100))
     nis = r.nis
     if nis is not None and nis.updates:
-        fig, ax = plt.subplots(figsize=(7, 3))
+        fig, ax = figures.new_figure(7, 3)
         ax.semilogy(np.arange(0, nis.updates, nis.history_stride)[:len(nis.history)],
                     nis.history, lw=0.5)
         ax.set_xlabel('odometry update')
         ax.set_ylabel('NIS')
-        fig.savefig(Path(out_dir) / 'odometry_fusion_nis.png', dpi=100)
-        plt.close(fig)
-        names.append('odometry_fusion_nis.png')
+        names.append(figures.save(fig, Path(out_dir) / 'odometry_fusion_nis.png', dpi=100))
     return names

@@ -48,7 +48,6 @@ from robot_calib.methods.wheel_odometry_calibration.common import CalibResult
 from robot_calib.methods.wheel_odometry_calibration.params import (ANGLE_KEYS, DIFF_KEYS,
                                                                    keys_of, SolverParams,
                                                                    WheelCalibParams)
-from scipy import optimize, stats
 
 
 # ------------------------------------------------------------------------------------------
@@ -319,7 +318,11 @@ def joint_fit(drive_type: str, segments: list[Segment], nominal: dict,
     inl = np.ones(len(segments), bool)
     r0 = residuals(drive_type, x, steps, meas)
     sigma = _robust_sigma(r0)
-    gate = stats.chi2.ppf(stats.chi2.cdf(sp.outlier_sigma ** 2, 1), 3)
+    from scipy.optimize import least_squares  # here: scipy costs 0.5 s of start-up
+    from scipy.special import chdtrc, chdtri
+
+    # the 3-dof chi-square quantile of the probability mass within outlier_sigma in 1 dof
+    gate = chdtri(3, chdtrc(1, sp.outlier_sigma ** 2))
     scale = np.where(np.abs(x_nom) > 1e-9, np.abs(x_nom), 1.0)
     for it in range(sp.outlier_iterations + 1):
         s_in, m_in = steps[inl], meas[inl]
@@ -329,8 +332,8 @@ def joint_fit(drive_type: str, segments: list[Segment], nominal: dict,
             r = residuals(drive_type, xx, s_in, m_in) / sig
             return np.concatenate((r.ravel(), (xx - x_nom) / psig))
 
-        sol = optimize.least_squares(fun, x / scale, method='lm', x_scale='jac',
-                                     xtol=1e-12, ftol=1e-12, max_nfev=200 * x.size)
+        sol = least_squares(fun, x / scale, method='lm', x_scale='jac',
+                            xtol=1e-12, ftol=1e-12, max_nfev=200 * x.size)
         x = sol.x * scale
         r = residuals(drive_type, x, steps, meas)
         sigma = _robust_sigma(r[inl]) if it < sp.outlier_iterations else sigma

@@ -1,0 +1,53 @@
+# Copyright 2026 robot_calib contributors
+# SPDX-License-Identifier: Apache-2.0
+"""
+Report figures drawn straight on matplotlib's Agg canvas, without pyplot.
+
+Fleets replay many short bags, so a report's plots are a large share of a
+short replay: pyplot's global figure manager and a layout pass
+(``tight_layout`` draws every figure twice) cost more than the drawing. Here a
+figure is a plain :class:`matplotlib.figure.Figure` on its own Agg canvas with
+fixed margins, drawn once when saved; nothing global is touched, so figures can
+be drawn from any thread. matplotlib is imported on first use (about 0.35 s).
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any, Union
+
+MARGINS = {'left': 0.1, 'right': 0.97, 'bottom': 0.12, 'top': 0.91, 'wspace': 0.3,
+           'hspace': 0.35}
+"""Subplot margins (fractions of the figure) that fit a title, axis labels and tick labels."""
+
+
+def available() -> bool:
+    """Return whether matplotlib can be imported."""
+    try:
+        import matplotlib  # noqa: F401 - probing the optional plotting dependency
+    except ImportError:
+        return False
+    return True
+
+
+def new_figure(width: float, height: float, rows: int = 1, cols: int = 1) -> tuple[Any, Any]:
+    """
+    Return ``(figure, axes)`` of a ``width`` x ``height`` inch figure with a rows x cols grid.
+
+    ``axes`` is one Axes for a 1 x 1 grid, else an array as ``Figure.subplots`` gives.
+    """
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+    fig = Figure(figsize=(width, height))
+    FigureCanvasAgg(fig)
+    margins = dict(MARGINS)
+    if width > 8 and cols == 1:
+        margins['left'] = 0.08
+    fig.subplots_adjust(**margins)
+    return fig, fig.subplots(rows, cols, squeeze=True)
+
+
+def save(fig: Any, path: Union[str, Path], dpi: int = 90) -> str:
+    """Draw ``fig`` into the PNG file ``path`` at ``dpi``; return the file name."""
+    fig.savefig(path, dpi=dpi)
+    return Path(path).name
