@@ -16,9 +16,8 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any, Union
 
-MARGINS = {'left': 0.1, 'right': 0.97, 'bottom': 0.12, 'top': 0.91, 'wspace': 0.3,
-           'hspace': 0.35}
-"""Subplot margins (fractions of the figure) that fit a title, axis labels and tick labels."""
+MARGINS_INCH = {'left': 0.75, 'right': 0.2, 'bottom': 0.55, 'top': 0.4}
+"""Room around the grid of axes (inch): tick labels and axis labels, the title on top."""
 
 
 def available() -> bool:
@@ -40,10 +39,10 @@ def new_figure(width: float, height: float, rows: int = 1, cols: int = 1) -> tup
     from matplotlib.figure import Figure
     fig = Figure(figsize=(width, height))
     FigureCanvasAgg(fig)
-    margins = dict(MARGINS)
-    if width > 8 and cols == 1:
-        margins['left'] = 0.08
-    fig.subplots_adjust(**margins)
+    m = MARGINS_INCH
+    fig.subplots_adjust(left=m['left'] / width, right=1.0 - m['right'] / width,
+                        bottom=m['bottom'] / height, top=1.0 - m['top'] / height,
+                        wspace=0.3, hspace=0.35)
     return fig, fig.subplots(rows, cols, squeeze=True)
 
 
