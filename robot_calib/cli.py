@@ -38,7 +38,9 @@ def _add_simulate(sub: Any) -> None:
     p = sub.add_parser('simulate', help='write a simulated ROS 2 bag with ground truth',
                        description='Simulate a scenario and write a ROS 2 bag plus '
                                    '<out>.truth.json.')
-    p.add_argument('scenario', help='scenario name (e.g. drive, vacuum, revisit, tip_over)')
+    p.add_argument('scenario', help='scenario name (e.g. drive, vacuum, revisit, tip_over), '
+                                    'or fleet: a folder of robots with drifting parameters '
+                                    '(--set fleet.robots=N, ...; see docs/fleet.md)')
     p.add_argument('--out', required=True, help='output bag folder')
     p.add_argument('--seed', type=int, default=0, help='random seed (default 0)')
     p.add_argument('--duration', type=float, default=None, help='duration in s')
@@ -172,6 +174,15 @@ def _make_parent(path: str) -> None:
 def _simulate(args: argparse.Namespace) -> int:
     from robot_calib import sim
     _make_parent(args.out)
+    if args.scenario == 'fleet':
+        from robot_calib.sim.fleet import simulate_fleet
+        rows = simulate_fleet(args.out, seed=args.seed, duration=args.duration,
+                              overrides=args.overrides or None)
+        robots = len({r['robot'] for r in rows})
+        drifts = sorted({f'{r["robot"]} {r["drift"]}' for r in rows if r['drift'] != 'unchanged'})
+        print(f'wrote {len(rows)} bags of {robots} robots into {args.out} '
+              f'({len(drifts)} drifting; truth in {args.out}/fleet_truth.csv)')
+        return 0
     truth = sim.simulate(args.scenario, args.out, seed=args.seed, duration=args.duration,
                          overrides=_parse_sets(args.overrides) or None, storage=args.storage)
     print(f'wrote {args.out} and {args.out}.truth.json (scenario {args.scenario}, '

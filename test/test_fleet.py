@@ -5,6 +5,7 @@
 import csv
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from robot_calib.cli import main
@@ -29,7 +30,7 @@ def fleet(tmp_path_factory) -> Path:
 
 
 def _table(rows):
-    return [{k: v for k, v in r.items() if k != 'runtime_s'} for r in rows]
+    return [{k: v for k, v in r.items() if k not in ('runtime_s', 'peak_rss_mb')} for r in rows]
 
 
 def test_fleet_flags_the_drift_and_records_the_broken_bag(fleet, tmp_path):
@@ -55,7 +56,14 @@ def test_fleet_flags_the_drift_and_records_the_broken_bag(fleet, tmp_path):
     assert len(table) == len(rows) and 'odometry_fusion.gyro_bias' in table[0]
     import pyarrow.parquet as pq
     assert pq.read_table(out / 'results.parquet').num_rows == len(rows)
-    assert (out / 'report.md').read_text().count('| r1 |') >= 1
+    report = (out / 'report.md').read_text()
+    assert report.count('| r1 |') >= 1
+    # the drifting robot's trends are shown under the flags, every robot's are drawn
+    assert '![r1](plots/robots/r1.png)' in report and '![r2]' not in report
+    assert '### r3\n\nno bag processed' in report
+    assert {p.name for p in (out / 'plots' / 'robots').iterdir()} == {'r1.png', 'r2.png'}
+    assert (out / 'plots' / 'estimates' / 'odometry_fusion.gyro_bias.png').is_file()
+    assert all(r['peak_rss_mb'] > 50 for r in rows)
     assert (out / 'bags' / 'r1' / 'day3' / 'summary.json').is_file()
 
     # resumed: nothing replayed again, the same table
@@ -98,3 +106,63 @@ def test_ray_executor_gives_the_same_rows(fleet, tmp_path):
     assert _table(ray['rows']) == _table(pool['rows'])
     assert (tmp_path / 'ray' / 'flags.csv').read_text() == \
         (tmp_path / 'pool' / 'flags.csv').read_text()
+
+
+def test_trend_flags_a_steady_drift_not_noise():
+    from robot_calib.fleet.results import flags, trend
+    import numpy as np
+    days = [0.0, 7.0, 14.0, 21.0, 28.0]
+    rng = np.random.default_rng(3)
+    noise = rng.normal(0.0, 1e-5, 5)
+    # a radius losing 0.1 % a week, measured with a 2e-5 m standard deviation
+    wear = [0.05 * (1 - 0.001 * d / 7) + e for d, e in zip(days, noise)]
+    slope, sigma = trend(days, wear, [2e-5] * 5)
+    assert slope == pytest.approx(-0.05 * 0.001 / 7, rel=0.2) and abs(slope) > 4 * sigma
+    # noise whose stated deviation is ten times too small: the scatter about the line rules
+    flat = list(0.05 + 10 * noise)
+    slope, sigma = trend(days, flat, [2e-6] * 5)
+    assert abs(slope) < 4 * sigma
+    assert trend(days[:3], wear[:3], [2e-5] * 3) is None      # too few bags for a trend
+
+    def rows(values):
+        return [{'robot': 'a', 'date': f'2026-01-{1 + int(d):02d}', 'bag': f'b{i}', 'node': 'n',
+                 'status': 'ok', 'n.radius': v, 'n.radius_std': 2e-5}
+                for i, (d, v) in enumerate(zip(days, values))]
+    found = flags(rows(wear))
+    assert [f['bag'] for f in found if f['reason'].startswith('trend')] == ['b4']
+    assert not [f for f in flags(rows(list(0.05 + noise))) if f['reason'].startswith('trend')]
+
+
+def test_simulated_fleet_drifts_as_its_truth_says(tmp_path):
+    from robot_calib.fleet.source import discover
+    from robot_calib.sim import fleet as F
+    keys = ['fleet.robots=3', 'fleet.recordings=4', 'fleet.wear_fraction=0.34',
+            'fleet.step_fraction=0.34', 'fleet.wear_per_week=0.01', 'odom.rate=20']
+    rows = F.simulate_fleet(tmp_path / 'f', seed=5, duration=3.0, overrides=keys, workers=1,
+                            progress=False)
+    assert [r['bag'] for r in rows] == [r['bag'] for r in F.read_truth(tmp_path / 'f')]
+    assert len(rows) == 12
+    by = {}
+    for r in F.read_truth(tmp_path / 'f'):
+        by.setdefault(r['drift'], []).append(r)
+    assert {k: len(v) for k, v in by.items()} == {'wear': 4, 'gyro_step': 4, 'unchanged': 4}
+    radii = [float(r['left_radius_error']) for r in by['wear']]
+    assert np.allclose(np.diff(radii), -0.01 * (1 + radii[0]), rtol=0.05)   # 1 % a week
+    bias = [float(r['gyro_bias_z']) for r in by['gyro_step']]
+    assert bias[3] - bias[2] == pytest.approx(0.02, abs=0.003)            # the step, last bag
+    assert max(abs(b - bias[0]) for b in bias[:3]) < 0.003
+    assert len({r['left_radius_error'] for r in by['unchanged']}) == 1
+    jobs = discover(tmp_path / 'f')
+    assert len(jobs) == 12 and {j.robot for j in jobs} == {'robot000', 'robot001', 'robot002'}
+    import json
+    last = by['wear'][3]
+    truth = json.loads((tmp_path / 'f' / f'{last["bag"]}.truth.json').read_text())
+    expected = 0.05 * (1 + float(last['left_radius_error']))
+    assert truth['left_wheel_radius'] == pytest.approx(expected)
+    assert truth['start_time'] > 1.7e9                      # the recording's date, not 1970
+    # the same seed plans the same fleet; a bad key is a one-line error
+    params, sim_keys = F.split_overrides(keys)
+    assert F.plan(params, 5, sim_keys) == F.plan(params, 5, sim_keys)
+    with pytest.raises(F.SimError, match='unknown --set key'):
+        F.split_overrides(['fleet.robot=3'])
+    assert main(['simulate', 'fleet', '--out', str(tmp_path / 'f')]) == 2    # exists

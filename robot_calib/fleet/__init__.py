@@ -22,7 +22,7 @@ import sys
 import time
 from typing import Any, Iterable, Optional, Union
 
-from robot_calib.fleet import results
+from robot_calib.fleet import report, results
 from robot_calib.fleet.runner import run_job, Settings
 from robot_calib.fleet.source import discover, FleetError, Job
 
@@ -130,7 +130,7 @@ def run_fleet(source: Union[str, os.PathLike], out: Union[str, os.PathLike],
     results.write_table(rows, out)
     results.write_flags(found, out)
     seconds = time.perf_counter() - t0
-    results.write_report(rows, found, out, seconds)
+    report.write_report(rows, found, out, seconds)
     failed = len({r['bag'] for r in rows if r['status'] == 'failed'})
     return {'bags': len(jobs), 'failed': failed, 'flags': len(found), 'rows': rows,
             'seconds': seconds}

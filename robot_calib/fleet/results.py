@@ -1,7 +1,7 @@
 # Copyright 2026 robot_calib contributors
 # SPDX-License-Identifier: Apache-2.0
 """
-The fleet result set: the table (CSV and Parquet), the flags and the report.
+The fleet result set: the table (CSV and Parquet) and the flags.
 
 Flags, per robot and node, in date order:
 
@@ -10,6 +10,11 @@ Flags, per robot and node, in date order:
   two), sigma combining the estimate's own standard deviation and the spread of
   the earlier values; numbers without an uncertainty (counts, adaptive noise
   scales) are tabled but not flagged, as their normal spread is unknown;
+- ``trend``: with at least :data:`TREND_MIN_BAGS` bags, an estimate with a standard
+  deviation whose straight-line fit over the dates has a slope more than ``k``
+  sigma from zero (a tyre wearing, a bias creeping): each bag weighted by the
+  larger of its own standard deviation and the scatter about the line, so an
+  estimate whose stated uncertainty is too small is not flagged for its noise;
 - ``stopped_converging``: a verdict other than ``converged`` after a converged one;
 - ``alert``: a method raised alerts (a fall);
 - ``failed``: the bag could not be processed (the reason is the evidence).
@@ -18,13 +23,18 @@ Flags, per robot and node, in date order:
 from __future__ import annotations
 
 import csv
+import datetime
 import math
 import os
 from pathlib import Path
 import statistics
-from typing import Any
+from typing import Any, Optional
 
-FIRST = ('robot', 'date', 'bag', 'node', 'status', 'reason', 'runtime_s')
+import numpy as np
+
+FIRST = ('robot', 'date', 'bag', 'node', 'status', 'reason', 'runtime_s', 'peak_rss_mb')
+TREND_MIN_BAGS = 4
+"""Fewest bags of a robot for a trend flag: a line and the scatter about it need four."""
 FLAG_COLUMNS = ('robot', 'date', 'bag', 'node', 'parameter', 'reason')
 
 
@@ -39,7 +49,7 @@ def columns(rows: list[dict[str, Any]]) -> list[str]:
     return list(FIRST) + extra
 
 
-def _atomic_write(path: Path, write: Any) -> None:
+def atomic_write(path: Path, write: Any) -> None:
     tmp = path.with_name(f'.{path.name}.tmp')
     write(tmp)
     os.replace(tmp, path)
@@ -54,7 +64,7 @@ def write_table(rows: list[dict[str, Any]], out: Path) -> list[str]:
             writer = csv.DictWriter(f, fieldnames=cols, restval='')
             writer.writeheader()
             writer.writerows(rows)
-    _atomic_write(out / 'results.csv', to_csv)
+    atomic_write(out / 'results.csv', to_csv)
     written = ['results.csv']
     try:
         import pyarrow as pa
@@ -62,7 +72,7 @@ def write_table(rows: list[dict[str, Any]], out: Path) -> list[str]:
     except ImportError:
         return written
     table = pa.table({c: [r.get(c) for r in rows] for c in cols})
-    _atomic_write(out / 'results.parquet', lambda p: pq.write_table(table, str(p)))
+    atomic_write(out / 'results.parquet', lambda p: pq.write_table(table, str(p)))
     return written + ['results.parquet']
 
 
@@ -82,10 +92,65 @@ def _moved(history: list[float], value: float, std: float, k: float) -> str:
     return ''
 
 
+def days_of(date: Any) -> float:
+    """Return an ISO 8601 date as days since the epoch (NaN when missing or unreadable)."""
+    try:
+        when = datetime.datetime.fromisoformat(str(date))
+    except ValueError:
+        return math.nan
+    if when.tzinfo is None:
+        when = when.replace(tzinfo=datetime.timezone.utc)
+    return when.timestamp() / 86400.0
+
+
+def trend(days: list[float], values: list[float], stds: list[float]) -> Optional[tuple]:
+    """
+    Return ``(slope per day, its sigma)`` of a weighted straight line, or None.
+
+    Weighted least squares with each bag's sigma the larger of its own standard
+    deviation and the RMS scatter about an unweighted line (n - 2 degrees of
+    freedom); None with fewer than :data:`TREND_MIN_BAGS` usable bags or no time
+    span.
+    """
+    ok = [(d, v, s) for d, v, s in zip(days, values, stds)
+          if math.isfinite(d) and math.isfinite(v) and math.isfinite(s)]
+    if len(ok) < TREND_MIN_BAGS:
+        return None
+    d, v, s = (np.array(c, dtype=float) for c in zip(*ok))
+    d = d - d.mean()
+    if not np.ptp(d) > 0:
+        return None
+    line = np.polyfit(d, v, 1)
+    scatter = math.sqrt(float(np.sum((v - np.polyval(line, d)) ** 2)) / (len(v) - 2))
+    w = 1.0 / np.maximum(s, scatter) ** 2
+    if not np.all(np.isfinite(w)):
+        return None
+    dw = d - np.sum(w * d) / np.sum(w)
+    sxx = float(np.sum(w * dw ** 2))
+    return float(np.sum(w * dw * v) / sxx), 1.0 / math.sqrt(sxx)
+
+
+def _trend_flags(series: dict[tuple, list], k: float) -> list[dict[str, Any]]:
+    """Return the trend flags, each on the robot's last bag of that estimate."""
+    out = []
+    for (_, col), points in series.items():
+        fit = trend([p[1] for p in points], [p[2] for p in points], [p[3] for p in points])
+        if fit is None or not abs(fit[0]) > k * fit[1]:
+            continue
+        slope, sigma = fit
+        span = max(p[1] for p in points) - min(p[1] for p in points)
+        out.append({**points[-1][0], 'parameter': col.split('.', 1)[1],
+                    'reason': f'trend {slope * 7:+.3g} per week over {len(points)} bags '
+                              f'({span:.0f} days, {slope * span:+.3g} in all), '
+                              f'{abs(slope) / sigma:.1f} sigma'})
+    return out
+
+
 def flags(rows: list[dict[str, Any]], k: float = 4.0) -> list[dict[str, Any]]:
     """Return the flags of the table's rows (see the module docstring)."""
     out = []
     history: dict[tuple, list[float]] = {}
+    series: dict[tuple, list] = {}
     converged: set[tuple] = set()
     for r in sort_rows(rows):
         where = {c: r[c] for c in ('robot', 'date', 'bag', 'node')}
@@ -107,12 +172,16 @@ def flags(rows: list[dict[str, Any]], k: float = 4.0) -> list[dict[str, Any]]:
                 out.append({**where, 'parameter': name, 'reason': f'{int(value)} alert(s)'})
             elif name != 'alerts':
                 x = _number(value)
-                why = _moved(history.get(key, []), x, _number(r.get(f'{col}_std')), k)
+                std = _number(r.get(f'{col}_std'))
+                why = _moved(history.get(key, []), x, std, k)
                 if why:
                     out.append({**where, 'parameter': name, 'reason': why})
                 if math.isfinite(x):
                     history.setdefault(key, []).append(x)
-    return out
+                    if math.isfinite(std):
+                        series.setdefault(key, []).append((where, days_of(r['date']), x, std))
+    return sorted(out + _trend_flags(series, k),
+                  key=lambda f: (f['robot'], f['date'] or '', f['bag'], f['node']))
 
 
 def write_flags(found: list[dict[str, Any]], out: Path) -> None:
@@ -122,25 +191,4 @@ def write_flags(found: list[dict[str, Any]], out: Path) -> None:
             writer = csv.DictWriter(f, fieldnames=FLAG_COLUMNS)
             writer.writeheader()
             writer.writerows(found)
-    _atomic_write(out / 'flags.csv', to_csv)
-
-
-def write_report(rows: list[dict[str, Any]], found: list[dict[str, Any]], out: Path,
-                 seconds: float) -> None:
-    """Write ``report.md``: counts, the flags with their evidence, the slowest bags."""
-    bags = {(r['robot'], r['bag']) for r in rows}
-    failed = {(r['robot'], r['bag']) for r in rows if r['status'] == 'failed'}
-    robots = sorted({r['robot'] for r in rows})
-    lines = ['# Fleet report', '',
-             f'{len(bags)} bags of {len(robots)} robots in {seconds:.1f} s; '
-             f'{len(failed)} failed; {len(found)} flags.', '',
-             '## Flags', '', '| robot | date | node | parameter | reason |',
-             '|---|---|---|---|---|']
-    lines += [f'| {f["robot"]} | {f["date"]} | {f["node"]} | {f["parameter"]} | '
-              f'{f["reason"]} |' for f in found] or ['| - | - | - | - | none |']
-    slow = sorted((r for r in rows if r['status'] == 'ok'), key=lambda r: -r['runtime_s'])[:5]
-    lines += ['', '## Slowest bags', '', '| robot | bag | node | runtime (s) |',
-              '|---|---|---|---|']
-    lines += [f'| {r["robot"]} | {Path(r["bag"]).name} | {r["node"]} | {r["runtime_s"]:.2f} |'
-              for r in slow]
-    _atomic_write(out / 'report.md', lambda p: p.write_text('\n'.join(lines) + '\n'))
+    atomic_write(out / 'flags.csv', to_csv)

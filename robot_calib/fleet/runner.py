@@ -19,6 +19,7 @@ import hashlib
 import json
 import os
 from pathlib import Path
+import resource
 import time
 from typing import Any, Optional
 
@@ -58,10 +59,15 @@ def _date(job: Job, summary: dict) -> str:
     return datetime.datetime.fromtimestamp(start, datetime.timezone.utc).isoformat()
 
 
+def peak_rss_mb() -> float:
+    """Return the peak resident memory of this process so far (MB; all the bags it ran)."""
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
+
+
 def _rows(job: Job, summary: dict, seconds: float) -> list[dict[str, Any]]:
     """Return one row per node of a finished replay (status ok, or skipped with the reason)."""
     date = _date(job, summary)
-    base = {'robot': job.robot, 'date': date, 'bag': str(job.bag)}
+    base = {'robot': job.robot, 'date': date, 'bag': str(job.bag), 'peak_rss_mb': peak_rss_mb()}
     rows = []
     for node, part in summary.get('nodes', {}).items():
         row = {**base, 'node': node, 'status': 'ok', 'reason': '', 'runtime_s': seconds}
@@ -76,7 +82,8 @@ def _rows(job: Job, summary: dict, seconds: float) -> list[dict[str, Any]]:
 
 def _failed(job: Job, reason: str, seconds: float) -> list[dict[str, Any]]:
     return [{'robot': job.robot, 'date': job.date or '', 'bag': str(job.bag), 'node': '',
-             'status': 'failed', 'reason': reason, 'runtime_s': seconds}]
+             'status': 'failed', 'reason': reason, 'runtime_s': seconds,
+             'peak_rss_mb': peak_rss_mb()}]
 
 
 def run_job(job: Job, settings: Settings) -> list[dict[str, Any]]:

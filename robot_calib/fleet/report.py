@@ -1,0 +1,81 @@
+# Copyright 2026 robot_calib contributors
+# SPDX-License-Identifier: Apache-2.0
+"""
+The fleet's ``report.md``: the flags with their evidence, then the figures to judge them by.
+
+Robots with flags come first, each with its trends; then the fleet: the spread
+of every robot's latest values and each estimate across robots; then links to
+every robot's trends, the slowest bags and the workers' peak memory. Figures
+go to ``DIR/plots/`` (``robots/<robot>.png``, ``fleet_histograms.png``,
+``estimates/<node>.<estimate>.png``); without matplotlib the report has text only.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+from robot_calib.core import figures
+from robot_calib.fleet import plots
+from robot_calib.fleet.results import atomic_write, days_of
+
+
+def _flag_table(found: list[dict[str, Any]]) -> list[str]:
+    lines = ['## Flags', '', '| robot | date | node | parameter | reason |',
+             '|---|---|---|---|---|']
+    return lines + ([f'| {f["robot"]} | {f["date"]} | {f["node"]} | {f["parameter"]} | '
+                     f'{f["reason"]} |' for f in found] or ['| - | - | - | - | none |'])
+
+
+def _figures(rows: list[dict[str, Any]], found: list[dict[str, Any]], out: Path,
+             robots: list[str]) -> list[str]:
+    """Draw the figures; return the report lines that show them."""
+    failed = {f['robot'] for f in found if f['reason'].startswith('failed')}
+    cols = plots.tracked(rows)
+    if not cols or not figures.available():
+        return []
+    flagged_bags: dict[str, dict[str, set[float]]] = {}
+    for f in found:
+        col = f'{f["node"]}.{f["parameter"]}'
+        flagged_bags.setdefault(f['robot'], {}).setdefault(col, set()).add(days_of(f['date']))
+    (out / 'plots' / 'robots').mkdir(parents=True, exist_ok=True)
+    (out / 'plots' / 'estimates').mkdir(parents=True, exist_ok=True)
+    drawn = sorted({r['robot'] for r in rows if r['status'] == 'ok'})
+    for robot in drawn:
+        plots.robot_figure(rows, robot, cols, flagged_bags.get(robot, {}),
+                           out / 'plots' / 'robots' / f'{robot}.png')
+    lines = ['', '## Robots with flags', '']
+    attention = [r for r in robots if r in flagged_bags or r in failed]
+    lines += [f'### {r}\n\n![{r}](plots/robots/{r}.png)\n' if r in drawn else
+              f'### {r}\n\nno bag processed\n' for r in attention] or ['none']
+    plots.histograms(rows, drawn, cols, out / 'plots' / 'fleet_histograms.png')
+    lines += ['', '## Fleet', '', '![latest values](plots/fleet_histograms.png)', '']
+    for col in cols:
+        flagged = {r for r, by_col in flagged_bags.items() if col in by_col}
+        plots.overview(rows, drawn, col, flagged, out / 'plots' / 'estimates' / f'{col}.png')
+        lines.append(f'![{col}](plots/estimates/{col}.png)')
+    lines += ['', '## Every robot', '',
+              ', '.join(f'[{r}](plots/robots/{r}.png)' for r in drawn)]
+    return lines
+
+
+def write_report(rows: list[dict[str, Any]], found: list[dict[str, Any]], out: Path,
+                 seconds: float) -> None:
+    """Write ``report.md`` and its figures into ``out``."""
+    bags = {(r['robot'], r['bag']) for r in rows}
+    failed = {(r['robot'], r['bag']) for r in rows if r['status'] == 'failed'}
+    robots = sorted({r['robot'] for r in rows})
+    lines = ['# Fleet report', '',
+             f'{len(bags)} bags of {len(robots)} robots in {seconds:.1f} s; '
+             f'{len(failed)} failed; {len(found)} flags.', '']
+    lines += _flag_table(found)
+    lines += _figures(rows, found, out, robots)
+    slow = sorted((r for r in rows if r['status'] == 'ok'), key=lambda r: -r['runtime_s'])[:5]
+    lines += ['', '## Slowest bags', '', '| robot | bag | node | runtime (s) |',
+              '|---|---|---|---|']
+    lines += [f'| {r["robot"]} | {Path(r["bag"]).name} | {r["node"]} | {r["runtime_s"]:.2f} |'
+              for r in slow]
+    peaks = [r['peak_rss_mb'] for r in rows if isinstance(r.get('peak_rss_mb'), (int, float))]
+    if peaks:
+        lines += ['', f'Peak resident memory of a worker: {max(peaks):.0f} MB.']
+    atomic_write(out / 'report.md', lambda p: p.write_text('\n'.join(lines) + '\n'))
