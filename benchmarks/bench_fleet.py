@@ -184,7 +184,12 @@ def _ray_row(walls: dict, bags: int) -> str:
     return (f'| Ray (local, 2 CPUs, start-up included) against the process pool, 2 workers | '
             f'{walls["ray"]:.1f} s against {walls[2]:.1f} s: {ratio * 100:+.0f} % '
             f'({(walls["ray"] - walls[2]) / bags:+.2f} s per bag) | <= 10 % per bag | '
-            f'{"met" if ratio <= 0.10 else "missed"} |')
+            f'{"met" if ratio <= 0.10 else "missed"} |\n'
+            f'| Ray already running (started before the clock) against '
+            f'the process pool | {walls["ray_up"]:.1f} s against {walls[2]:.1f} s: '
+            f'{(walls["ray_up"] / walls[2] - 1) * 100:+.0f} % '
+            f'({(walls["ray_up"] - walls[2]) / bags:+.2f} s per bag) | <= 10 % per bag | '
+            f'{"met" if walls["ray_up"] / walls[2] - 1 <= 0.10 else "missed"} |')
 
 
 def _fleet_walls(source: Path, tmp: Path) -> dict:
@@ -194,12 +199,21 @@ def _fleet_walls(source: Path, tmp: Path) -> dict:
         run_fleet(source, tmp / f'out{workers}', nodes=NODES, workers=workers, progress=False)
         walls[workers] = time.perf_counter() - t0
     try:
-        import ray  # noqa: F401 - the optional extra
+        import ray
     except ImportError:
         return walls
     t0 = time.perf_counter()
     run_fleet(source, tmp / 'out_ray', nodes=NODES, workers=2, progress=False, ray='auto')
     walls['ray'] = time.perf_counter() - t0
+    # a cluster that is already up (as in production): Ray started before the clock
+    ray.init(num_cpus=2, include_dashboard=False, log_to_driver=False)
+    try:
+        t0 = time.perf_counter()
+        run_fleet(source, tmp / 'out_ray_up', nodes=NODES, workers=2, progress=False,
+                  ray='auto')
+        walls['ray_up'] = time.perf_counter() - t0
+    finally:
+        ray.shutdown()
     return walls
 
 

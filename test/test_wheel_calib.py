@@ -95,6 +95,10 @@ def test_integrate_steps_equals_composing_step_by_step():
     np.testing.assert_allclose(K.integrate_steps(np.tile(arc, (1, 8, 1))),
                                [[0.0, 0.0, 2 * math.pi]], atol=1e-12)
     assert K.integrate_steps(np.zeros((2, 0, 3))).shape == (2, 3)
+    # arcs integrated by their chords: the same motion as arc poses composed one by one
+    ds, dth = steps[..., 0], steps[..., 2]
+    np.testing.assert_allclose(K.integrate_arcs(ds, dth), K.integrate_steps(K.arc_pose(ds, dth)),
+                               atol=1e-12)
 
 
 def test_steered_and_diff_arc_by_hand():

@@ -28,6 +28,7 @@ a constant steering angle or wheel-speed ratio).
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+import math
 
 import numpy as np
 
@@ -80,6 +81,21 @@ def arc_pose(ds, dtheta) -> np.ndarray:
     return np.stack((ds * t1, ds * t2, th), axis=-1)
 
 
+def arc_pose_scalar(ds: float, dtheta: float) -> tuple[float, float, float]:
+    """Return :func:`arc_pose` of one arc as floats (x m, y m, yaw rad), for per-sample use."""
+    if abs(dtheta) < 1e-9:
+        t1, t2 = 1.0 - dtheta * dtheta / 6.0, dtheta / 2.0
+    else:
+        t1, t2 = math.sin(dtheta) / dtheta, (1.0 - math.cos(dtheta)) / dtheta
+    return ds * t1, ds * t2, dtheta
+
+
+def compose_scalar(a: tuple, b: tuple) -> tuple[float, float, float]:
+    """Return :func:`compose` of two single poses as floats (b expressed in a)."""
+    c, s = math.cos(a[2]), math.sin(a[2])
+    return a[0] + c * b[0] - s * b[1], a[1] + s * b[0] + c * b[1], a[2] + b[2]
+
+
 def compose(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """Return ``a (+) b`` for arrays of planar poses ``[..., 3]`` (b expressed in a)."""
     c, s = np.cos(a[..., 2]), np.sin(a[..., 2])
@@ -110,6 +126,25 @@ def integrate_steps(steps: np.ndarray) -> np.ndarray:
     y = np.sum(s * steps[..., 0] + c * steps[..., 1], axis=1)
     return np.stack((x, y, heading[:, -1] if steps.shape[1] else np.zeros(len(steps))),
                     axis=-1)
+
+
+def integrate_arcs(ds: np.ndarray, dtheta: np.ndarray) -> np.ndarray:
+    """
+    Return ``integrate_steps(arc_pose(ds, dtheta))`` for padded arcs ``[S, K]``, in fewer passes.
+
+    An arc of length ``ds`` turning ``dtheta`` moves the chord ``ds sinc(dtheta / 2)``
+    along the heading at its middle (the heading before it plus ``dtheta / 2``), so a
+    segment's motion is the sum of its chords rotated by their middle headings;
+    padding arcs (zeros) add nothing.
+    """
+    ds = np.asarray(ds, dtype=float)
+    th = np.asarray(dtheta, dtype=float)
+    heading = np.cumsum(th, axis=1)
+    middle = heading - 0.5 * th
+    chord = ds * np.sinc(th / (2.0 * np.pi))          # np.sinc(x) = sin(pi x) / (pi x)
+    x = np.sum(chord * np.cos(middle), axis=1)
+    y = np.sum(chord * np.sin(middle), axis=1)
+    return np.stack((x, y, heading[:, -1] if th.shape[1] else np.zeros(len(th))), axis=-1)
 
 
 def sensor_motion(base_motion: np.ndarray, sensor_pose) -> np.ndarray:

@@ -101,6 +101,9 @@ class Rows:
 
     def append(self, row: Any) -> None:
         """Add one row (a sequence of ``width`` floats)."""
+        if type(row) is tuple and len(row) == self.width:
+            self._buf.extend(row)
+            return
         values = np.asarray(row, dtype=float).ravel()
         if values.size != self.width:
             raise ValueError(f'a row of {self.width} values expected, got {values.size}')

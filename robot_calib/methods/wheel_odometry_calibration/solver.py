@@ -72,7 +72,7 @@ def base_motion(drive_type: str, x: np.ndarray, steps: np.ndarray) -> np.ndarray
         ds, dth = K.diff_arc(steps[..., 0], steps[..., 1], x[0], x[1], x[2])
     else:
         ds, dth = K.steered_arc(steps[..., 0], steps[..., 1], x[2], x[3], x[0], x[1])
-    return K.integrate_steps(K.arc_pose(ds, dth))
+    return K.integrate_arcs(ds, dth)
 
 
 def predict(drive_type: str, x: np.ndarray, steps: np.ndarray) -> np.ndarray:

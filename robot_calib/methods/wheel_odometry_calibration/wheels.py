@@ -39,15 +39,19 @@ class WheelHistory:
         self.t, self.a, self.b = array('d'), array('d'), array('d')
         self.pose = Rows(3)
         self._last_raw: Optional[tuple] = None
+        self._last_pose = (0.0, 0.0, 0.0)
 
-    def _step_pose(self, da: float, b0: float, b1: float) -> np.ndarray:
-        """Return the nominal base motion of one wheel step."""
+    def _step_pose(self, da: float, b0: float, b1: float) -> tuple[float, float, float]:
+        """Return the nominal base motion of one wheel step (floats: a few per sample)."""
         x = self.x_nom
-        if self.drive == 'differential':
-            ds, dth = K.diff_arc(da, b1 - b0, x[0], x[1], x[2])
+        if self.drive == 'differential':          # K.diff_arc, K.steered_arc for one step
+            dl, dr = float(x[0]) * da, float(x[1]) * (b1 - b0)
+            ds, dth = 0.5 * (dr + dl), (dr - dl) / float(x[2])
         else:
-            ds, dth = K.steered_arc(da, 0.5 * (b0 + b1), x[2], x[3], x[0], x[1])
-        return K.arc_pose(ds, dth)
+            alpha = float(x[1]) * (0.5 * (b0 + b1)) + float(x[0])
+            dw = float(x[2]) * da
+            ds, dth = dw * math.cos(alpha), dw * math.sin(alpha) / float(x[3])
+        return K.arc_pose_scalar(ds, dth)
 
     def add(self, t: float, a: float, b: float, va: float = math.nan,
             vb: float = math.nan) -> int:
@@ -66,7 +70,8 @@ class WheelHistory:
             self.t.append(t)
             self.a.append(a)
             self.b.append(b)
-            self.pose.append(np.zeros(3))
+            self._last_pose = (0.0, 0.0, 0.0)
+            self.pose.append(self._last_pose)
             self._last_raw = (t, a, b)
             return 0
         t0, a0, b0 = self._last_raw
@@ -76,7 +81,8 @@ class WheelHistory:
         na = self.a[-1] + da
         nb = self.b[-1] + db if self.drive == 'differential' else b
         step = self._step_pose(da, self.b[-1], nb)
-        self.pose.append(K.compose(self.pose[-1], step))
+        self._last_pose = K.compose_scalar(self._last_pose, step)
+        self.pose.append(self._last_pose)
         self.t.append(t)
         self.a.append(na)
         self.b.append(nb)
