@@ -43,14 +43,16 @@ import numpy as np
 REPO = Path(__file__).resolve().parents[1]
 SHARED = REPO.parent / 'shared' / 'data'
 OUT = REPO / 'docs' / 'bench' / '4-fusion.md'
-EARTH_R = 6378137.0
 HUSKY_IMU_RPY = [math.pi / 2, 0.0, -math.pi / 2]
 """base_link -> imu_link of robot_localization's test1 (roll pi/2, yaw -pi/2; data README)."""
 
 sys.path.insert(0, str(REPO))
 
+from fusion_analysis import (  # noqa: E402,I100
+    accel_speed_events, dead_reckoning, enu, gps_wander, hindsight_bounds, score,
+    standstill_gyro_bias)
 from robot_calib.core.estimator import run_batch  # noqa: E402
-from robot_calib.core.geometry import wrap_angle  # noqa: E402
+from robot_calib.core.geometry import quat_from_rpy, quat_to_matrix, wrap_angle  # noqa: E402
 from robot_calib.methods.odometry_fusion.common import from_odometry  # noqa: E402
 from robot_calib.methods.odometry_fusion.improved import IBG  # noqa: E402
 from robot_calib.methods.odometry_fusion.params import FusionParams  # noqa: E402
@@ -60,39 +62,6 @@ from robot_calib.methods.odometry_fusion.variants import make_estimator  # noqa:
 # ---------------------------------------------------------------------------------------
 # metrics
 # ---------------------------------------------------------------------------------------
-def enu(fixes: list) -> np.ndarray:
-    """Return (N, 3) [t, east, north] (s, m, m) of NavSat fixes about the first one."""
-    lat0, lon0 = fixes[0].latitude, fixes[0].longitude
-    return np.array([[f.t, math.radians(f.longitude - lon0) * EARTH_R * math.cos(
-        math.radians(lat0)), math.radians(f.latitude - lat0) * EARTH_R] for f in fixes])
-
-
-def align(t: np.ndarray, xy: np.ndarray, ref: np.ndarray) -> tuple[np.ndarray, float]:
-    """
-    Align an estimate (interpolated at ``ref[:, 0]``) to ``ref[:, 1:3]`` with one SE(2).
-
-    :return: (errors m at each reference sample, rotation rad of the alignment)
-    """
-    est = np.column_stack([np.interp(ref[:, 0], t, xy[:, 0]), np.interp(ref[:, 0], t, xy[:, 1])])
-    a = est - est.mean(0)
-    b = ref[:, 1:3] - ref[:, 1:3].mean(0)
-    u, _, vt = np.linalg.svd(a.T @ b)
-    d = np.diag([1.0, np.sign(np.linalg.det(vt.T @ u.T))])
-    rot = vt.T @ d @ u.T
-    err = np.linalg.norm(a @ rot.T - b, axis=1)
-    return err, math.atan2(rot[1, 0], rot[0, 0])
-
-
-def score(t, xy, yaw, ref) -> dict:
-    """Return ATE (m), final error (m), final heading error (rad, when ref has yaw)."""
-    err, rot = align(np.asarray(t), np.asarray(xy), ref)
-    out = {'ate': float(np.sqrt(np.mean(err ** 2))), 'final': float(err[-1]),
-           'end_from_start': float(np.hypot(*(np.asarray(xy)[-1] - np.asarray(xy)[0])))}
-    if ref.shape[1] > 3:
-        out['heading'] = abs(wrap_angle(float(yaw[-1]) + rot - float(ref[-1, 3])))
-    return out
-
-
 def run_filter(seq: list, **kw) -> tuple[dict, object, float, np.ndarray]:
     """
     Run the core over (kind, sample) pairs; return (trajectory arrays, result, s, pose covs).
@@ -159,8 +128,18 @@ def fmt(v: float, n: int = 2) -> str:
     return 'n/a' if v is None or not math.isfinite(v) else f'{v:.{n}f}'
 
 
+def husky_arrays(seq: list) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Return test1's gyro z (t, rad/s), forward force (t, m/s^2) and wheels (t, v, w)."""
+    rot = quat_to_matrix(quat_from_rpy(*HUSKY_IMU_RPY))
+    imu = sorted((s for k, s in seq if k == 'imu'), key=lambda s: s.t)
+    gyro = np.array([(s.t, float(rot[2] @ s.gyro)) for s in imu])
+    accel = np.array([(s.t, float(rot[0] @ s.accel)) for s in imu])
+    wheels = np.array([(s.t, s.vx, s.wz) for k, s in seq if k == 'odom'])
+    return gyro, accel, wheels
+
+
 def real_husky(lines: list) -> dict:
-    """Benchmark test1.bag (robot_localization): raw odometry, seed, default and variants."""
+    """Benchmark test1.bag (robot_localization): raw odometry, seed, default, variants, bounds."""
     seq, odoms, fixes = load_bag(SHARED / 'robot_localization' / 'test1.bag', '/imu/data',
                                  '/husky_velocity_controller/odom', '/fix')
     ref = enu(fixes)
@@ -179,9 +158,14 @@ def real_husky(lines: list) -> dict:
     for name, kw in runs:
         tr, f, el, _ = run_filter(seq, **kw)
         rows.append((name, score(**tr, ref=ref), f, len(seq) / el))
+    gyro, accel, wheels = husky_arrays(seq)
+    bounds = hindsight_bounds(gyro, wheels[:, :2], ref)
     lines += ['## Real robot: robot_localization test1.bag (Husky, 395 s, 359 m)', '',
               f'GPS: {len(fixes)} fixes; the GPS puts the end {gps_end:.1f} m from the start. '
-              'Goal (default): ATE <= 2.0 m and final error <= 3 m, GPS not used by the filter.',
+              'Goal (issue 18): ATE <= 2.7 m and final error <= 5.5 m, causally, GPS not used '
+              'by the filter (issue 4 asked for 2.0 m and 3 m). The bounds are gyro + '
+              'wheel-speed dead reckoning with constants chosen knowing the GPS answer '
+              '(analysis, not methods).',
               '', '| estimate | ATE (m) | final error (m) | end from start (m) | '
               'gyro bias (rad/s) | NIS in band | core msgs/s |', '|---|---|---|---|---|---|---|']
     for name, sc, f, rate in rows:
@@ -193,59 +177,69 @@ def real_husky(lines: list) -> dict:
                      f'{fmt(sc["end_from_start"])} | {bias} | {nis} | '
                      f'{fmt(rate, 0) if rate else "-"} |')
         result[name] = sc
+    for key, name in (('bias', 'bound: best constant gyro bias (wheel speed as measured)'),
+                      ('bias_scale', 'bound: best constant gyro bias and wheel-speed scale '
+                       f'({bounds["bias_scale"]["scale"]:.3f})')):
+        bd = bounds[key]
+        lines.append(f'| {name} | {bd["ate"]:.2f} | {bd["final"]:.2f} | - | {bd["bias"]:.5f} '
+                     '| - | - |')
     d = rows[2][1]
-    met_a, met_f = d['ate'] <= 2.0, d['final'] <= 3.0
-    oracle = oracle_dead_reckoning(seq, ref)
-    lines += ['', f'Analysis only (uses the GPS, not a method): gyro + wheel-speed dead reckoning '
-              f'with the constant gyro bias that minimises the ATE in hindsight '
-              f'({oracle[1]:+.5f} rad/s) scores ATE {oracle[0]:.2f} m, final error '
-              f'{oracle[2]:.2f} m. GPS self-consistency: over 4-s windows the GPS '
-              f'displacement differs from the wheel distance by {gps_wander(ref, odoms):.2f} m '
-              'RMS while the robot drives straight at about 1 m/s, so the GPS itself wanders '
-              'by metres; and in the last 8 s the GPS moves about 3 m while wheels, gyro and '
-              'accelerometer agree on 7 m of straight driving.']
-    lines += ['', f'Default: ATE {d["ate"]:.2f} m (goal <= 2.0: {"met" if met_a else "MISSED"}), '
-              f'final error {d["final"]:.2f} m (goal <= 3: {"met" if met_f else "MISSED"}); '
+    met_a, met_f = d['ate'] <= 2.7, d['final'] <= 5.5
+    lines += ['', husky_sensor_text(gyro, accel, wheels, ref, bounds), '',
+              f'GPS self-consistency: over 4-s windows the GPS displacement differs from the '
+              f'wheel distance by {gps_wander(ref, wheels):.2f} m RMS while the robot drives '
+              'straight at about 1 m/s, so the GPS itself wanders by metres; and in the last '
+              '8 s the GPS moves about 3 m while wheels, gyro and accelerometer agree on 7 m of '
+              'straight driving.']
+    lines += ['', f'Default: ATE {d["ate"]:.2f} m (goal <= 2.7: {"met" if met_a else "MISSED"}; '
+              f'bounds {bounds["bias"]["ate"]:.2f} and {bounds["bias_scale"]["ate"]:.2f}), '
+              f'final error {d["final"]:.2f} m (goal <= 5.5: {"met" if met_f else "MISSED"}; '
+              f'bounds {bounds["bias"]["final"]:.2f} and {bounds["bias_scale"]["final"]:.2f}); '
               f'raw odometry ATE {rows[0][1]["ate"]:.2f} m.', '']
     result['goal_ate_met'], result['goal_final_met'] = met_a, met_f
     result['seq'] = seq
     return result
 
 
-def oracle_dead_reckoning(seq: list, ref: np.ndarray) -> tuple[float, float, float]:
-    """Return (ATE m, bias rad/s, final m) of gyro + wheel-speed dead reckoning, best bias."""
-    from robot_calib.core.geometry import quat_from_rpy, quat_to_matrix
-    rz = quat_to_matrix(quat_from_rpy(*HUSKY_IMU_RPY))[2]
-    imu = np.array([(s.t, float(rz @ s.gyro)) for k, s in seq if k == 'imu'])
-    od = np.array([(s.t, s.vx) for k, s in seq if k == 'odom'])
-    imu = imu[np.argsort(imu[:, 0])]
-    best = (math.inf, 0.0, math.inf)
-    for b in np.arange(-0.002, 0.002, 0.0001):
-        th = np.concatenate([[0.0], np.cumsum(np.diff(imu[:, 0]) * (imu[:-1, 1] - b))])
-        yaw = np.interp(od[:, 0], imu[:, 0], th)
-        step = np.diff(od[:, 0]) * od[:-1, 1]
-        xy = np.column_stack([np.concatenate([[0.0], np.cumsum(step * np.cos(yaw[:-1]))]),
-                              np.concatenate([[0.0], np.cumsum(step * np.sin(yaw[:-1]))])])
-        sc = score(od[:, 0], xy, yaw, ref)
-        if sc['ate'] < best[0]:
-            best = (sc['ate'], float(b), sc['final'])
-    return best
-
-
-def gps_wander(ref: np.ndarray, odoms: list) -> float:
-    """Return the RMS difference (m) of GPS displacement and wheel distance over 4-s windows."""
-    t = np.array([o.t for o in odoms])
-    dist = np.concatenate([[0.0], np.cumsum(np.abs([o.vx for o in odoms])[:-1] * np.diff(t))])
-    diffs = []
-    for t0 in np.arange(ref[0, 0], ref[-1, 0] - 4.0, 4.0):
-        a, b = np.searchsorted(ref[:, 0], [t0, t0 + 4.0])
-        if b - a < 5:
-            continue
-        w = np.interp([t0, t0 + 4.0], t, dist)
-        wz = [abs(o.wz) for o in odoms if t0 <= o.t < t0 + 4.0]
-        if wz and max(wz) < 0.02:  # straight driving only
-            diffs.append(np.hypot(*(ref[b - 1, 1:3] - ref[a, 1:3])) - (w[1] - w[0]))
-    return float(np.sqrt(np.mean(np.square(diffs)))) if diffs else float('nan')
+def husky_sensor_text(gyro: np.ndarray, accel: np.ndarray, wheels: np.ndarray,
+                      ref: np.ndarray, bounds: dict) -> str:
+    """Say which of the bounds' constants the Husky's own sensors could have told a filter."""
+    bias, sem, first, still = standstill_gyro_bias(gyro, wheels)
+    causal = score(**dead_reckoning(gyro, wheels[:, :2], bias, 1.0, bias_until=first), ref=ref)
+    scale = bounds['bias_scale']['scale']
+    given = score(**dead_reckoning(gyro, wheels[:, :2], bias, scale, bias_until=first), ref=ref)
+    # the gyro minus the wheel yaw rate while driving straight: a bias learnt from the wheels
+    w_at_gyro = np.interp(gyro[:, 0], wheels[:, 0], wheels[:, 2])
+    v_at_gyro = np.interp(gyro[:, 0], wheels[:, 0], wheels[:, 1])
+    straight = (np.abs(w_at_gyro) < 0.02) & (v_at_gyro > 0.5)
+    from_wheels = float(np.mean(gyro[straight, 1] - w_at_gyro[straight]))
+    finals = [score(**dead_reckoning(gyro, wheels[:, :2], b), ref=ref)['final']
+              for b in np.linspace(-0.002, 0.002, 81)]
+    events = accel_speed_events(accel, wheels[:, :2])
+    ratios = ', '.join(f'{e[3]:.2f}' for e in events)
+    med = float(np.median([e[3] for e in events])) if events else float('nan')
+    shift = max((abs(e[4]) for e in events), default=float('nan'))
+    return (
+        'What the sensors can tell (no GPS): the wheels are still once, for '
+        f'{still:.0f} s from {first - wheels[0, 0]:.0f} s on (the robot drives from its first '
+        f'second); the gyro reads {bias:+.5f} +- {sem:.5f} rad/s there, against '
+        f'{bounds["bias"]["bias"]:+.5f} for the best constant in hindsight. Dead reckoning '
+        'with no bias until then and that standstill bias after it (no correction of the '
+        f'past) scores ATE {causal["ate"]:.2f} m, final error {causal["final"]:.2f} m; given '
+        "the bound's wheel-speed scale "
+        f'({scale:.3f}) too, ATE {given["ate"]:.2f} m, final error {given["final"]:.2f} m. '
+        'In motion the wheels cannot teach the bias: driving straight, the gyro minus the '
+        f'wheel yaw rate averages {from_wheels:+.5f} rad/s, neither the standstill reading nor '
+        'the hindsight constant. With the wheel speed as measured, no constant gyro bias in '
+        '+-0.002 rad/s brings the final '
+        f'error below {min(finals):.2f} m: the final goal needs the wheel-speed scale. The '
+        "accelerometer's velocity change over the wheels' across the "
+        f'{len(events)} speed changes of the run (baseline: its mean 2 s before and after) '
+        f'is {ratios} (median {med:.2f}). Its baseline moves by up to {shift:.2f} m/s^2 '
+        'across one speed change (g sin(pitch): the slopes of the lot, the pitch of the '
+        'body), as much as the acceleration itself, so the 2-3 % scale the GPS prefers is '
+        'not observable from this IMU (the simulation section gives the same '
+        'ratio on flat simulated ground).')
 
 
 def real_gps_data(lines: list) -> None:
@@ -387,6 +381,11 @@ def sim_seed(seed: int, duration: float) -> dict:
     out['rate'] = len(seq) / el
     out['cov_pos'], out['cov_yaw'] = covariance_coverage(tr, covs, gt)
     out['bias_err'] = abs(f.state[IBG] - _true_bias(r.truth, gt[-1, 0]))
+    accel = np.array([(s.t, float(s.accel[0])) for k, s in seq if k == 'imu'])
+    wheels = np.array([(s.t, s.vx) for s in odoms])
+    ratios = [e[3] for e in accel_speed_events(accel, wheels)]
+    out['accel_scale'] = float(np.median(ratios)) if ratios else float('nan')
+    out['accel_events'] = len(ratios)
     return out
 
 
@@ -451,7 +450,14 @@ def simulation(lines: list, seeds: int, duration: float, jobs: int) -> None:
               'of the time: the innovations are time-correlated (wheel-speed lag and '
               'slip), which the averaged test exposes and the per-update test does not. '
               f'Core rate in simulation: {np.median([r["rate"] for r in res]):,.0f} msgs/s.',
-              '']
+              '', "Wheel-speed scale from the accelerometer (the Husky section's analysis, the "
+              'simulated IMU mounted level): per run the median over its speed changes '
+              f'({int(np.median([r["accel_events"] for r in res]))} per run, median) of the '
+              "accelerometer's velocity change over the wheels' is "
+              f'{np.median([r["accel_scale"] for r in res]):.3f} (median over seeds; from '
+              f'{min(r["accel_scale"] for r in res):.3f} to '
+              f'{max(r["accel_scale"] for r in res):.3f}); the simulated wheels over-read the '
+              'speed by 0.25 % (radius errors +1.0 % and -0.5 %), a true ratio of 0.998.', '']
 
 
 def main() -> int:

@@ -14,7 +14,7 @@ from robot_calib.methods.odometry_fusion.common import LidarOdomSample, Rejected
 from robot_calib.methods.odometry_fusion.improved import IBG, ImprovedFusion, IV
 from robot_calib.methods.odometry_fusion.params import FusionParams
 from robot_calib.methods.odometry_fusion.pipeline import FusionPipeline
-from robot_calib.methods.odometry_fusion.seed import SeedFusion
+from robot_calib.methods.odometry_fusion.seed import SeedFusion, transition as seed_transition
 from robot_calib.methods.odometry_fusion.variants import make_estimator
 
 HUSKY_RPY = [math.pi / 2, 0.0, -math.pi / 2]
@@ -164,6 +164,43 @@ def test_seed_clamps_imu_acceleration_and_speed():
         f.update(T.ImuSample(0.1 * i, np.zeros(3), g + [50.0, 0.0, 0.0]))
     state = f.result().state
     assert math.hypot(state[2], state[3]) <= p.seed.max_speed + 1e-9
+
+
+def _seed_startup(imu_start: float) -> tuple[SeedFusion, np.ndarray, np.ndarray]:
+    """
+    Drive 1 m/s straight; IMU (10 Hz, units and up axis detected) from ``imu_start`` (s).
+
+    Return the seed filter and its state just before and just after the first IMU sample
+    the front end lets through (its tenth).
+    """
+    f = SeedFusion(FusionParams(mode='seed'))
+    grav = np.array([0.0, 0.0, 9.80665])
+    imu_t = [imu_start + 0.1 * i + 0.05 for i in range(10)]
+    events = sorted([(0.1 * i, 'odom') for i in range(int(imu_t[-1] * 10) + 1)] +
+                    [(t, 'imu') for t in imu_t])
+    before = None
+    for t, kind in events:
+        if kind == 'odom':
+            f.update(T.OdomSample(t, 1.0 * t, 0.0, 0.0, 1.0))
+        else:
+            if t == imu_t[-1]:
+                before = f.result().state
+            f.update(T.ImuSample(t, np.zeros(3), grav))
+    return f, before, f.result().state
+
+
+def test_seed_prediction_spans_the_imu_front_end_start_but_never_a_silent_imu():
+    # the first nine IMU samples go to unit and up-axis detection while odometry arrives:
+    # the IMU was running, so the first prediction spans the time since the filter's last
+    # one (as seed 004 predicts at every IMU sample); before, the 0.95 s looked like a gap
+    f, before, after = _seed_startup(0.0)
+    dt = 0.95
+    pred = seed_transition(dt) @ before
+    np.testing.assert_allclose(after[:4], pred[:4], rtol=1e-9, atol=1e-12)
+    assert after[0] - before[0] > 0.5
+    # an IMU that starts 5 s after the odometry was silent: no motion is invented over it
+    _, before, after = _seed_startup(5.0)
+    np.testing.assert_allclose(after[:4], before[:4], atol=1e-12)
 
 
 def test_wheel_speed_from_rev_per_second_as_the_seed_writes_it():

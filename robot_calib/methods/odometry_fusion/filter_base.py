@@ -53,6 +53,8 @@ class FusionFilter(abc.ABC):
         self.events: list[tuple[float, str]] = []
         self.path_length = 0.0
         self.last_imu_t: Optional[float] = None
+        self.imu_run_start = -math.inf
+        """Stamp (s) of the first IMU sample after the IMU's last silence (or ever)."""
         self.last_odom_t: Optional[float] = None
         self.initialised = False
         self._odom_last: Optional[T.OdomSample] = None
@@ -165,6 +167,8 @@ class FusionFilter(abc.ABC):
             return 'accel_out_of_range'
         if self.last_imu_t is not None and s.t <= self.last_imu_t:
             return 'out_of_order'
+        if self.last_imu_t is None or s.t - self.last_imu_t > self.p.sensor_timeout:
+            self.imu_run_start = s.t
         conv = self.front.convert(s, (gx, gy, gz), (ax, ay, az))
         while self.front.warnings:
             self.warn(s.t, self.front.warnings.pop(0))

@@ -74,8 +74,12 @@ class SeedFusion(FusionFilter):
         dt = t - self.t
         if dt <= 0:
             return 'stale'
+        # no motion is invented over a gap (or a clock jump, which validation turns into one):
+        # the prediction may span time the IMU was running (its first samples go to the
+        # front end's unit and mounting detection), never time it was silent
+        gap = self.imu_run_start - self.t > self.p.sensor_timeout
         self.t = t
-        if dt > self.p.sensor_timeout:  # a gap or a clock jump: no motion is invented over it
+        if gap:
             return None
         self.heading = wrap_angle(self.heading + gz * dt)
         # IMU acceleration, clamped to the robot's limits (seed 004), into the odom frame
