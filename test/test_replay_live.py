@@ -152,3 +152,43 @@ def test_live_bad_input(tmp_path):
         live.play([path], topics=['/scan'])
     with pytest.raises(ValueError, match='loops'):
         live.play([path], loops=-1)
+
+
+def test_live_offers_every_static_transform_to_a_late_subscriber(tmp_path):
+    """Several /tf_static messages in the bag all reach a node that subscribes after they went."""
+    from tf2_msgs.msg import TFMessage
+    from robot_calib.nodes.base import message_class, TF_STATIC_QOS
+    path = tmp_path / 'bag'
+    with bags.BagWriter(path) as w:
+        for k, child in enumerate(('imu_link', 'laser', 'camera_link')):
+            w.write('/tf_static', [T.StaticTransform('base_link', child, np.zeros(3),
+                                                     np.array([1.0, 0, 0, 0]))], 10**9 + k)
+    own = not rclpy.ok()
+    if own:
+        rclpy.init(domain_id=100 + os.getpid() % 100)
+    player_node = rclpy.create_node('late_test_player')
+    late = rclpy.create_node('late_test_listener')
+    got = []
+    try:
+        with bags.BagSet([path]) as bagset:
+            chosen, skipped = live._choose(bagset, {}, None, message_class)
+            player = live._Player(player_node, chosen, clock=False, clock_period=0.01)
+            for stream, time_ns, raw in bagset.messages([s for s, _, _ in chosen]):
+                player.publish(stream, time_ns, raw, skipped)
+        late.create_subscription(TFMessage, '/tf_static', got.append, TF_STATIC_QOS)
+        executor = SingleThreadedExecutor()
+        executor.add_node(late)
+        executor.add_node(player_node)
+        for _ in range(200):
+            executor.spin_once(timeout_sec=0.02)
+            if len(got) == 3:
+                break
+        executor.shutdown()
+    finally:
+        late.destroy_node()
+        player_node.destroy_node()
+        if own:
+            rclpy.try_shutdown()
+    assert skipped == {} and player.counts == {'/tf_static': 3}
+    assert sorted(m.transforms[0].child_frame_id for m in got) == [
+        'camera_link', 'imu_link', 'laser']

@@ -49,11 +49,12 @@ LATCHED_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1,
 DEFAULT_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=10,
                          reliability=ReliabilityPolicy.RELIABLE,
                          durability=DurabilityPolicy.VOLATILE)
-STATIC_LISTENER_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=100,
-                                 reliability=ReliabilityPolicy.RELIABLE,
-                                 durability=DurabilityPolicy.TRANSIENT_LOCAL)
+TF_STATIC_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=100,
+                           reliability=ReliabilityPolicy.RELIABLE,
+                           durability=DurabilityPolicy.TRANSIENT_LOCAL)
 """``/tf_static`` as tf2's listener reads it: every static broadcaster's latched message (with
-depth 1, the messages of broadcasters that started earlier would overwrite each other)."""
+depth 1, the messages of broadcasters that started earlier would overwrite each other); replay
+``--live`` offers a bag's static messages so too, all of them to a late subscriber."""
 TF_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=100,
                     reliability=ReliabilityPolicy.RELIABLE,
                     durability=DurabilityPolicy.VOLATILE)
@@ -110,7 +111,7 @@ class PipelineNode(Node):
                 self.log('warn', f'{msgtype} is not installed: not subscribing to '
                          f'{spec.topic} (set the matching parameter instead)')
                 continue
-            qos = STATIC_LISTENER_QOS if spec.kind == 'tf_static' else qos_profile_sensor_data
+            qos = TF_STATIC_QOS if spec.kind == 'tf_static' else qos_profile_sensor_data
             self._subs.append(self.create_subscription(
                 cls, spec.topic, partial(self._on_message, spec.key, msgtype,
                                          decode=codec.decoder(msgtype)), qos, raw=True))
