@@ -13,11 +13,14 @@ export ROS_AUTOMATIC_DISCOVERY_RANGE ?= LOCALHOST
 
 venv: $(STAMP)
 
-$(STAMP): requirements.txt requirements-bench.txt requirements-ray.txt setup.py
+$(STAMP): requirements.txt requirements-bench.txt requirements-ray.txt requirements-build.txt \
+		setup.py tools/build_tf2_msgs.sh
 	test -x $(PY) || $(PYTHON) -m venv $(VENV)
 	$(PY) -m pip install --quiet --upgrade pip
 	$(PY) -m pip install --quiet -r requirements.txt -r requirements-bench.txt -r requirements-ray.txt
 	$(PY) -m pip install --quiet --no-deps -e .
+	# tf2_msgs (/tf, /tf_static) has no wheel: built from its message definition
+	bash tools/build_tf2_msgs.sh $(VENV)
 	touch $(STAMP)
 
 demo: venv

@@ -8,8 +8,9 @@ published on its own name (after ``--remap FROM:=TO`` on bag topics) as the
 serialized bytes from the bag (ROS 1 messages are converted to ROS 2 CDR
 first), paced by the bag receive times divided by ``rate``; ``/clock``
 (rosgraph_msgs/Clock) carries the bag time so nodes can run with
-``use_sim_time``. Topics recorded as transient-local (and ``/tf_static``)
-are published latched.
+``use_sim_time``. Topics recorded as transient-local are published latched,
+and ``/tf_static`` latched with room for every static message of the bag
+(a node started later receives them all, as from tf2's static broadcasters).
 """
 
 from __future__ import annotations
@@ -63,7 +64,7 @@ class _Player:
 
     def __init__(self, node: Any, chosen: list, clock: bool, clock_period: float):
         from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
-        from robot_calib.nodes.base import LATCHED_QOS
+        from robot_calib.nodes.base import LATCHED_QOS, TF_STATIC_QOS
         reliable = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=100,
                               reliability=ReliabilityPolicy.RELIABLE,
                               durability=DurabilityPolicy.VOLATILE)
@@ -71,7 +72,8 @@ class _Player:
         for s, topic, cls in chosen:
             key = (topic, s.msgtype)
             if key not in self.pubs:
-                qos = LATCHED_QOS if (s.latched or topic == '/tf_static') else reliable
+                qos = TF_STATIC_QOS if topic == '/tf_static' else (
+                    LATCHED_QOS if s.latched else reliable)
                 self.pubs[key] = node.create_publisher(cls, topic, qos)
         self.by_stream = {id(s): (self.pubs[(topic, s.msgtype)], topic, s)
                           for s, topic, _ in chosen}

@@ -308,6 +308,6 @@ def test_pipeline_publishes_corrected_odometry_with_input_stamp():
     diags = [s for k, s in outs if k == 'diagnostics']
     assert len(odoms) == 100 and diags
     assert odoms[-1].stamp_ns == -1 and odoms[-1].t == pytest.approx(1.98)
-    assert odoms[-1].frame_id == 'odom' and np.all(np.isfinite(odoms[-1].pose_cov))
+    assert odoms[-1].frame_id == 'map' and np.all(np.isfinite(odoms[-1].pose_cov))
     summary = pipe.summary()
     assert summary['mode'] == 'improved' and 'events' in summary

@@ -85,7 +85,7 @@ def test_node_publishes_corrected_odometry_and_diagnostics(ros):
     assert len(out) >= 50   # best-effort sensor QoS may drop a few under load
     stamps = {(m.header.stamp.sec, m.header.stamp.nanosec) for m in out}
     assert stamps <= set(sent)  # each output carries the stamp of its input odometry
-    assert out[-1].header.frame_id == 'odom' and out[-1].child_frame_id == 'base_link'
+    assert out[-1].header.frame_id == 'map' and out[-1].child_frame_id == 'base_link'
     status = diags[-1].status[0]
     values = {kv.key: kv.value for kv in status.values}
     assert status.name == 'gyro_line_calibration: heading'

@@ -68,7 +68,7 @@ def test_readme_commands_are_what_ci_and_make_use():
 
 def test_requirements_are_pinned():
     """Every requirement is pinned to one version, so a fresh machine gets what we tested."""
-    for name in ('requirements.txt', 'requirements-bench.txt'):
+    for name in ('requirements.txt', 'requirements-bench.txt', 'requirements-build.txt'):
         for line in (REPO / name).read_text().splitlines():
             line = line.split('#')[0].strip()
             if line:

@@ -26,6 +26,9 @@ def _write(path, n=50):
                                              np.array([0.0, 0.0, 9.81]), stamp_ns=ns), ns)
             if i % 5 == 0:
                 w.write('/cmd_vel', T.TwistSample(ns * 1e-9, 0.2), ns)
+            if i % 10 == 0:
+                w.write('/tf', [T.StaticTransform('odom', 'base_link', np.array([0.01 * i, 0, 0]),
+                                                  np.array([1.0, 0, 0, 0]), ns * 1e-9, ns)], ns)
 
 
 def _listen(play_kwargs: dict, subscriptions: dict) -> tuple[dict, dict]:
@@ -78,32 +81,32 @@ LATCHED = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1,
 
 
 def test_live_publishes_bag_with_clock(tmp_path):
+    """Every topic, /tf_static latched and /tf (tf2_msgs, built by `make venv`), and /clock."""
     from geometry_msgs.msg import Twist
     from rosgraph_msgs.msg import Clock
     from sensor_msgs.msg import Imu
-    from robot_calib.nodes.base import message_class
-    tf_cls = message_class('tf2_msgs/msg/TFMessage')  # not on PyPI; present on a ROS install
+    from tf2_msgs.msg import TFMessage
     path = tmp_path / 'bag'
     _write(path)
     imu_topic = f'/live_test_{os.getpid()}/imu'
     subs = {'imu': (Imu, imu_topic, RELIABLE), 'clock': (Clock, '/clock', RELIABLE),
-            'cmd': (Twist, '/cmd_vel', RELIABLE)}
-    if tf_cls is not None:
-        subs['tf'] = (tf_cls, '/tf_static', LATCHED)
+            'cmd': (Twist, '/cmd_vel', RELIABLE), 'tf_static': (TFMessage, '/tf_static', LATCHED),
+            'tf': (TFMessage, '/tf', RELIABLE)}
     result, got = _listen({'bags': [path], 'rate': 2.0,
                            'remaps': [f'/imu/data:={imu_topic}'],
                            'wait_for_subscribers': 10.0, 'delay': 0.3}, subs)
     assert result['messages'] == sum(result['topics'].values())
-    if tf_cls is None:
-        assert 'not installed' in result['skipped']['/tf_static']
-        assert result['topics'] == {imu_topic: 50, '/cmd_vel': 10}
-    else:
-        assert result['topics'] == {'/tf_static': 1, imu_topic: 50, '/cmd_vel': 10}
+    assert result['topics'] == {'/tf_static': 1, imu_topic: 50, '/cmd_vel': 10, '/tf': 5}
+    assert result['skipped'] == {}
     assert result['bag_seconds'] == pytest.approx(0.49)
     # Paced at twice the recorded rate (lower bound only: no upper timing assertion).
     assert result['wall_seconds'] >= 0.49 / 2 * 0.9
     assert len(got['imu']) == 50 and len(got['cmd']) == 10
-    assert len(got.get('tf', [])) == (0 if tf_cls is None else 1)
+    (static,) = got['tf_static']
+    assert [(t.header.frame_id, t.child_frame_id) for t in static.transforms] == [
+        ('base_link', 'imu_link')]
+    assert [m.transforms[0].transform.translation.x for m in got['tf']] == pytest.approx(
+        [0.0, 0.1, 0.2, 0.3, 0.4])
     # Bytes went through unchanged: decode with the shared conversion layer.
     first = codec.from_msg('sensor_msgs/msg/Imu', got['imu'][7])[0]
     assert first.stamp_ns == 10**9 + 7 * 10_000_000 and first.gyro[2] == pytest.approx(0.07)
@@ -149,3 +152,43 @@ def test_live_bad_input(tmp_path):
         live.play([path], topics=['/scan'])
     with pytest.raises(ValueError, match='loops'):
         live.play([path], loops=-1)
+
+
+def test_live_offers_every_static_transform_to_a_late_subscriber(tmp_path):
+    """Several /tf_static messages in the bag all reach a node that subscribes after they went."""
+    from tf2_msgs.msg import TFMessage
+    from robot_calib.nodes.base import message_class, TF_STATIC_QOS
+    path = tmp_path / 'bag'
+    with bags.BagWriter(path) as w:
+        for k, child in enumerate(('imu_link', 'laser', 'camera_link')):
+            w.write('/tf_static', [T.StaticTransform('base_link', child, np.zeros(3),
+                                                     np.array([1.0, 0, 0, 0]))], 10**9 + k)
+    own = not rclpy.ok()
+    if own:
+        rclpy.init(domain_id=100 + os.getpid() % 100)
+    player_node = rclpy.create_node('late_test_player')
+    late = rclpy.create_node('late_test_listener')
+    got = []
+    try:
+        with bags.BagSet([path]) as bagset:
+            chosen, skipped = live._choose(bagset, {}, None, message_class)
+            player = live._Player(player_node, chosen, clock=False, clock_period=0.01)
+            for stream, time_ns, raw in bagset.messages([s for s, _, _ in chosen]):
+                player.publish(stream, time_ns, raw, skipped)
+        late.create_subscription(TFMessage, '/tf_static', got.append, TF_STATIC_QOS)
+        executor = SingleThreadedExecutor()
+        executor.add_node(late)
+        executor.add_node(player_node)
+        for _ in range(200):
+            executor.spin_once(timeout_sec=0.02)
+            if len(got) == 3:
+                break
+        executor.shutdown()
+    finally:
+        late.destroy_node()
+        player_node.destroy_node()
+        if own:
+            rclpy.try_shutdown()
+    assert skipped == {} and player.counts == {'/tf_static': 3}
+    assert sorted(m.transforms[0].child_frame_id for m in got) == [
+        'camera_link', 'imu_link', 'laser']

@@ -91,6 +91,8 @@ TYPES: dict[str, MessageType] = {row.msgtype: row for row in ROWS}
 """ROS 2 message type -> its row."""
 KINDS: dict[str, MessageType] = {row.kind: row for row in ROWS if row.primary}
 """Sample kind -> the row of the type it is published as."""
+KINDS['tf'] = KINDS['tf_static']
+"""``/tf`` (moving frames) carries the type of ``/tf_static``: a list of transforms."""
 BY_SAMPLE: dict[type, MessageType] = {row.sample_type: row for row in ROWS
                                       if row.primary and row.to_msg is not None}
 """Core sample type -> the row it is written as (a list of transforms: ``tf_static``)."""

@@ -14,6 +14,10 @@ a planar sensor pose (x m, y m, yaw rad) for a lidar, a rotation matrix
 (:meth:`robot_calib.core.types.ScanSample.beams`), optionally moved into the
 base frame by the sensor pose, optionally de-skewed by the motion during the
 scan (a rotating lidar measures beam ``i`` at ``stamp + i * time_increment``).
+
+The other way, a planar pose becomes the transform a ``/tf`` entry carries
+(:func:`pose_transform`), and a drift-corrected pose the REP-105 correction
+``map -> odom`` (:func:`map_to_odom`).
 """
 
 from __future__ import annotations
@@ -22,8 +26,9 @@ import math
 from typing import Callable, Optional, Sequence
 
 import numpy as np
-from robot_calib.core.geometry import quat_to_matrix, yaw_from_quat
-from robot_calib.core.types import ScanSample, StaticTransform
+from robot_calib.core.geometry import (quat_from_rpy, quat_to_matrix, se2_compose, se2_inverse,
+                                       yaw_from_quat)
+from robot_calib.core.types import OdomSample, ScanSample, StaticTransform
 
 
 def planar_pose(transform: StaticTransform) -> tuple[float, float, float]:
@@ -35,6 +40,43 @@ def planar_pose(transform: StaticTransform) -> tuple[float, float, float]:
 def rotation_matrix(transform: StaticTransform) -> np.ndarray:
     """Return the 3x3 rotation sensor -> base of a mounting."""
     return quat_to_matrix(np.asarray(transform.rotation, dtype=float))
+
+
+def pose_transform(parent: str, child: str, pose: Sequence[float], t: float,
+                   stamp_ns: int = -1) -> StaticTransform:
+    """
+    Return the transform ``parent -> child`` of a planar pose of ``child`` in ``parent``.
+
+    ``pose`` is (x m, y m, yaw rad); the transform has z = 0 and a rotation about
+    z only (REP-103), stamped ``t`` (s) or exactly ``stamp_ns`` (ns) when >= 0.
+    """
+    x, y, yaw = (float(v) for v in pose)
+    return StaticTransform(parent, child, np.array([x, y, 0.0]), quat_from_rpy(0.0, 0.0, yaw),
+                           t, stamp_ns)
+
+
+def map_to_odom(corrected: Sequence[float], odom: Sequence[float]) -> np.ndarray:
+    """
+    Return the correction ``map -> odom`` (x m, y m, yaw rad) of a drift-corrected pose.
+
+    ``corrected`` is the robot's pose in the corrected (map) frame and ``odom``
+    its odometry pose at the same time: T_map_odom = T_map_base (+) T_odom_base^-1
+    (REP-105: the map frame's pose estimate published as the transform to odom).
+    """
+    return se2_compose(corrected, se2_inverse(odom))
+
+
+def correction_transform(corrected: OdomSample, odom: OdomSample) -> StaticTransform:
+    """
+    Return the ``/tf`` entry ``corrected.frame_id -> odom.frame_id`` of the correction.
+
+    ``corrected`` and ``odom`` are poses of the same body at the same stamp (the
+    corrected output and the odometry input that produced it); an odometry
+    without a frame name is taken as ``odom``.
+    """
+    pose = map_to_odom((corrected.x, corrected.y, corrected.yaw), (odom.x, odom.y, odom.yaw))
+    return pose_transform(corrected.frame_id, odom.frame_id or 'odom', pose, corrected.t,
+                          corrected.stamp_ns)
 
 
 class ConstantMotion:

@@ -200,7 +200,12 @@ class NavSatSample:
 
 @dataclass(frozen=True, slots=True)
 class StaticTransform:
-    """A fixed transform parent -> child: translation (m) and rotation (w, x, y, z)."""
+    """
+    A transform parent -> child: translation (m) and rotation (w, x, y, z).
+
+    Fixed on ``/tf_static`` (a mounting); on ``/tf`` the transform at time ``t``
+    (s) of a moving frame, such as ``odom -> base_link``.
+    """
 
     parent: str
     child: str

@@ -49,7 +49,18 @@ LATCHED_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1,
 DEFAULT_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=10,
                          reliability=ReliabilityPolicy.RELIABLE,
                          durability=DurabilityPolicy.VOLATILE)
-_QOS = {'latched': LATCHED_QOS, 'default': DEFAULT_QOS, 'sensor': qos_profile_sensor_data}
+TF_STATIC_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=100,
+                           reliability=ReliabilityPolicy.RELIABLE,
+                           durability=DurabilityPolicy.TRANSIENT_LOCAL)
+"""``/tf_static`` as tf2's listener reads it: every static broadcaster's latched message (with
+depth 1, the messages of broadcasters that started earlier would overwrite each other); replay
+``--live`` offers a bag's static messages so too, all of them to a late subscriber."""
+TF_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=100,
+                    reliability=ReliabilityPolicy.RELIABLE,
+                    durability=DurabilityPolicy.VOLATILE)
+"""``/tf`` as tf2's TransformBroadcaster offers it."""
+_QOS = {'latched': LATCHED_QOS, 'default': DEFAULT_QOS, 'sensor': qos_profile_sensor_data,
+        'tf': TF_QOS}
 
 
 def message_class(msgtype: str) -> Optional[type]:
@@ -89,6 +100,8 @@ class PipelineNode(Node):
         for spec in self.pipeline.active_outputs():
             msgtype = codec.KINDS[spec.kind].msgtype
             cls = message_class(msgtype)
+            if cls is None:
+                raise ParamError(missing_output_type(spec.topic, msgtype))
             self._pubs[spec.key] = self.create_publisher(cls, spec.topic, _QOS[spec.qos])
         self._subs = []
         for spec in pipeline_cls.inputs:
@@ -98,7 +111,7 @@ class PipelineNode(Node):
                 self.log('warn', f'{msgtype} is not installed: not subscribing to '
                          f'{spec.topic} (set the matching parameter instead)')
                 continue
-            qos = LATCHED_QOS if spec.kind == 'tf_static' else qos_profile_sensor_data
+            qos = TF_STATIC_QOS if spec.kind == 'tf_static' else qos_profile_sensor_data
             self._subs.append(self.create_subscription(
                 cls, spec.topic, partial(self._on_message, spec.key, msgtype,
                                          decode=codec.decoder(msgtype)), qos, raw=True))
@@ -240,6 +253,13 @@ class PipelineNode(Node):
                     self.log('info', f'wrote {out_dir / name}')
             except OSError as exc:
                 self.log('error', f'cannot write into {out_dir}: {exc.strerror or exc}')
+
+
+def missing_output_type(topic: str, msgtype: str) -> str:
+    """Return the one-line reason a node cannot publish ``topic``: ``msgtype`` is not installed."""
+    how = ('`make venv` builds it into .venv (tools/build_tf2_msgs.sh); a ROS 2 installation '
+           'has it') if msgtype.startswith('tf2_msgs/') else 'install its message package'
+    return f'cannot publish {topic}: {msgtype} is not installed ({how})'
 
 
 def check_output_dir(path: str) -> None:

@@ -25,7 +25,7 @@ from collections import defaultdict
 from dataclasses import dataclass, replace
 from typing import Any, Callable, ClassVar, Optional
 
-from robot_calib.core import types as T
+from robot_calib.core import frames, types as T
 from robot_calib.core.jsonable import jsonable
 from robot_calib.core.params import to_flat
 from robot_calib.pipelines.validation import RateGuard, sample_problem
@@ -50,7 +50,8 @@ class OutputSpec:
     One output: topic (relative, as the node publishes it), sample kind and QoS.
 
     ``qos`` is ``'default'`` (reliable, volatile, depth 10), ``'latched'``
-    (reliable, transient local, depth 1) or ``'sensor'`` (best effort, depth 5).
+    (reliable, transient local, depth 1), ``'sensor'`` (best effort, depth 5) or
+    ``'tf'`` (reliable, volatile, depth 100: what tf2's broadcaster offers).
     """
 
     key: str
@@ -98,6 +99,7 @@ class Pipeline(abc.ABC):
         self.counts: dict[str, dict[str, int]] = defaultdict(lambda: defaultdict(int))
         self.n_outputs: dict[str, int] = defaultdict(int)
         self.static_transforms: dict[tuple[str, str], T.StaticTransform] = {}
+        self._same_frame_warned = False
 
     # -- logging ---------------------------------------------------------------------------
     def log(self, level: str, message: str) -> None:
@@ -227,8 +229,33 @@ class Pipeline(abc.ABC):
         self.params = params
 
     def active_outputs(self) -> tuple[OutputSpec, ...]:
-        """Return the outputs this instance publishes (a node advertises only these)."""
-        return self.outputs
+        """
+        Return the outputs this instance publishes (a node advertises only these).
+
+        ``/tf`` outputs (kind ``tf``) only with a ``publish_tf`` parameter set.
+        """
+        if getattr(self.params, 'publish_tf', False):
+            return self.outputs
+        return tuple(o for o in self.outputs if o.kind != 'tf')
+
+    def correction_tf(self, corrected: T.OdomSample, odom: T.OdomSample) -> list[Output]:
+        """
+        Return the ``/tf`` output of the correction from ``corrected``'s frame to ``odom``'s.
+
+        ``corrected`` is a drift-corrected pose (in the map frame) and ``odom`` the
+        odometry input it was made from; nothing without ``publish_tf``, and
+        nothing (one warning) when both name the same frame.
+        """
+        if not getattr(self.params, 'publish_tf', False):
+            return []
+        if corrected.frame_id == (odom.frame_id or 'odom'):
+            if not self._same_frame_warned:
+                self._same_frame_warned = True
+                self.log('warn', f'publish_tf: the corrected pose and the odometry are both in '
+                         f'{corrected.frame_id!r}: no correction published on /tf '
+                         '(set map_frame)')
+            return []
+        return [('tf', [frames.correction_transform(corrected, odom)])]
 
     def on_static_transform(self, transform: T.StaticTransform) -> None:
         """React to a static transform (e.g. the IMU mounting); default: keep it."""

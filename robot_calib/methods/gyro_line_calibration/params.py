@@ -120,6 +120,10 @@ class GyroLineParams:
     laser_pose: list = param([0.0, 0.0, 0.0], 'm, m, rad', 'Laser x, y, yaw in base_link '
                              '(used until /tf_static gives it).', length=3)
     base_frame: str = param('base_link', '', 'Robot body frame in /tf_static.')
+    map_frame: str = param('map', '', 'Frame of the corrected pose (header.frame_id of the '
+                           'output): drift-corrected, it may jump at a correction (REP-105 map).')
+    publish_tf: bool = param(False, '', 'Broadcast the correction map_frame -> odometry frame '
+                             'on /tf with every corrected pose (as a localizer does).')
     max_dt: float = param(0.5, 's', 'A larger gap between two IMU or odometry samples is a '
                           'time jump (not integrated; no correction until trusted again).',
                           minimum=0.0)

@@ -8,8 +8,10 @@ Glue only: samples go to the estimator variant that ``mode`` selects
 :class:`~robot_calib.methods.gyro_line_calibration.improved.ImprovedGyroLine`);
 everything published is read from what ``update`` returns and from ``result()``.
 On every accepted odometry sample the pose with the corrected heading is
-published on ``gyro_line/odom`` (nav_msgs/Odometry, same stamp and frames as
-the input odometry; pose covariance of x, y, yaw from the filter). A
+published on ``gyro_line/odom`` (nav_msgs/Odometry, same stamp and child frame
+as the input odometry, in ``map_frame``: REP-105's map, since a correction makes
+it jump; pose covariance of x, y, yaw from the filter), and with
+``publish_tf`` the correction ``map_frame -> odometry frame`` on ``/tf``. A
 diagnostic_msgs/DiagnosticArray on ``/diagnostics`` reports the corrections
 (count, last one in degrees), the references, the heading uncertainty and the
 gyro bias estimate, and every rejection and untrusted-data count, once per
@@ -52,6 +54,7 @@ class GyroLinePipeline(Pipeline):
     outputs = (
         OutputSpec('odom', 'gyro_line/odom', 'odom'),
         OutputSpec('diagnostics', '/diagnostics', 'diagnostics'),
+        OutputSpec('tf', '/tf', 'tf', qos='tf'),
     )
 
     def __init__(self, params: Any = None, log: Any = None):
@@ -90,10 +93,10 @@ class GyroLinePipeline(Pipeline):
         if not self._trace or sample.t - self._trace[-1][0] >= 0.1:
             self._trace.append((sample.t, float(pose[0]), float(pose[1]), float(pose[2])))
         out = T.OdomSample(sample.t, float(pose[0]), float(pose[1]), float(pose[2]),
-                           sample.vx, sample.vy, made.rate, sample.frame_id,
+                           sample.vx, sample.vy, made.rate, self.params.map_frame,
                            sample.child_frame_id, made.pose_cov, sample.twist_cov, sample.z,
                            sample.roll, sample.pitch, sample.stamp_ns)
-        return [('odom', out)] + self._diagnostics(sample)
+        return [('odom', out)] + self.correction_tf(out, sample) + self._diagnostics(sample)
 
     # -- diagnostics -----------------------------------------------------------------------
     def _diagnostics(self, sample: Any, force: bool = False,

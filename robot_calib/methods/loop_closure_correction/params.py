@@ -147,6 +147,10 @@ class LoopClosureParams:
     distribute_correction: bool = param(True, '', 'spread each correction over the keyframes '
                                         'made since the last fix (improved)')
     min_valid_beams: int = param(30, '', 'scans with fewer valid beams are rejected', minimum=3)
+    map_frame: str = param('map', '', 'frame of the corrected pose (header.frame_id of the '
+                           'output): drift-corrected, it may jump at a correction (REP-105 map)')
+    publish_tf: bool = param(False, '', 'broadcast the correction map_frame -> odometry frame '
+                             'on /tf with every corrected pose (as a localizer does)')
     keyframes: KeyframeParams = field(default_factory=KeyframeParams)
     detection: DetectionParams = field(default_factory=DetectionParams)
     scoring: ScoringParams = field(default_factory=ScoringParams)

@@ -9,8 +9,11 @@ its ``update``, ``/tf_static`` mountings to its ``set_mounting`` (the
 estimator rotates the gyro and moves and de-skews the scans into base_link
 itself). Every odometry input produces one ``loop_closure/odom``
 (nav_msgs/Odometry, same stamp, the corrected pose of ``result()`` with its
-covariance); every closure attempt (accepted, refused, or a suspected
-kidnap) that ``update`` returns produces one ``/diagnostics`` array.
+covariance, in ``map_frame``: REP-105's map, since a closure makes it jump);
+with ``publish_tf`` also the correction ``map_frame -> odometry frame`` on
+``/tf``, so that map -> odom -> base_link gives the corrected pose. Every
+closure attempt (accepted, refused, or a suspected kidnap) that ``update``
+returns produces one ``/diagnostics`` array.
 """
 
 from __future__ import annotations
@@ -42,6 +45,7 @@ class LoopClosurePipeline(Pipeline):
     outputs = (
         OutputSpec('odom', 'loop_closure/odom', 'odom'),
         OutputSpec('diagnostics', '/diagnostics', 'diagnostics'),
+        OutputSpec('tf', '/tf', 'tf', qos='tf'),
     )
 
     def __init__(self, params: Any = None, log=None):
@@ -62,7 +66,8 @@ class LoopClosurePipeline(Pipeline):
             return []
         if key == 'odom':
             self.estimator.update(sample)
-            return [('odom', self._corrected_odom(sample))]
+            corrected = self._corrected_odom(sample)
+            return [('odom', corrected)] + self.correction_tf(corrected, sample)
         if key == 'scan':
             closure = self.estimator.update(sample)
             res = self.estimator.result()
@@ -90,7 +95,8 @@ class LoopClosurePipeline(Pipeline):
                                 float(raw[0]), float(raw[1])))
         return T.OdomSample(t=sample.t, x=float(pose[0]), y=float(pose[1]),
                             yaw=float(pose[2]), vx=sample.vx, vy=sample.vy, wz=float(wz),
-                            frame_id=sample.frame_id, child_frame_id=sample.child_frame_id,
+                            frame_id=self.params.map_frame,
+                            child_frame_id=sample.child_frame_id,
                             pose_cov=cov, twist_cov=sample.twist_cov,
                             stamp_ns=T.stamp_of(sample.t, sample.stamp_ns))
 

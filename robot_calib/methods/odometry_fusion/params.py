@@ -45,6 +45,9 @@ class FusionParams:
                       choices=('improved', 'seed'))
     base_frame: str = param('base_link', '', 'Robot body frame the IMU extrinsic refers to')
     odom_frame: str = param('odom', '', 'Frame of the fused pose (header.frame_id)')
+    publish_tf: bool = param(False, '', 'Broadcast odom_frame -> base_frame on /tf with every '
+                             'fused pose (as robot_localization does); off when another node '
+                             'publishes that transform')
     imu_extrinsic: str = param(
         'auto', '', 'IMU mounting source: auto (tf_static if received, else imu_rpy if non-zero, '
         'else the up axis from gravity at start), param (imu_rpy), tf (only /tf_static), '

@@ -10,7 +10,9 @@ stamped with the input that produced them, and a diagnostic_msgs/DiagnosticArray
 on ``/diagnostics`` reports its result (:mod:`.report`: NIS, noise adaptation,
 bias estimates, rejections and re-initialisations) once per
 ``diagnostics_period`` of sensor time. Static transforms go to its
-``set_mounting`` (the IMU mounting); its warnings are logged.
+``set_mounting`` (the IMU mounting); its warnings are logged. With
+``publish_tf`` every fused pose is also the transform ``odom_frame ->
+base_frame`` on ``/tf`` (REP-105's odom frame), with the same stamp.
 
 Outputs are published on every accepted odometry (or joint-state) update; while
 the odometry is silent for longer than ``sensor_timeout`` the filter returns
@@ -24,7 +26,7 @@ from typing import Any, Optional
 
 import numpy as np
 
-from robot_calib.core import types as T
+from robot_calib.core import frames, types as T
 from robot_calib.core.series import Thinned
 from robot_calib.methods.odometry_fusion import report
 from robot_calib.methods.odometry_fusion.common import FusionOutput, LidarOdomSample, Rejected
@@ -48,6 +50,7 @@ class FusionPipeline(Pipeline):
     outputs = (
         OutputSpec('odom', 'odometry/fused', 'odom'),
         OutputSpec('diagnostics', '/diagnostics', 'diagnostics'),
+        OutputSpec('tf', '/tf', 'tf', qos='tf'),
     )
 
     def __init__(self, params: Any = None, log: Any = None):
@@ -131,7 +134,10 @@ class FusionPipeline(Pipeline):
         out = T.OdomSample(sample.t, o.x, o.y, o.yaw, o.v, 0.0, w, p.odom_frame, p.base_frame,
                            pc, tw, stamp_ns=sample.stamp_ns)
         self._trajectory.append((sample.t, o.x, o.y, o.yaw))
-        return [('odom', out)]
+        if not p.publish_tf:
+            return [('odom', out)]
+        return [('odom', out), ('tf', [frames.pose_transform(
+            p.odom_frame, p.base_frame, (o.x, o.y, o.yaw), sample.t, sample.stamp_ns)])]
 
     # -- reports ---------------------------------------------------------------------------
     def _diagnostics(self, sample: Any) -> list[Output]:
