@@ -47,6 +47,7 @@ def new_figure(width: float, height: float, rows: int = 1, cols: int = 1) -> tup
 
 
 def save(fig: Any, path: Union[str, Path], dpi: int = 90) -> str:
-    """Draw ``fig`` into the PNG file ``path`` at ``dpi``; return the file name."""
+    """Draw ``fig`` into the PNG file ``path`` at ``dpi``, then empty it; return the file name."""
     fig.savefig(path, dpi=dpi)
+    fig.clear()   # artists and their pixel buffers go now, not when the cyclic collector runs
     return Path(path).name

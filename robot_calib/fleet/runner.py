@@ -15,6 +15,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 import datetime
+import gc
 import hashlib
 import json
 import os
@@ -105,8 +106,13 @@ def run_job(job: Job, settings: Settings) -> list[dict[str, Any]]:
         summary = replay([job.bag], out, nodes=list(settings.nodes) if settings.nodes else None,
                          params_file=job.params or settings.params_file,
                          overrides=overrides, progress=False)
+        # A replay leaves reference cycles (matplotlib figures and their pixel buffers, the
+        # pipelines) that the cyclic collector frees only at its own pace: a worker grew
+        # about 20 MB a bag. Freed here, a worker's memory stays that of one bag.
+        gc.collect()
         rows = _rows(job, summary, time.perf_counter() - t0)
     except Exception as exc:  # noqa: B902 - any failure of one bag is a failed row
+        gc.collect()
         return _failed(job, f'{type(exc).__name__}: {" ".join(str(exc).split())}'[:300],
                        time.perf_counter() - t0)
     tmp = done.with_suffix('.tmp')
