@@ -32,6 +32,11 @@ def test_simulate_then_replay_examples_run_as_written(tmp_path, monkeypatch):
     for args in replays:
         assert main(args + ['--no-progress']) == 0, args
         assert (tmp_path / args[args.index('--out') + 1] / 'summary.json').exists()
+    fleets = [a for a in _examples('fleet') if (tmp_path / a[1]).is_dir()]
+    assert fleets, 'no fleet example of the simulated fleet'
+    for args in fleets:
+        assert main(args + ['--no-progress']) == 0, args
+        assert (tmp_path / args[args.index('--out') + 1] / 'report.md').exists()
 
 
 def test_sample_bag_examples_run_as_written(tmp_path, monkeypatch):
