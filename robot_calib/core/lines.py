@@ -35,6 +35,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from functools import cached_property
+import itertools
 import math
 from typing import Optional
 
@@ -209,7 +210,7 @@ class ObstacleGrid:
         counts = np.diff(np.append(starts, keys.size)).astype(float)
         ukeys = keys[starts].tolist()
         index = self._index
-        slots = [index.get(k, -1) for k in ukeys]
+        slots = list(map(index.get, ukeys, itertools.repeat(-1, len(ukeys))))
         for i, sl in enumerate(slots):
             if sl < 0:
                 sl = index.get(ukeys[i], -1)  # a cell new in this scan, hit twice
