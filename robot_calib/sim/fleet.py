@@ -46,7 +46,7 @@ class FleetParams:
     """The fleet's size, schedule and drifts (``--set fleet.KEY=VALUE``)."""
 
     robots: int = param(50, '', 'number of robots', minimum=1, maximum=100000)
-    recordings: int = param(4, '', 'bags per robot', minimum=1, maximum=10000)
+    recordings: int = param(4, '', 'bags per robot', minimum=1, maximum=1000)
     interval_days: float = param(7.0, 'day', 'time between two recordings of a robot',
                                  minimum=0.0)
     start_date: str = param('2026-01-05', '', 'date of the first recordings (ISO 8601)')
@@ -72,14 +72,13 @@ class FleetParams:
 
 @dataclass(frozen=True)
 class Recording:
-    """One bag to simulate: where, when, which seed and which simulator overrides."""
+    """One bag to simulate: robot, day, drift, seed and simulator overrides (start time too)."""
 
     robot: str
     day: str
     index: int
     drift: str
     seed: int
-    start_time: float
     overrides: tuple[tuple[str, Any], ...]
 
     def truth_row(self) -> dict[str, Any]:
@@ -154,8 +153,9 @@ def plan(params: FleetParams, seed: int, sim_overrides: Mapping[str, str]) -> li
                       'wheels.track_width_error': float(track),
                       'imu.gyro_bias': f'0,0,{z:.9g}', 'imu.gyro_bias_sigma': 0.0,
                       'start_time': when.timestamp()}
+            # every bag of a fleet has its own seed (k < 1009 recordings)
             out.append(Recording(f'robot{r:03d}', when.date().isoformat(), k, kind,
-                                 int(seed) * 1_000_003 + r * 1009 + k, when.timestamp(),
+                                 int(seed) * 1_000_003 + r * 1009 + k,
                                  tuple(values.items())))
     return out
 
