@@ -238,8 +238,7 @@ def timing_section(args: argparse.Namespace, tmp: Path) -> list[str]:
     return [
         '## Executors and fixed cost', '',
         f'{bags} bags of {args.duration:.0f} s (`simulate fleet`, seed 2), nodes '
-        f'{", ".join(NODES)}; load {load0} at the start (a shared 2-core machine; other jobs '
-        'ran beside this one).', '',
+        f'{", ".join(NODES)}; load {load0} at the start (a shared 2-core machine).', '',
         '| measure | value | goal | status |', '|---|---|---|---|',
         f'| fleet wall time, 1 worker | {walls[1]:.1f} s ({walls[1] / bags:.2f} s per bag) | | |',
         f'| fleet wall time, 2 workers | {walls[2]:.1f} s | | |',
