@@ -49,7 +49,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 import importlib.util
 import math
-from typing import Optional, Sequence, TYPE_CHECKING, Union
+from typing import Any, Optional, Sequence, TYPE_CHECKING, Union
 
 import numpy as np
 from robot_calib.core.geometry import rot2, wrap_angle
@@ -182,14 +182,26 @@ class PreparedScan:
     def voxel_map(self):
         """Return the kiss-icp voxel hash map of the points (built on first use)."""
         if self._voxel_map is None:
-            from kiss_icp.mapping import VoxelHashMap
+            kiss = _kiss_binding()
             p = self.params
             max_range = float(np.max(np.linalg.norm(self.points, axis=1))) + 1.0
-            vmap = VoxelHashMap(voxel_size=p.voxel_size, max_distance=max_range,
-                                max_points_per_voxel=p.max_points_per_voxel)
-            vmap.add_points(_to3d(self.points))
+            vmap = kiss._VoxelHashMap(voxel_size=p.voxel_size, max_distance=max_range,
+                                      max_points_per_voxel=p.max_points_per_voxel)
+            vmap._add_points(kiss._Vector3dVector(_to3d(self.points)))
             self._voxel_map = vmap
         return self._voxel_map
+
+
+def _kiss_binding() -> Any:
+    """
+    Return kiss-icp's compiled module (voxel hash map, registration).
+
+    Its Python wrappers (``kiss_icp.mapping``, ``kiss_icp.registration``) only
+    forward to this module but import kiss-icp's configuration layer (pydantic,
+    about 0.17 s of a short replay's start-up), so the binding is used directly.
+    """
+    from kiss_icp.pybind import kiss_icp_pybind
+    return kiss_icp_pybind
 
 
 def clean_points(points: np.ndarray) -> np.ndarray:
@@ -237,15 +249,16 @@ def _normals(points: np.ndarray, tree: Optional[cKDTree], k: int,
 def _coarse(source: np.ndarray, target: PreparedScan, guess: np.ndarray,
             p: ScanMatchParams) -> tuple[np.ndarray, bool]:
     """Align with kiss-icp in two passes; return the SE(2) pose and whether it ran."""
-    from kiss_icp.registration import Registration
-    reg = Registration(max_num_iterations=p.coarse_iterations,
-                       convergence_criterion=1e-4, max_num_threads=1)
-    src3 = _to3d(source)
+    kiss = _kiss_binding()
+    reg = kiss._Registration(max_num_iterations=p.coarse_iterations,
+                             convergence_criterion=1e-4, max_num_threads=1)
+    src3 = kiss._Vector3dVector(_to3d(source))
     m = _pose_matrix(guess)
     for gate, kernel in ((p.coarse_max_correspondence, p.coarse_kernel),
                          (p.coarse_max_correspondence / 3.0, p.coarse_kernel / 3.0)):
-        m = reg.align_points_to_map(points=src3, voxel_map=target.voxel_map(), initial_guess=m,
-                                    max_correspondance_distance=gate, kernel=kernel)
+        m = reg._align_points_to_map(points=src3, voxel_map=target.voxel_map(),
+                                     initial_guess=m, max_correspondance_distance=gate,
+                                     kernel=kernel)
     pose = _matrix_pose(np.asarray(m))
     if not np.all(np.isfinite(pose)):
         return np.asarray(guess, dtype=float), False

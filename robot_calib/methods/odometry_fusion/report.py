@@ -115,8 +115,9 @@ def plot(r: FusionResult, params: FusionParams, trajectory: list, out_dir: str) 
     nis = r.nis
     if nis is not None and nis.updates:
         fig, ax = figures.new_figure(7, 3)
-        ax.semilogy(np.arange(0, nis.updates, nis.history_stride)[:len(nis.history)],
-                    nis.history, lw=0.5)
+        ax.plot(np.arange(0, nis.updates, nis.history_stride)[:len(nis.history)],
+                nis.history, lw=0.5)
+        figures.log_y(ax)
         ax.set_xlabel('odometry update')
         ax.set_ylabel('NIS')
         names.append(figures.save(fig, Path(out_dir) / 'odometry_fusion_nis.png', dpi=100))
