@@ -60,6 +60,17 @@ def replay_runs(bag: Path, nodes: str, out: Path, runs: int) -> dict:
     return {'cpu': statistics.median(cpu), 'wall': statistics.median(wall), 'summary': summary}
 
 
+def compile_package() -> None:
+    """
+    Byte-compile robot_calib, as installing a package does.
+
+    This machine sets PYTHONDONTWRITEBYTECODE, so an editable checkout would
+    otherwise compile every module again at each start (about 0.1 s).
+    """
+    subprocess.run([sys.executable, '-m', 'compileall', '-q', str(REPO / 'robot_calib')],
+                   check=True)
+
+
 def decode_cpu(bag: Path) -> tuple[float, int]:
     """Return the CPU seconds to read and decode every supported message of ``bag``, and n."""
     c0 = time.process_time()
@@ -95,7 +106,12 @@ def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.split('\n')[1])
     ap.add_argument('--runs', type=int, default=3)
     ap.add_argument('--hours', type=float, default=1.0)
+    ap.add_argument('--startup-only', action='store_true',
+                    help='only re-measure the 10 s start-up row of the existing table')
     args = ap.parse_args()
+    compile_package()
+    if args.startup_only:
+        return startup_only(args)
     load0 = os.getloadavg()[0]
     rows = []
     with tempfile.TemporaryDirectory() as name:
@@ -122,6 +138,34 @@ def main() -> int:
     print(text)
     OUT.write_text(text)
     return 0
+
+
+def startup_only(args: argparse.Namespace) -> int:
+    """Re-measure the start-up row and replace it in the existing table."""
+    with tempfile.TemporaryDirectory() as name:
+        tmp = Path(name)
+        simulate('drive', tmp / 'ten', seed=0, duration=10.0)
+        ten = replay_runs(tmp / 'ten', '', tmp / 'out_ten', max(args.runs, 5))
+    lines = OUT.read_text().splitlines()
+    at = [k for k, line in enumerate(lines) if line.startswith(STARTUP_ROW)]
+    if not at:
+        print(f'{OUT}: no start-up row to replace; run the whole benchmark', file=sys.stderr)
+        return 1
+    lines[at[0]] = startup_row(ten, args)
+    OUT.write_text('\n'.join(lines) + '\n')
+    print(lines[at[0]])
+    return 0
+
+
+STARTUP_ROW = '| `robot-calib replay` of a 10 s drive bag'
+
+
+def startup_row(ten: dict, args: argparse.Namespace) -> str:
+    """Return the start-up table row (load average at the time of measuring included)."""
+    return (f'{STARTUP_ROW}, every node, report and plots included, bytecode compiled, wall '
+            f'clock (median of {max(args.runs, 5)}; load {os.getloadavg()[0]:.1f} after) | '
+            f'{ten["wall"]:.2f} s (CPU {ten["cpu"]:.2f} s) | < 2 s | '
+            f'{"met" if ten["wall"] < 2.0 else "missed"} |')
 
 
 def _goal(row: dict) -> tuple[str, str, bool]:
@@ -167,10 +211,7 @@ def render(rows: list, ten: dict, load0: float, load1: float, args: argparse.Nam
               f'and decoding {rows[-1]["decode"]:.0f} s; the rest is writing the output and the '
               'report.', '',
               '| start-up | value | goal | status |', '|---|---|---|---|',
-              f'| `robot-calib replay` of a 10 s drive bag, every node, report and plots '
-              f'included, wall clock (median of {max(args.runs, 5)}) | {ten["wall"]:.2f} s '
-              f'(CPU {ten["cpu"]:.2f} s) | < 2 s | {"met" if ten["wall"] < 2.0 else "missed"} |',
-              '']
+              startup_row(ten, args), '']
     return '\n'.join(lines)
 
 
