@@ -55,6 +55,23 @@ def test_replay_success(bag, tmp_path, capsys):
     assert (out / 'report.md').is_file() and (out / 'output.mcap').is_file()
 
 
+def test_replay_without_plots(tmp_path, capsys):
+    from robot_calib import sim
+    bag = tmp_path / 'drive'
+    sim.simulate('drive', bag, seed=0, duration=10.0)
+    out = tmp_path / 'out'
+    code = main(['replay', str(bag), '--out', str(out), '--nodes', 'odometry_fusion',
+                 '--no-plots', '--no-progress'])
+    assert code == 0, capsys.readouterr().err
+    summary = json.loads((out / 'summary.json').read_text())
+    assert summary['plots'] == [] and not (out / 'plots').exists()
+    assert '![' not in (out / 'report.md').read_text()
+    assert summary['nodes']['odometry_fusion']['outputs']
+    with_plots = main(['replay', str(bag), '--out', str(tmp_path / 'plotted'), '--nodes',
+                       'odometry_fusion', '--no-progress'])
+    assert with_plots == 0 and list((tmp_path / 'plotted' / 'plots').rglob('*.png'))
+
+
 @pytest.mark.parametrize('storage', ['mcap', 'sqlite3'])
 @pytest.mark.parametrize('damage', ['truncated', 'garbage'])
 def test_broken_bags(tmp_path, capsys, storage, damage):

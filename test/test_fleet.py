@@ -64,13 +64,21 @@ def test_fleet_flags_the_drift_and_records_the_broken_bag(fleet, tmp_path):
     assert {p.name for p in (out / 'plots' / 'robots').iterdir()} == {'r1.png', 'r2.png'}
     assert (out / 'plots' / 'estimates' / 'odometry_fusion.gyro_bias.png').is_file()
     assert all(r['peak_rss_mb'] > 50 for r in rows)
-    assert (out / 'bags' / 'r1' / 'day3' / 'summary.json').is_file()
+    day3 = out / 'bags' / 'r1' / 'day3'
+    assert (day3 / 'summary.json').is_file() and (day3 / 'report.md').is_file()
+    assert not (day3 / 'plots').exists()   # per-bag plots only when asked
 
     # resumed: nothing replayed again, the same table
-    stamp = (out / 'bags' / 'r1' / 'day3' / 'summary.json').stat().st_mtime_ns
+    stamp = (day3 / 'summary.json').stat().st_mtime_ns
     again = run_fleet(fleet, out, nodes=NODES, workers=1, progress=False)
     assert _table(again['rows']) == _table(rows)
-    assert (out / 'bags' / 'r1' / 'day3' / 'summary.json').stat().st_mtime_ns == stamp
+    assert (day3 / 'summary.json').stat().st_mtime_ns == stamp
+
+    # asking for the per-bag plots redoes the bags, with the same rows
+    plotted = run_fleet(fleet, out, nodes=NODES, workers=1, progress=False, bag_plots=True)
+    assert _table(plotted['rows']) == _table(rows)
+    assert (day3 / 'summary.json').stat().st_mtime_ns != stamp
+    assert list((day3 / 'plots' / 'odometry_fusion').glob('*.png'))
 
     # two worker processes, from scratch: the same rows
     two = run_fleet(fleet, tmp_path / 'two', nodes=NODES, workers=2, progress=False)

@@ -39,6 +39,7 @@ class Settings:
     params_file: Optional[Path]
     overrides: tuple[str, ...]
     force: bool
+    plots: bool = False
 
 
 def fingerprint(settings: Settings, job: Job) -> str:
@@ -46,6 +47,8 @@ def fingerprint(settings: Settings, job: Job) -> str:
     h = hashlib.sha256()
     for part in (__version__, repr(settings.nodes), repr(settings.overrides)):
         h.update(part.encode())
+    if settings.plots:
+        h.update(b'plots')   # a bag done without its plots is redone when they are asked
     for path in (settings.params_file, job.params):
         h.update(path.read_bytes() if path is not None and path.is_file() else b'-')
     return h.hexdigest()[:16]
@@ -105,7 +108,7 @@ def run_job(job: Job, settings: Settings) -> list[dict[str, Any]]:
         overrides = list(settings.overrides)
         summary = replay([job.bag], out, nodes=list(settings.nodes) if settings.nodes else None,
                          params_file=job.params or settings.params_file,
-                         overrides=overrides, progress=False)
+                         overrides=overrides, progress=False, plots=settings.plots)
         # A replay leaves reference cycles (matplotlib figures and their pixel buffers, the
         # pipelines) that the cyclic collector frees only at its own pace: a worker grew
         # about 20 MB a bag. Freed here, a worker's memory stays that of one bag.

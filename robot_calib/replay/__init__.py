@@ -77,7 +77,8 @@ def replay(bags: Union[str, os.PathLike, Sequence[Union[str, os.PathLike]]],
            overrides: Union[None, Mapping[str, Any], Iterable[str]] = None,
            progress: Optional[bool] = None,
            storage: str = 'mcap', start_offset: float = 0.0,
-           duration: Optional[float] = None, compress: bool = True) -> dict:
+           duration: Optional[float] = None, compress: bool = True,
+           plots: bool = True) -> dict:
     """
     Replay ``bags`` through pipelines and write ``out_dir``; return the summary dict.
 
@@ -97,6 +98,7 @@ def replay(bags: Union[str, os.PathLike, Sequence[Union[str, os.PathLike]]],
         static transforms are delivered all the same.
     :param duration: replay at most this many seconds after the start offset (s).
     :param compress: zstd-compress the chunks of ``output.mcap``, as rosbag2 does by default.
+    :param plots: draw the report's plots (about 0.5 s a replay; a fleet skips them).
     :return: the summary written to ``summary.json``.
     """
     wall0 = time.perf_counter()
@@ -121,7 +123,7 @@ def replay(bags: Union[str, os.PathLike, Sequence[Union[str, os.PathLike]]],
             artifacts = write_artifacts(chosen, tmp)
             summary = build_summary(bag_list, bagset, chosen, stats, artifacts, storage,
                                     wall_seconds, window)
-            write_report(tmp, chosen, stats, summary)
+            write_report(tmp, chosen, stats, summary, plots)
             move_into_place(tmp, out_dir)
         except BaseException:
             shutil.rmtree(tmp, ignore_errors=True)

@@ -120,6 +120,17 @@ def _one_line(exc: BaseException) -> str:
     return f'{type(exc).__name__}: {" ".join(str(exc).split())}'
 
 
+def _generic_plots(tmp: Path, stats: RunStats, summary: dict[str, Any]) -> list[str]:
+    from robot_calib import report
+    inputs = {t: np.asarray(list(v), dtype=float) for t, v in stats.trajectories.items() if v}
+    outputs = {t: np.asarray(list(v), dtype=float) for t, v in stats.out_traj.items() if v}
+    try:
+        return report.generic_plots(tmp / 'plots', inputs, outputs, summary['start_time'])
+    except Exception as exc:  # noqa: B902 - a plot must not fail the run
+        summary['plot_error'] = _one_line(exc)
+        return []
+
+
 def _node_plots(plan: Plan, tmp: Path, summary: dict[str, Any]) -> dict[str, list[str]]:
     node_plots = {}
     for run in plan.runs:
@@ -135,17 +146,15 @@ def _node_plots(plan: Plan, tmp: Path, summary: dict[str, Any]) -> dict[str, lis
     return node_plots
 
 
-def write_report(tmp: Path, plan: Plan, stats: RunStats, summary: dict[str, Any]) -> None:
-    """Draw the plots, then write ``report.md`` and ``summary.json`` into ``tmp``."""
+def write_report(tmp: Path, plan: Plan, stats: RunStats, summary: dict[str, Any],
+                 plots: bool = True) -> None:
+    """Draw the plots (unless ``plots`` is false), then write report.md and summary.json."""
     from robot_calib import report
-    node_plots = _node_plots(plan, tmp, summary)
-    inputs = {t: np.asarray(list(v), dtype=float) for t, v in stats.trajectories.items() if v}
-    outputs = {t: np.asarray(list(v), dtype=float) for t, v in stats.out_traj.items() if v}
-    try:
-        generic = report.generic_plots(tmp / 'plots', inputs, outputs, summary['start_time'])
-    except Exception as exc:  # noqa: B902 - a plot must not fail the run
-        summary['plot_error'] = _one_line(exc)
-        generic = []
+    node_plots: dict[str, list[str]] = {}
+    generic: list[str] = []
+    if plots:
+        node_plots = _node_plots(plan, tmp, summary)
+        generic = _generic_plots(tmp, stats, summary)
     summary['plots'] = generic + [f for v in node_plots.values() for f in v]
     (tmp / REPORT).write_text(report.render(summary, generic, node_plots))
     (tmp / SUMMARY).write_text(json.dumps(summary, indent=2, allow_nan=False) + '\n')
