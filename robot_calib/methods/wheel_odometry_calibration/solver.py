@@ -62,25 +62,66 @@ def pad_steps(segments: list[Segment]) -> np.ndarray:
     return out
 
 
-def base_motion(drive_type: str, x: np.ndarray, steps: np.ndarray) -> np.ndarray:
+class PackedSteps:
     """
-    Return the base_link motion (S, 3) of padded steps (S, K, 2) for parameters ``x``.
+    The steps of S segments stored end to end, ``flat`` (N, 2), without padding.
 
-    ``x`` is in :func:`keys_of` order; padding steps (zeros) add nothing.
+    ``segment`` (N,) is the segment of each row (non-decreasing). A boolean
+    mask of length S selects segments (``steps[inliers]``), like a padded
+    (S, K, 2) array; the joint fit evaluates the model on these many times, and
+    padding every segment to the longest one quadruples the work.
     """
+
+    def __init__(self, flat: np.ndarray, segment: np.ndarray, n: int):
+        """Wrap rows ``flat`` (N, 2) of segments ``segment`` (N,) out of ``n``."""
+        self.flat, self.segment, self.n = flat, segment, n
+
+    @classmethod
+    def of(cls, segments: list[Segment]) -> 'PackedSteps':
+        """Pack the steps of ``segments``."""
+        if not segments:
+            return cls(np.zeros((0, 2)), np.zeros(0, dtype=np.intp), 0)
+        counts = [s.steps.shape[0] for s in segments]
+        flat = np.concatenate([np.asarray(s.steps, dtype=float).reshape(-1, 2)
+                               for s in segments])
+        return cls(flat, np.repeat(np.arange(len(segments)), counts), len(segments))
+
+    def __len__(self) -> int:
+        """Return the number of segments."""
+        return self.n
+
+    def __getitem__(self, mask: np.ndarray) -> 'PackedSteps':
+        """Return the segments a boolean mask (S,) selects, in order."""
+        mask = np.asarray(mask, dtype=bool)
+        keep = mask[self.segment]
+        renumber = np.cumsum(mask) - 1
+        return PackedSteps(self.flat[keep], renumber[self.segment[keep]], int(mask.sum()))
+
+
+def base_motion(drive_type: str, x: np.ndarray, steps) -> np.ndarray:
+    """
+    Return the base_link motion (S, 3) of steps for parameters ``x``.
+
+    ``steps`` are padded (S, K, 2) (padding steps, zeros, add nothing) or a
+    :class:`PackedSteps`; ``x`` is in :func:`keys_of` order.
+    """
+    packed = isinstance(steps, PackedSteps)
+    arr = steps.flat if packed else steps
     if drive_type == 'differential':
-        ds, dth = K.diff_arc(steps[..., 0], steps[..., 1], x[0], x[1], x[2])
+        ds, dth = K.diff_arc(arr[..., 0], arr[..., 1], x[0], x[1], x[2])
     else:
-        ds, dth = K.steered_arc(steps[..., 0], steps[..., 1], x[2], x[3], x[0], x[1])
+        ds, dth = K.steered_arc(arr[..., 0], arr[..., 1], x[2], x[3], x[0], x[1])
+    if packed:
+        return K.integrate_arcs_packed(ds, dth, steps.segment, steps.n)
     return K.integrate_arcs(ds, dth)
 
 
-def predict(drive_type: str, x: np.ndarray, steps: np.ndarray) -> np.ndarray:
+def predict(drive_type: str, x: np.ndarray, steps: np.ndarray | PackedSteps) -> np.ndarray:
     """Return the predicted sensor motion (S, 3) (the last three entries of ``x`` are the pose)."""
     return K.sensor_motion(base_motion(drive_type, x, steps), x[-3:])
 
 
-def residuals(drive_type: str, x: np.ndarray, steps: np.ndarray,
+def residuals(drive_type: str, x: np.ndarray, steps: np.ndarray | PackedSteps,
               measured: np.ndarray) -> np.ndarray:
     """Return predicted minus measured sensor motion (S, 3), yaw wrapped (m, m, rad)."""
     r = predict(drive_type, x, steps) - measured
@@ -190,7 +231,7 @@ def censi_calibrate(segments: list[Segment], outlier_iterations: int = 4,
     return {'x': x, 'cov': cov, 'sigma': sigma, 'used': len(used)}
 
 
-def _jacobian(drive_type: str, x: np.ndarray, steps: np.ndarray) -> np.ndarray:
+def _jacobian(drive_type: str, x: np.ndarray, steps: np.ndarray | PackedSteps) -> np.ndarray:
     """Return d predict / d x (S, 3, P) by central differences."""
     cols = []
     for i in range(x.size):
@@ -234,7 +275,7 @@ def _prior_sigma(keys: tuple, nominal: dict, sp: SolverParams) -> np.ndarray:
     return np.array(out)
 
 
-def _init_lidar_yaw(drive_type: str, x: np.ndarray, steps: np.ndarray,
+def _init_lidar_yaw(drive_type: str, x: np.ndarray, steps: np.ndarray | PackedSteps,
                     meas: np.ndarray) -> float:
     """Return the yaw aligning base translations with sensor translations (rad)."""
     base = base_motion(drive_type, x, steps)
@@ -302,7 +343,7 @@ def joint_fit(drive_type: str, segments: list[Segment], nominal: dict,
     keys = keys_of(drive_type)
     x_nom = np.array([nominal[k] for k in keys], dtype=float)
     psig = _prior_sigma(keys, nominal, sp)
-    steps = pad_steps(segments)
+    steps = PackedSteps.of(segments)
     meas = np.array([s.sensor_motion for s in segments]).reshape(-1, 3)
     if x0 is None:
         x0 = x_nom.copy()
@@ -311,7 +352,7 @@ def joint_fit(drive_type: str, segments: list[Segment], nominal: dict,
             if cf is not None and np.all(np.isfinite(cf)) and np.all(cf[:3] > 0):
                 x0 = cf
         else:
-            x0 = _init_steered(x0, steps, meas)
+            x0 = _init_steered(x0, pad_steps(segments), meas)
         if drive_type != 'differential' or x0 is x_nom:
             x0[-1] = _init_lidar_yaw(drive_type, x0, steps, meas)
     x = np.asarray(x0, dtype=float).copy()
