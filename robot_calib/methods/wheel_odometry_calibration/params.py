@@ -133,10 +133,6 @@ class WheelCalibParams:
     redeskew: bool = param(
         True, '', 'At the end, deskew the key-frame scans again with the calibrated odometry, '
         're-match them and solve once more (removes the bias a wrong nominal geometry leaves)')
-    rematch_gate: float = param(
-        0.2, 'm', 'First correspondence gate of that re-match (it starts from the first '
-        "match's pose, so it skips kiss-icp and shrinks to the scan matcher's final gate in "
-        'two iterations)', minimum=0.001)
     scan_time_offset: float = param(
         0.0, 's', 'Added to every scan stamp before it is paired with the wheel data (a '
         'negative value for a lidar whose stamps lag the measurement)', minimum=-1.0,
