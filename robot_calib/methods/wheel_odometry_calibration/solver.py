@@ -69,12 +69,35 @@ class PackedSteps:
     ``segment`` (N,) is the segment of each row (non-decreasing). A boolean
     mask of length S selects segments (``steps[inliers]``), like a padded
     (S, K, 2) array; the joint fit evaluates the model on these many times, and
-    padding every segment to the longest one quadruples the work.
+    padding every segment to the longest one quadruples the work. The base
+    motions of the last few intrinsic parameter sets are kept: a finite
+    difference in a lidar pose parameter reuses the base motion of its point.
     """
+
+    CACHED = 16
+    """Base motions kept (one per intrinsic parameter set)."""
 
     def __init__(self, flat: np.ndarray, segment: np.ndarray, n: int):
         """Wrap rows ``flat`` (N, 2) of segments ``segment`` (N,) out of ``n``."""
         self.flat, self.segment, self.n = flat, segment, n
+        self._base: dict[tuple, np.ndarray] = {}
+
+    def base_motion(self, drive_type: str, x: np.ndarray) -> np.ndarray:
+        """Return :func:`base_motion` (S, 3) of these steps (remembered by intrinsics)."""
+        key = (drive_type, np.asarray(x[:-3], dtype=float).tobytes())
+        base = self._base.get(key)
+        if base is None:
+            arr = self.flat
+            if drive_type == 'differential':
+                ds, dth = K.diff_arc(arr[:, 0], arr[:, 1], x[0], x[1], x[2])
+            else:
+                ds, dth = K.steered_arc(arr[:, 0], arr[:, 1], x[2], x[3], x[0], x[1])
+            base = K.integrate_arcs_packed(ds, dth, self.segment, self.n)
+            base.flags.writeable = False
+            if len(self._base) >= self.CACHED:
+                del self._base[next(iter(self._base))]
+            self._base[key] = base
+        return base
 
     @classmethod
     def of(cls, segments: list[Segment]) -> 'PackedSteps':
@@ -105,14 +128,12 @@ def base_motion(drive_type: str, x: np.ndarray, steps) -> np.ndarray:
     ``steps`` are padded (S, K, 2) (padding steps, zeros, add nothing) or a
     :class:`PackedSteps`; ``x`` is in :func:`keys_of` order.
     """
-    packed = isinstance(steps, PackedSteps)
-    arr = steps.flat if packed else steps
+    if isinstance(steps, PackedSteps):
+        return steps.base_motion(drive_type, x)
     if drive_type == 'differential':
-        ds, dth = K.diff_arc(arr[..., 0], arr[..., 1], x[0], x[1], x[2])
+        ds, dth = K.diff_arc(steps[..., 0], steps[..., 1], x[0], x[1], x[2])
     else:
-        ds, dth = K.steered_arc(arr[..., 0], arr[..., 1], x[2], x[3], x[0], x[1])
-    if packed:
-        return K.integrate_arcs_packed(ds, dth, steps.segment, steps.n)
+        ds, dth = K.steered_arc(steps[..., 0], steps[..., 1], x[2], x[3], x[0], x[1])
     return K.integrate_arcs(ds, dth)
 
 
