@@ -306,8 +306,8 @@ def _quality(source: np.ndarray, target: PreparedScan, pose: np.ndarray,
     r_mat = rot2(pose[2])
     moved = source @ r_mat.T + pose[:2]
     # only inliers are used: the search stops beyond inlier_distance (a miss: inf, index N)
-    dist, idx = target.tree.query(moved, distance_upper_bound=np.nextafter(p.inlier_distance,
-                                                                            np.inf))
+    bound = np.nextafter(p.inlier_distance, np.inf)
+    dist, idx = target.tree.query(moved, distance_upper_bound=bound)
     inl = dist <= p.inlier_distance
     result.inliers = int(inl.sum())
     result.inlier_ratio = result.inliers / max(1, len(source))
