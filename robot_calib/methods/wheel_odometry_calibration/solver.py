@@ -310,7 +310,7 @@ def _init_lidar_yaw(drive_type: str, x: np.ndarray, steps: np.ndarray | PackedSt
     return math.atan2(cross, dot)
 
 
-def _init_steered(x: np.ndarray, steps: np.ndarray, meas: np.ndarray) -> np.ndarray:
+def _init_steered(x: np.ndarray, steps: PackedSteps, meas: np.ndarray) -> np.ndarray:
     """
     Return a global initial guess of the steered-wheel intrinsics from rotations and travel.
 
@@ -321,14 +321,18 @@ def _init_steered(x: np.ndarray, steps: np.ndarray, meas: np.ndarray) -> np.ndar
     segment hardly turns).
     """
     x = x.copy()
-    dphi, reading = steps[..., 0], steps[..., 1]
+    dphi, reading = steps.flat[:, 0], steps.flat[:, 1]
     rot = meas[:, 2]
     best = (math.inf, x[0], x[1], x[2] / x[3])
     scales = x[1] * np.geomspace(0.1, 10.0, 41)
     offsets = x[0] + np.linspace(-0.3, 0.3, 31)
+    n = steps.n
+    # per-segment sums of every offset's row at once: row o of segment k is bin o * n + k
+    bins = (steps.segment[None] + n * np.arange(len(offsets))[:, None]).ravel()
     for sc in scales:
-        ang = sc * reading[None] + offsets[:, None, None]
-        g = np.sum(dphi[None] * np.sin(ang), axis=2)  # (O, S)
+        ang = sc * reading[None] + offsets[:, None]
+        g = np.bincount(bins, (dphi[None] * np.sin(ang)).ravel(),
+                        minlength=len(offsets) * n).reshape(len(offsets), n)  # (O, S)
         rho = np.sum(g * rot[None], axis=1) / np.maximum(np.sum(g * g, axis=1), 1e-30)
         cost = np.sum((rho[:, None] * g - rot[None]) ** 2, axis=1)
         i = int(np.argmin(cost))
@@ -336,7 +340,7 @@ def _init_steered(x: np.ndarray, steps: np.ndarray, meas: np.ndarray) -> np.ndar
             best = (float(cost[i]), float(offsets[i]), float(sc), float(rho[i]))
     _, x[0], x[1], rho = best
     ang = x[1] * reading + x[0]
-    fwd = np.sum(dphi * np.cos(ang), axis=1)
+    fwd = np.bincount(steps.segment, dphi * np.cos(ang), minlength=n)
     dist = np.hypot(meas[:, 0], meas[:, 1])
     ok = (np.abs(rot) < 0.05) & (np.abs(fwd) > 1e-9)
     if ok.sum() >= 2:
@@ -373,7 +377,7 @@ def joint_fit(drive_type: str, segments: list[Segment], nominal: dict,
             if cf is not None and np.all(np.isfinite(cf)) and np.all(cf[:3] > 0):
                 x0 = cf
         else:
-            x0 = _init_steered(x0, pad_steps(segments), meas)
+            x0 = _init_steered(x0, steps, meas)
         if drive_type != 'differential' or x0 is x_nom:
             x0[-1] = _init_lidar_yaw(drive_type, x0, steps, meas)
     x = np.asarray(x0, dtype=float).copy()
