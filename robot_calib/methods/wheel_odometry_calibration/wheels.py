@@ -167,14 +167,6 @@ class WheelHistory:
         poses[1:, 1] = np.cumsum(s * arcs[:, 0] + c * arcs[:, 1])
         return poses
 
-    def pose_at(self, poses: list, t: float) -> np.ndarray:
-        """Return ``poses`` (one per sample) linearly interpolated at ``t`` (s)."""
-        times = self.t
-        i = min(max(bisect.bisect_left(times, t), 1), len(times) - 1)
-        t0, t1 = times[i - 1], times[i]
-        w = (t - t0) / (t1 - t0) if t1 > t0 else 1.0
-        return poses[i - 1] + w * (poses[i] - poses[i - 1])
-
     def sensor_motion_during(self, scan: Any, sensor_pose: np.ndarray,
                              poses: Optional[Any] = None,
                              ) -> Callable[[np.ndarray], np.ndarray]:
