@@ -101,6 +101,54 @@ def test_integrate_steps_equals_composing_step_by_step():
                                atol=1e-12)
 
 
+@pytest.mark.parametrize('drive', ['differential', 'steered_wheel'])
+def test_packed_steps_predict_as_padded(drive):
+    """The joint fit's packed steps (no padding) give the padded model's motion, any subset."""
+    rng = np.random.default_rng(4)
+    segs = [K.Segment(0.0, 1.0, rng.normal(0.0, 0.3, (int(rng.integers(1, 60)), 2)),
+                      np.zeros(3)) for _ in range(200)]
+    truth = DIFF_TRUTH if drive == 'differential' else STEER_TRUTH
+    x = np.array([truth[k] for k in P.keys_of(drive)])
+    packed, padded = S.PackedSteps.of(segs), S.pad_steps(segs)
+    assert len(packed) == 200
+    np.testing.assert_allclose(S.predict(drive, x, packed), S.predict(drive, x, padded),
+                               rtol=0, atol=1e-12)
+    mask = rng.random(200) < 0.6
+    np.testing.assert_allclose(S.predict(drive, x, packed[mask]),
+                               S.predict(drive, x, padded[mask]), rtol=0, atol=1e-12)
+    # another lidar pose reuses the remembered base motion: still the same model
+    x2 = x.copy()
+    x2[-3:] += (0.01, -0.02, 0.03)
+    assert S.base_motion(drive, x2, packed) is S.base_motion(drive, x, packed)
+    np.testing.assert_allclose(S.predict(drive, x2, packed), S.predict(drive, x2, padded),
+                               rtol=0, atol=1e-12)
+    x3 = x.copy()
+    x3[0] *= 1.01
+    assert not np.allclose(S.predict(drive, x3, packed), S.predict(drive, x, packed))
+    np.testing.assert_allclose(S.predict(drive, x3, packed), S.predict(drive, x3, padded),
+                               rtol=0, atol=1e-12)
+
+
+def test_calibrated_odometry_poses_are_the_composed_arcs():
+    """The re-deskew's odometry (running sums) is the arcs composed one by one."""
+    from robot_calib.methods.wheel_odometry_calibration.wheels import WheelHistory
+    rng = np.random.default_rng(5)
+    x = np.array([DIFF_TRUTH[k] for k in P.DIFF_KEYS])
+    hist = WheelHistory('differential', x, 0.5)
+    a = b = 0.0
+    for i in range(3000):
+        a, b = a + rng.normal(0.2, 0.1), b + rng.normal(0.2, 0.1)
+        hist.add(0.02 * i, a, b)
+    steps = np.diff(np.column_stack((hist.a, hist.b)), axis=0)
+    arcs = K.arc_pose(*K.diff_arc(steps[:, 0], steps[:, 1], *x[:3]))
+    expected = [np.zeros(3)]
+    for arc in arcs:
+        expected.append(K.compose(expected[-1], arc))
+    poses = hist.poses_with(x)
+    assert poses.shape == (3000, 3)
+    np.testing.assert_allclose(poses, np.array(expected), rtol=0, atol=1e-10)
+
+
 def test_steered_and_diff_arc_by_hand():
     # steered wheel at 30 deg, 1 rad of a 0.1 m wheel, wheel base 0.5:
     ds, dth = K.steered_arc(1.0, 0.5236 - 0.01, 0.1, 0.5, offset=0.01)

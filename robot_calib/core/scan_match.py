@@ -276,29 +276,32 @@ def _refine(source: np.ndarray, target: PreparedScan, pose: np.ndarray,
     n_anneal = max(1, min(p.refine_anneal_iterations, n_it - 1))
     ratio = p.refine_min_correspondence / p.refine_max_correspondence
     rot_jac = np.column_stack((-source[:, 1], source[:, 0]))  # d(R p)/d yaw = R [-p_y, p_x]
+    # a missed query returns index len(points): that row of usable is False
+    usable = np.append(target.normal_ok, False)
+    damping = 1e-9 * np.eye(3)
     for it in range(1, n_it + 1):
         # The gate shrinks geometrically from the wide to the narrow value, then stays.
         frac = min(1.0, (it - 1) / n_anneal)
         gate = p.refine_max_correspondence * ratio ** frac
-        r_mat = rot2(pose[2])
-        moved = source @ r_mat.T + pose[:2]
-        dist, idx = target.tree.query(moved, distance_upper_bound=gate)
-        use = np.isfinite(dist)
-        use[use] = target.normal_ok[idx[use]]
-        if use.sum() < 3:
+        r_t = rot2(pose[2]).T
+        moved = source @ r_t + pose[:2]
+        _, idx = target.tree.query(moved, distance_upper_bound=gate)
+        use = np.flatnonzero(usable[idx])
+        if len(use) < 3:
             break
-        q = target.points[idx[use]]
-        nrm = target.normals[idx[use]]
-        res = np.einsum('ij,ij->i', nrm, moved[use] - q)   # point-to-line distance (m)
-        jac = np.column_stack((nrm, np.einsum('ij,ij->i', nrm, rot_jac[use] @ r_mat.T)))
+        near = idx[use]
+        nrm = target.normals[near]
+        res = np.einsum('ij,ij->i', nrm, moved[use] - target.points[near])  # point-line (m)
+        jac = np.column_stack((nrm, np.einsum('ij,ij->i', nrm, rot_jac[use] @ r_t)))
         w = 1.0 / (1.0 + (res / p.robust_scale) ** 2)      # Cauchy weights
         h = jac.T @ (jac * w[:, None])
         g = jac.T @ (w * res)
         try:
-            delta = -np.linalg.solve(h + 1e-9 * np.eye(3), g)
+            delta = -np.linalg.solve(h + damping, g)
         except np.linalg.LinAlgError:
             break
-        pose = np.array([pose[0] + delta[0], pose[1] + delta[1], wrap_angle(pose[2] + delta[2])])
+        pose = np.array([pose[0] + delta[0], pose[1] + delta[1],
+                         wrap_angle(float(pose[2] + delta[2]))])
         last_step = (math.hypot(delta[0], delta[1]), abs(delta[2]))
         if (frac >= 1.0 and last_step[0] < p.convergence_translation
                 and last_step[1] < p.convergence_rotation):
@@ -315,11 +318,13 @@ def _quality(source: np.ndarray, target: PreparedScan, pose: np.ndarray,
     """Fill inliers, RMSE, Hessian, covariance and degeneracy of ``result`` at ``pose``."""
     r_mat = rot2(pose[2])
     moved = source @ r_mat.T + pose[:2]
-    dist, idx = target.tree.query(moved)
+    # only inliers are used: the search stops beyond inlier_distance (a miss: inf, index N)
+    bound = np.nextafter(p.inlier_distance, np.inf)
+    dist, idx = target.tree.query(moved, distance_upper_bound=bound)
     inl = dist <= p.inlier_distance
     result.inliers = int(inl.sum())
     result.inlier_ratio = result.inliers / max(1, len(source))
-    use = inl & target.normal_ok[idx]
+    use = inl & np.append(target.normal_ok, False)[idx]
     if use.sum() < 3:
         result.degenerate = True
         result.min_eigenvalue = 0.0

@@ -62,12 +62,74 @@ def pad_steps(segments: list[Segment]) -> np.ndarray:
     return out
 
 
-def base_motion(drive_type: str, x: np.ndarray, steps: np.ndarray) -> np.ndarray:
+class PackedSteps:
     """
-    Return the base_link motion (S, 3) of padded steps (S, K, 2) for parameters ``x``.
+    The steps of S segments stored end to end, ``flat`` (N, 2), without padding.
 
-    ``x`` is in :func:`keys_of` order; padding steps (zeros) add nothing.
+    ``segment`` (N,) is the segment of each row (non-decreasing). A boolean
+    mask of length S selects segments (``steps[inliers]``), like a padded
+    (S, K, 2) array; the joint fit evaluates the model on these many times, and
+    padding every segment to the longest one quadruples the work. The base
+    motions of the last few intrinsic parameter sets are kept: a finite
+    difference in a lidar pose parameter reuses the base motion of its point.
     """
+
+    CACHED = 16
+    """Base motions kept (one per intrinsic parameter set)."""
+
+    def __init__(self, flat: np.ndarray, segment: np.ndarray, n: int):
+        """Wrap rows ``flat`` (N, 2) of segments ``segment`` (N,) out of ``n``."""
+        self.flat, self.segment, self.n = flat, segment, n
+        self._base: dict[tuple, np.ndarray] = {}
+
+    def base_motion(self, drive_type: str, x: np.ndarray) -> np.ndarray:
+        """Return :func:`base_motion` (S, 3) of these steps (remembered by intrinsics)."""
+        key = (drive_type, np.asarray(x[:-3], dtype=float).tobytes())
+        base = self._base.get(key)
+        if base is None:
+            arr = self.flat
+            if drive_type == 'differential':
+                ds, dth = K.diff_arc(arr[:, 0], arr[:, 1], x[0], x[1], x[2])
+            else:
+                ds, dth = K.steered_arc(arr[:, 0], arr[:, 1], x[2], x[3], x[0], x[1])
+            base = K.integrate_arcs_packed(ds, dth, self.segment, self.n)
+            base.flags.writeable = False
+            if len(self._base) >= self.CACHED:
+                del self._base[next(iter(self._base))]
+            self._base[key] = base
+        return base
+
+    @classmethod
+    def of(cls, segments: list[Segment]) -> 'PackedSteps':
+        """Pack the steps of ``segments``."""
+        if not segments:
+            return cls(np.zeros((0, 2)), np.zeros(0, dtype=np.intp), 0)
+        counts = [s.steps.shape[0] for s in segments]
+        flat = np.concatenate([np.asarray(s.steps, dtype=float).reshape(-1, 2)
+                               for s in segments])
+        return cls(flat, np.repeat(np.arange(len(segments)), counts), len(segments))
+
+    def __len__(self) -> int:
+        """Return the number of segments."""
+        return self.n
+
+    def __getitem__(self, mask: np.ndarray) -> 'PackedSteps':
+        """Return the segments a boolean mask (S,) selects, in order."""
+        mask = np.asarray(mask, dtype=bool)
+        keep = mask[self.segment]
+        renumber = np.cumsum(mask) - 1
+        return PackedSteps(self.flat[keep], renumber[self.segment[keep]], int(mask.sum()))
+
+
+def base_motion(drive_type: str, x: np.ndarray, steps) -> np.ndarray:
+    """
+    Return the base_link motion (S, 3) of steps for parameters ``x``.
+
+    ``steps`` are padded (S, K, 2) (padding steps, zeros, add nothing) or a
+    :class:`PackedSteps`; ``x`` is in :func:`keys_of` order.
+    """
+    if isinstance(steps, PackedSteps):
+        return steps.base_motion(drive_type, x)
     if drive_type == 'differential':
         ds, dth = K.diff_arc(steps[..., 0], steps[..., 1], x[0], x[1], x[2])
     else:
@@ -75,12 +137,12 @@ def base_motion(drive_type: str, x: np.ndarray, steps: np.ndarray) -> np.ndarray
     return K.integrate_arcs(ds, dth)
 
 
-def predict(drive_type: str, x: np.ndarray, steps: np.ndarray) -> np.ndarray:
+def predict(drive_type: str, x: np.ndarray, steps: np.ndarray | PackedSteps) -> np.ndarray:
     """Return the predicted sensor motion (S, 3) (the last three entries of ``x`` are the pose)."""
     return K.sensor_motion(base_motion(drive_type, x, steps), x[-3:])
 
 
-def residuals(drive_type: str, x: np.ndarray, steps: np.ndarray,
+def residuals(drive_type: str, x: np.ndarray, steps: np.ndarray | PackedSteps,
               measured: np.ndarray) -> np.ndarray:
     """Return predicted minus measured sensor motion (S, 3), yaw wrapped (m, m, rad)."""
     r = predict(drive_type, x, steps) - measured
@@ -190,7 +252,7 @@ def censi_calibrate(segments: list[Segment], outlier_iterations: int = 4,
     return {'x': x, 'cov': cov, 'sigma': sigma, 'used': len(used)}
 
 
-def _jacobian(drive_type: str, x: np.ndarray, steps: np.ndarray) -> np.ndarray:
+def _jacobian(drive_type: str, x: np.ndarray, steps: np.ndarray | PackedSteps) -> np.ndarray:
     """Return d predict / d x (S, 3, P) by central differences."""
     cols = []
     for i in range(x.size):
@@ -234,7 +296,7 @@ def _prior_sigma(keys: tuple, nominal: dict, sp: SolverParams) -> np.ndarray:
     return np.array(out)
 
 
-def _init_lidar_yaw(drive_type: str, x: np.ndarray, steps: np.ndarray,
+def _init_lidar_yaw(drive_type: str, x: np.ndarray, steps: np.ndarray | PackedSteps,
                     meas: np.ndarray) -> float:
     """Return the yaw aligning base translations with sensor translations (rad)."""
     base = base_motion(drive_type, x, steps)
@@ -248,7 +310,7 @@ def _init_lidar_yaw(drive_type: str, x: np.ndarray, steps: np.ndarray,
     return math.atan2(cross, dot)
 
 
-def _init_steered(x: np.ndarray, steps: np.ndarray, meas: np.ndarray) -> np.ndarray:
+def _init_steered(x: np.ndarray, steps: PackedSteps, meas: np.ndarray) -> np.ndarray:
     """
     Return a global initial guess of the steered-wheel intrinsics from rotations and travel.
 
@@ -259,14 +321,18 @@ def _init_steered(x: np.ndarray, steps: np.ndarray, meas: np.ndarray) -> np.ndar
     segment hardly turns).
     """
     x = x.copy()
-    dphi, reading = steps[..., 0], steps[..., 1]
+    dphi, reading = steps.flat[:, 0], steps.flat[:, 1]
     rot = meas[:, 2]
     best = (math.inf, x[0], x[1], x[2] / x[3])
     scales = x[1] * np.geomspace(0.1, 10.0, 41)
     offsets = x[0] + np.linspace(-0.3, 0.3, 31)
+    n = steps.n
+    # per-segment sums of every offset's row at once: row o of segment k is bin o * n + k
+    bins = (steps.segment[None] + n * np.arange(len(offsets))[:, None]).ravel()
     for sc in scales:
-        ang = sc * reading[None] + offsets[:, None, None]
-        g = np.sum(dphi[None] * np.sin(ang), axis=2)  # (O, S)
+        ang = sc * reading[None] + offsets[:, None]
+        g = np.bincount(bins, (dphi[None] * np.sin(ang)).ravel(),
+                        minlength=len(offsets) * n).reshape(len(offsets), n)  # (O, S)
         rho = np.sum(g * rot[None], axis=1) / np.maximum(np.sum(g * g, axis=1), 1e-30)
         cost = np.sum((rho[:, None] * g - rot[None]) ** 2, axis=1)
         i = int(np.argmin(cost))
@@ -274,7 +340,7 @@ def _init_steered(x: np.ndarray, steps: np.ndarray, meas: np.ndarray) -> np.ndar
             best = (float(cost[i]), float(offsets[i]), float(sc), float(rho[i]))
     _, x[0], x[1], rho = best
     ang = x[1] * reading + x[0]
-    fwd = np.sum(dphi * np.cos(ang), axis=1)
+    fwd = np.bincount(steps.segment, dphi * np.cos(ang), minlength=n)
     dist = np.hypot(meas[:, 0], meas[:, 1])
     ok = (np.abs(rot) < 0.05) & (np.abs(fwd) > 1e-9)
     if ok.sum() >= 2:
@@ -302,7 +368,7 @@ def joint_fit(drive_type: str, segments: list[Segment], nominal: dict,
     keys = keys_of(drive_type)
     x_nom = np.array([nominal[k] for k in keys], dtype=float)
     psig = _prior_sigma(keys, nominal, sp)
-    steps = pad_steps(segments)
+    steps = PackedSteps.of(segments)
     meas = np.array([s.sensor_motion for s in segments]).reshape(-1, 3)
     if x0 is None:
         x0 = x_nom.copy()

@@ -147,8 +147,8 @@ class WheelHistory:
             return np.column_stack((np.diff(aa), np.diff(bb)))
         return np.column_stack((np.diff(aa), 0.5 * (bb[1:] + bb[:-1])))
 
-    def poses_with(self, x: np.ndarray) -> list[np.ndarray]:
-        """Return the odometry poses (m, m, rad) of all samples, integrated with ``x``."""
+    def poses_with(self, x: np.ndarray) -> np.ndarray:
+        """Return the odometry poses (N, 3) (m, m, rad) of all samples, integrated with ``x``."""
         a, b = np.asarray(self.a), np.asarray(self.b)
         if self.drive == 'differential':
             steps = np.column_stack((np.diff(a), np.diff(b)))
@@ -159,18 +159,13 @@ class WheelHistory:
         else:
             ds, dth = K.steered_arc(steps[:, 0], steps[:, 1], x[2], x[3], x[0], x[1])
         arcs = K.arc_pose(ds, dth)
-        poses = [np.zeros(3)]
-        for st in arcs:
-            poses.append(K.compose(poses[-1], st))
+        # p_k+1 = p_k (+) arc_k: the heading is a running sum, each arc turned by the one before
+        poses = np.zeros((len(arcs) + 1, 3))
+        poses[1:, 2] = np.cumsum(arcs[:, 2])
+        c, s = np.cos(poses[:-1, 2]), np.sin(poses[:-1, 2])
+        poses[1:, 0] = np.cumsum(c * arcs[:, 0] - s * arcs[:, 1])
+        poses[1:, 1] = np.cumsum(s * arcs[:, 0] + c * arcs[:, 1])
         return poses
-
-    def pose_at(self, poses: list, t: float) -> np.ndarray:
-        """Return ``poses`` (one per sample) linearly interpolated at ``t`` (s)."""
-        times = self.t
-        i = min(max(bisect.bisect_left(times, t), 1), len(times) - 1)
-        t0, t1 = times[i - 1], times[i]
-        w = (t - t0) / (t1 - t0) if t1 > t0 else 1.0
-        return poses[i - 1] + w * (poses[i] - poses[i - 1])
 
     def sensor_motion_during(self, scan: Any, sensor_pose: np.ndarray,
                              poses: Optional[Any] = None,
