@@ -4,8 +4,8 @@
 Replay throughput end to end, with its floors, and the start-up of a short replay (issue 18).
 
 Run from the repository root: ``.venv/bin/python benchmarks/bench_throughput.py [--runs N]
-[--hours H] [--only wheel]``. Writes ``docs/bench/13-throughput.md`` (``--only wheel``:
-the wheel calibration row alone is measured and replaced, the other rows are kept).
+[--hours H] [--only wheel|startup]``. Writes ``docs/bench/13-throughput.md`` (``--only``:
+that row alone is measured and replaced, the other rows are kept).
 
 Each figure is a whole ``robot-calib replay`` process (read, decode, the node, write
 output.mcap, summary, report with plots), timed by its CPU time (user + system of
