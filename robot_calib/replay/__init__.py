@@ -118,7 +118,7 @@ def replay(bags: Union[str, os.PathLike, Sequence[Union[str, os.PathLike]]],
                       ', '.join(map(str, bag_list)))
         tmp = prepare_out_dir(out_dir)
         try:
-            stats = run(bagset, chosen, tmp, progress, storage, window, compress)
+            stats = run(bagset, chosen, tmp, progress, storage, window, compress, plots)
             wall_seconds = time.perf_counter() - wall0
             artifacts = write_artifacts(chosen, tmp)
             summary = build_summary(bag_list, bagset, chosen, stats, artifacts, storage,

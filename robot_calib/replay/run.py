@@ -176,13 +176,19 @@ def _place_output_bag(bag_dir: Path, tmp: Path, storage: str) -> None:
 
 
 def run(bagset: BagSet, plan: Plan, tmp: Path, progress: Optional[bool], storage: str,
-        window: tuple[float, Optional[float]] = (0.0, None), compress: bool = True) -> RunStats:
-    """Run the planned nodes over the bags; write the output bag (zstd chunks) into ``tmp``."""
+        window: tuple[float, Optional[float]] = (0.0, None), compress: bool = True,
+        plots: bool = True) -> RunStats:
+    """
+    Run the planned nodes over the bags; write the output bag (zstd chunks) into ``tmp``.
+
+    With ``plots`` the input odometry and the ground truth are kept for the report's
+    trajectory plots (the ground truth is read for them alone).
+    """
     wall0 = time.perf_counter()
     stats = RunStats()
     routes = _routes(plan)
-    traj_topics = {t for t in routes if plan.bag_topics[t][0] == _ODOM_TYPE}
-    if plan.bag_topics.get(GROUND_TRUTH, ('',))[0] == _ODOM_TYPE:
+    traj_topics = {t for t in routes if plots and plan.bag_topics[t][0] == _ODOM_TYPE}
+    if plots and plan.bag_topics.get(GROUND_TRUTH, ('',))[0] == _ODOM_TYPE:
         traj_topics.add(GROUND_TRUTH)
     topic_of = plan.topic_of_stream
     streams = [s for s in bagset.streams
