@@ -106,6 +106,11 @@ class LoopClosureBase(abc.ABC):
         self.raw = np.zeros(3)
         self.correction = np.zeros(3)
         self.gyro_bias = 0.0
+        """Learned residual gyro bias (rad/s) at ``_bias_t``."""
+        self.gyro_bias_rate = 0.0
+        """Learned drift rate of the gyro bias (rad/s^2)."""
+        self.gyro_scale = 0.0
+        """Learned gyro scale error (reading = (1 + scale) rate)."""
         self.bias_var = self.params.motion.initial_bias_sigma ** 2
         self._bias_t: Optional[float] = None
         self.sigma_xy = 0.0
@@ -213,14 +218,21 @@ class LoopClosureBase(abc.ABC):
         if self.params.heading_source == 'odom' or not math.isfinite(gyro_z):
             return
         self.using_imu = True
-        self.rate = gyro_z - self.gyro_bias
+        plain = self.gyro_scale == 0.0 and self.gyro_bias_rate == 0.0
+        bias = self.gyro_bias if plain or self._bias_t is None \
+            else self.gyro_bias + self.gyro_bias_rate * (t - self._bias_t)
+        self.rate = gyro_z - bias if plain else (gyro_z - bias) / (1.0 + self.gyro_scale)
         if self._last_imu is not None:
             t0, w0 = self._last_imu
             dt = t - t0
             if 0 < dt < 1.0:
-                # trapezoidal integration of the bias-corrected rate
-                self.raw[2] = wrap_angle(self.raw[2] + 0.5 * (w0 + gyro_z) * dt
-                                         - self.gyro_bias * dt)
+                # trapezoidal integration of the bias- (and scale-) corrected rate
+                if plain:
+                    self.raw[2] = wrap_angle(self.raw[2] + 0.5 * (w0 + gyro_z) * dt
+                                             - self.gyro_bias * dt)
+                else:
+                    self.raw[2] = wrap_angle(self.raw[2] + (0.5 * (w0 + gyro_z) - bias) * dt
+                                             / (1.0 + self.gyro_scale))
                 self.sigma_yaw += self.params.motion.heading_drift_rate * dt
         self._last_imu = (t, gyro_z)
 

@@ -9,9 +9,10 @@ candidate heading from the registration itself; refusals of degenerate
 (corridor) and unconverged matches, of ambiguous closures (another
 hypothesis nearly as good) and of implausible corrections given the pose
 uncertainty; each correction spread over the keyframes made since the last
-fix (``distribute_correction``); and the residual gyro bias learned with a
-scalar Kalman filter from the registrations against the last keyframe
-(``motion.estimate_gyro_bias``).
+fix (``distribute_correction``); and the residual gyro bias, its drift rate
+and the gyro scale error learned with a Kalman filter (:mod:`.gyro_filter`)
+from the registrations against the last keyframe (``motion.estimate_gyro_bias``,
+``estimate_bias_drift``, ``estimate_gyro_scale``).
 """
 
 from __future__ import annotations
@@ -25,6 +26,7 @@ from robot_calib.core.scan_match import MatchResult, PreparedScan, ScanMatchPara
 from robot_calib.methods.loop_closure_correction.common import (base_refusal, Candidate,
                                                                 Keyframe)
 from robot_calib.methods.loop_closure_correction.corrector import LoopClosureBase
+from robot_calib.methods.loop_closure_correction.gyro_filter import GyroErrorFilter
 from robot_calib.methods.loop_closure_correction.params import ScoringParams
 
 
@@ -84,8 +86,13 @@ class ImprovedLoopClosure(LoopClosureBase):
         """Return why the best candidate is refused, or '' to accept it (:func:`refusal`)."""
         return refusal(best, cands, pose, self.sigma_xy, self.sigma_yaw, self.params.scoring)
 
+    def reset(self) -> None:
+        """Forget the state, the gyro error filter's too."""
+        super().reset()
+        self.gyro_filter = GyroErrorFilter(self.params.motion)
+
     def _learn_bias(self, t: float, kf: Keyframe, res: MatchResult) -> None:
-        """Scalar Kalman update of the residual gyro bias (rad/s) from one registration."""
+        """Update the gyro error filter (:mod:`.gyro_filter`) from one registration."""
         m = self.params.motion
         dt = t - kf.t
         if not self.using_imu or not m.estimate_gyro_bias or dt < 0.2:
@@ -93,22 +100,19 @@ class ImprovedLoopClosure(LoopClosureBase):
         if abs(kf.rate) > m.bias_max_rate or abs(self.rate) > m.bias_max_rate:
             self.counts['bias_skipped_turning'] += 1
             return
-        # predict: the bias walks (rad/s)^2 per s
-        if self._bias_t is not None:
-            self.bias_var += m.bias_random_walk ** 2 * max(0.0, t - self._bias_t)
-        self._bias_t = t
-        d_est = wrap_angle(self.raw[2] - kf.raw[2])      # gyro heading change (bias removed)
+        d_est = wrap_angle(self.raw[2] - kf.raw[2])      # gyro heading change (errors removed)
         d_scan = wrap_angle(-res.pose[2])                  # scan heading change
-        resid = (d_est - d_scan) / dt                      # = true bias - estimated bias
         var_yaw = res.covariance[2, 2] if np.isfinite(res.covariance[2, 2]) else 0.0
-        r_var = (math.sqrt(max(0.0, var_yaw)) + m.scan_yaw_sigma) ** 2 / dt ** 2
-        if resid ** 2 > 9.0 * (self.bias_var + r_var):
+        r_var = (math.sqrt(max(0.0, var_yaw)) + m.scan_yaw_sigma) ** 2
+        f = self.gyro_filter
+        if not f.update(t, dt, d_est - d_scan, d_scan, r_var):
             self.counts['bias_updates_gated'] += 1
             return
-        gain = self.bias_var / (self.bias_var + r_var)
-        self.gyro_bias = float(np.clip(self.gyro_bias + gain * resid, -m.max_gyro_bias,
-                                       m.max_gyro_bias))
-        self.bias_var *= (1.0 - gain)
+        self.gyro_bias = f.bias_at(t)
+        self.gyro_bias_rate = float(f.x[1])
+        self.gyro_scale = f.scale
+        self.bias_var = float(f.P[0, 0])
+        self._bias_t = t
         self.counts['bias_updates'] += 1
 
     def _before_correction(self, old: np.ndarray, new: np.ndarray) -> None:

@@ -94,6 +94,18 @@ class MotionParams:
     scan_yaw_sigma: float = param(0.002, 'rad', 'heading noise floor of one scan registration',
                                   minimum=1e-6)
     max_gyro_bias: float = param(0.05, 'rad/s', 'largest gyro bias accepted', minimum=0.0)
+    estimate_bias_drift: bool = param(True, '', 'also learn how fast the gyro bias drifts '
+                                      '(rad/s^2; improved, with estimate_gyro_bias)')
+    initial_bias_drift_sigma: float = param(1e-5, 'rad/s^2', 'prior sigma of the gyro bias '
+                                            'drift rate', minimum=0.0)
+    bias_drift_random_walk: float = param(1e-7, 'rad/s^2/sqrt(s)', 'assumed random walk of '
+                                          'the bias drift rate', minimum=0.0)
+    estimate_gyro_scale: bool = param(True, '', 'also learn the gyro scale error from the '
+                                      'turns the registrations measure (improved, with '
+                                      'estimate_gyro_bias)')
+    initial_scale_sigma: float = param(0.01, '', 'prior sigma of the gyro scale error',
+                                       minimum=0.0)
+    max_gyro_scale: float = param(0.05, '', 'largest gyro scale error accepted', minimum=0.0)
     bias_max_rate: float = param(0.1, 'rad/s', 'the bias is learned only from scans taken '
                                  'while turning slower than this (residual scan skew)',
                                  minimum=0.0)
