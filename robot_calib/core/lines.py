@@ -209,8 +209,33 @@ class ObstacleGrid:
         sums = np.add.reduceat(pts, starts, axis=0)
         counts = np.diff(np.append(starts, keys.size)).astype(float)
         ukeys = keys[starts].tolist()
+        slots = list(map(self._index.get, ukeys, itertools.repeat(-1, len(ukeys))))
+        if -1 in slots:
+            self._new_slots(ukeys, slots)
+        sl = np.asarray(slots, dtype=np.int64)
+        unique = len(set(slots)) == len(slots)
+        if unique:  # the usual case: each cell once, a plain (same-valued) sum
+            self._sum[sl] += sums
+            self._n[sl] += counts
+        else:  # a cell new in this scan hit twice (not consecutively)
+            np.add.at(self._sum, sl, sums)
+            np.add.at(self._n, sl, counts)
+        self._t[sl] = t
+        cap = self.params.max_hits_per_cell
+        over = self._n[sl] > cap
+        if over.any():
+            o = sl[over]
+            f = cap / self._n[o]
+            self._sum[o] *= f[:, None]
+            self._n[o] = cap
+        if not unique:
+            _, first = np.unique(sl, return_index=True)
+            sl = sl[np.sort(first)]
+        return self._sum[sl] / self._n[sl, None]
+
+    def _new_slots(self, ukeys: list, slots: list) -> None:
+        """Give the cells of ``ukeys`` not in the grid (slot -1 in ``slots``) a free slot."""
         index = self._index
-        slots = list(map(index.get, ukeys, itertools.repeat(-1, len(ukeys))))
         for i, sl in enumerate(slots):
             if sl < 0:
                 sl = index.get(ukeys[i], -1)  # a cell new in this scan, hit twice
@@ -222,19 +247,6 @@ class ObstacleGrid:
                     self._key[sl] = ukeys[i]
                     self._used[sl] = True
                 slots[i] = sl
-        slots = np.asarray(slots, dtype=np.int64)
-        np.add.at(self._sum, slots, sums)
-        np.add.at(self._n, slots, counts)
-        self._t[slots] = t
-        over = self._n[slots] > self.params.max_hits_per_cell
-        if np.any(over):
-            o = slots[over]
-            f = self.params.max_hits_per_cell / self._n[o]
-            self._sum[o] *= f[:, None]
-            self._n[o] = self.params.max_hits_per_cell
-        _, first = np.unique(slots, return_index=True)
-        order = slots[np.sort(first)]
-        return self._sum[order] / self._n[order, None]
 
     def prune(self, t: float) -> None:
         """Clear cells not hit for ``cell_lifetime`` seconds (at most once per 0.5 s)."""
@@ -265,17 +277,23 @@ def fit_line(pts: np.ndarray, method: str = 'total') -> tuple[np.ndarray, np.nda
     ``ordinary``: regression of y on x (minimises vertical distances; undefined
     for a vertical line, where it returns the x axis direction of a degenerate fit).
     """
+    c, u, _ = _fit(pts, method)
+    return c, u
+
+
+def _fit(pts: np.ndarray, method: str) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Return (centroid, unit direction, points minus centroid) of :func:`fit_line`."""
     c = pts.sum(axis=0) / pts.shape[0]
     d = pts - c
     if method == 'ordinary':
         sxx = float(d[:, 0] @ d[:, 0])
         slope = float(d[:, 0] @ d[:, 1]) / sxx if sxx > 1e-12 else 0.0
         u = np.array([1.0, slope]) / math.hypot(1.0, slope)
-        return c, u
-    cov = d.T @ d
+        return c, u, d
+    cov = (d.T @ d).tolist()
     # closed-form principal direction of a 2x2 symmetric matrix
-    phi = 0.5 * math.atan2(2.0 * cov[0, 1], cov[0, 0] - cov[1, 1])
-    return c, np.array([math.cos(phi), math.sin(phi)])
+    phi = 0.5 * math.atan2(2.0 * cov[0][1], cov[0][0] - cov[1][1])
+    return c, np.array([math.cos(phi), math.sin(phi)]), d
 
 
 def condition1(pts: np.ndarray, params: LineParams, t: float = 0.0) -> Optional[Line]:
@@ -287,20 +305,18 @@ def condition1(pts: np.ndarray, params: LineParams, t: float = 0.0) -> Optional[
     else remove the preset number of farthest cells and refit.
     """
     pts = np.asarray(pts, dtype=float)
-    while pts.shape[0] >= max(params.min_cells, 2):
-        c, u = fit_line(pts, params.fit_method)
-        n = np.array([-u[1], u[0]])
-        along = (pts - c) @ u
-        dist = (pts - c) @ n
-        length = float(along.max() - along.min())
-        if length < params.min_length:  # seed S11
+    fewest = max(params.min_cells, 2)
+    while pts.shape[0] >= fewest:
+        c, u, d = _fit(pts, params.fit_method)
+        ux, uy = u.tolist()
+        along = d @ u
+        dist = d @ np.array([-uy, ux])
+        lo, hi = float(along.min()), float(along.max())
+        if hi - lo < params.min_length:  # seed S11
             return None
         var = float(dist @ dist) / dist.size  # seed S12
         if var <= params.max_variance:
-            p1 = c + along.min() * u
-            p2 = c + along.max() * u
-            line = line_from_endpoints(p1, p2, t, var, pts.shape[0])
-            return line
+            return line_from_endpoints(c + lo * u, c + hi * u, t, var, pts.shape[0])
         # seed S13: remove the farthest cells and refit
         keep = np.argsort(np.abs(dist))[:pts.shape[0] - params.remove_count]
         keep.sort()
@@ -311,26 +327,32 @@ def condition1(pts: np.ndarray, params: LineParams, t: float = 0.0) -> Optional[
 def split_segments(pts: np.ndarray, params: LineParams) -> list[np.ndarray]:
     """Split ordered cells (N, 2) (m) into candidate wall segments (gaps, then end-point fit)."""
     pts = np.asarray(pts, dtype=float).reshape(-1, 2)
-    if pts.shape[0] < params.min_cells:
+    min_cells = params.min_cells
+    if pts.shape[0] < min_cells:
         return []
     steps = np.linalg.norm(np.diff(pts, axis=0), axis=1)
-    cuts = np.flatnonzero(steps > params.max_gap) + 1
+    bounds = [0] + (np.flatnonzero(steps > params.max_gap) + 1).tolist() + [pts.shape[0]]
     out = []
-    stack = [p for p in np.split(pts, cuts) if p.shape[0] >= params.min_cells]
+    stack = [pts[i:j] for i, j in zip(bounds[:-1], bounds[1:]) if j - i >= min_cells]
+    split = params.split_distance
     while stack:
         seg = stack.pop()
-        a, b = seg[0], seg[-1]
-        chord = b - a
-        norm = math.hypot(chord[0], chord[1])
+        a = seg[0]
+        ax, ay = a.tolist()
+        bx, by = seg[-1].tolist()
+        cx, cy = bx - ax, by - ay
+        norm = math.hypot(cx, cy)
         if norm < 1e-9:
             d = np.linalg.norm(seg - a, axis=1)
         else:
-            d = np.abs((seg - a) @ np.array([-chord[1], chord[0]]) / norm)
-        k = int(np.argmax(d))
-        if d[k] > params.split_distance and 0 < k < seg.shape[0] - 1:
-            for part in (seg[:k + 1], seg[k:]):
-                if part.shape[0] >= params.min_cells:
-                    stack.append(part)
+            d = np.abs((seg - a) @ np.array([-cy, cx]) / norm)
+        k = int(d.argmax())
+        n = seg.shape[0]
+        if d[k] > split and 0 < k < n - 1:
+            if k + 1 >= min_cells:
+                stack.append(seg[:k + 1])
+            if n - k >= min_cells:
+                stack.append(seg[k:])
             continue
         out.append(seg)
     return out

@@ -167,6 +167,11 @@ class GyroLineBase(abc.ABC):
         """Return True when lines may be used at time ``t`` (s)."""
         return self.initialized and t >= self._untrusted_until
 
+    @property
+    def scan_rejected(self) -> Optional[str]:
+        """Return why the last scan was rejected (None: accepted), without a whole result."""
+        return self._scan_rejected
+
     def _corrections_snapshot(self) -> tuple:
         """Return the corrections as a tuple, rebuilt only when one was added."""
         last = self.corrections[-1] if self.corrections else None
