@@ -34,7 +34,6 @@ itself measures perpendicular cell-to-line distances. ``fit_method =
 from __future__ import annotations
 
 from dataclasses import dataclass
-from functools import cached_property
 import itertools
 import math
 from typing import Optional
@@ -73,6 +72,28 @@ class LineParams:
                             choices=('total', 'ordinary'))
 
 
+class _cached:
+    """
+    A lazily computed attribute, stored on the instance on first use.
+
+    Like :class:`functools.cached_property` without its per-access lock (Python
+    3.11), which cost more than the values (a 2-vector) it guards.
+    """
+
+    def __init__(self, func):
+        """Wrap ``func(instance)``."""
+        self.func = func
+        self.name = func.__name__
+        self.__doc__ = func.__doc__
+
+    def __get__(self, obj, owner=None):
+        """Compute the value once and keep it in the instance's ``__dict__``."""
+        if obj is None:
+            return self
+        value = obj.__dict__[self.name] = self.func(obj)
+        return value
+
+
 @dataclass(frozen=True)
 class Line:
     """
@@ -96,22 +117,22 @@ class Line:
     n_cells: int
     t: float = 0.0
 
-    @cached_property
+    @_cached
     def midpoint(self) -> np.ndarray:
         """Return the middle of the segment (m)."""
         return 0.5 * (self.p1 + self.p2)
 
-    @cached_property
+    @_cached
     def direction(self) -> np.ndarray:
         """Return the unit vector along the line, (cos angle, sin angle)."""
         return np.array([math.cos(self.angle), math.sin(self.angle)])
 
-    @cached_property
+    @_cached
     def normal(self) -> np.ndarray:
         """Return the unit vector across the line, (-sin angle, cos angle)."""
         return np.array([-math.sin(self.angle), math.cos(self.angle)])
 
-    @cached_property
+    @_cached
     def rho(self) -> float:
         """Return the signed distance (m) of the line from the origin along :attr:`normal`."""
         return float(self.normal @ self.midpoint)
@@ -132,7 +153,8 @@ def line_from_endpoints(p1, p2, t: float = 0.0, variance: float = 0.0,
     """Return a :class:`Line` through two points (m), endpoints ordered canonically."""
     p1 = np.asarray(p1, dtype=float)
     p2 = np.asarray(p2, dtype=float)
-    dx, dy = float(p2[0] - p1[0]), float(p2[1] - p1[1])
+    (x1, y1), (x2, y2) = p1.tolist(), p2.tolist()
+    dx, dy = x2 - x1, y2 - y1
     angle = math.atan2(dy, dx)
     if angle > math.pi / 2:
         angle -= math.pi
@@ -205,7 +227,7 @@ class ObstacleGrid:
         keys = self._keys(pts)
         change = np.ones(keys.size, dtype=bool)
         change[1:] = keys[1:] != keys[:-1]
-        starts = np.flatnonzero(change)
+        starts = change.nonzero()[0]
         sums = np.add.reduceat(pts, starts, axis=0)
         counts = np.diff(np.append(starts, keys.size)).astype(float)
         ukeys = keys[starts].tolist()
@@ -331,7 +353,7 @@ def split_segments(pts: np.ndarray, params: LineParams) -> list[np.ndarray]:
     if pts.shape[0] < min_cells:
         return []
     steps = np.linalg.norm(np.diff(pts, axis=0), axis=1)
-    bounds = [0] + (np.flatnonzero(steps > params.max_gap) + 1).tolist() + [pts.shape[0]]
+    bounds = [0] + ((steps > params.max_gap).nonzero()[0] + 1).tolist() + [pts.shape[0]]
     out = []
     stack = [pts[i:j] for i, j in zip(bounds[:-1], bounds[1:]) if j - i >= min_cells]
     split = params.split_distance

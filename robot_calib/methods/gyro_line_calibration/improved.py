@@ -77,6 +77,8 @@ class ImprovedGyroLine(GyroLineBase):
 
     def _gate(self, refs: list, line: Line, margin: float, chi2: float,
               pre: Optional[tuple] = None) -> list[tuple]:
+        if not refs or (pre is not None and not pre[2].any()):
+            return []  # nothing to gate: no need for the line's noise
         return gate(refs, line, margin, chi2, self.x, self.P, self._line_noise(line),
                     self.params.match.angle_tolerance, pre)
 

@@ -121,7 +121,7 @@ def gate(refs: list, line: Line, margin: float, chi2: float, x: np.ndarray, P: n
         pre = (err[0], dist[0], ok[0], u, nrm)
     err, dist, ok, u, nrm = pre
     out = []
-    idx = np.flatnonzero(ok)
+    idx = ok.nonzero()[0]
     if idx.size == 0:
         return out
     (p00, p01, p02), (_, p11, p12), (_, _, p22) = P[:3, :3].tolist()
