@@ -154,6 +154,15 @@ def line_from_endpoints(p1, p2, t: float = 0.0, variance: float = 0.0,
     p1 = np.asarray(p1, dtype=float)
     p2 = np.asarray(p2, dtype=float)
     (x1, y1), (x2, y2) = p1.tolist(), p2.tolist()
+    return _line_xy(x1, y1, x2, y2, t, variance, n_cells, p1, p2)
+
+
+def _line_xy(x1: float, y1: float, x2: float, y2: float, t: float, variance: float,
+             n_cells: int, p1: Optional[np.ndarray] = None,
+             p2: Optional[np.ndarray] = None) -> Line:
+    """Return :func:`line_from_endpoints` of (x1, y1), (x2, y2) (m) (the arrays when given)."""
+    if p1 is None:
+        p1, p2 = np.array([x1, y1]), np.array([x2, y2])
     dx, dy = x2 - x1, y2 - y1
     angle = math.atan2(dy, dx)
     if angle > math.pi / 2:
@@ -235,7 +244,8 @@ class ObstacleGrid:
         if -1 in slots:
             self._new_slots(ukeys, slots)
         sl = np.asarray(slots, dtype=np.int64)
-        unique = len(set(slots)) == len(slots)
+        first = dict.fromkeys(slots)  # the distinct slots in the order first hit
+        unique = len(first) == len(slots)
         if unique:  # the usual case: each cell once, a plain (same-valued) sum
             self._sum[sl] += sums
             self._n[sl] += counts
@@ -251,8 +261,7 @@ class ObstacleGrid:
             self._sum[o] *= f[:, None]
             self._n[o] = cap
         if not unique:
-            _, first = np.unique(sl, return_index=True)
-            sl = sl[np.sort(first)]
+            sl = np.fromiter(first, dtype=np.int64, count=len(first))
         return self._sum[sl] / self._n[sl, None]
 
     def _new_slots(self, ukeys: list, slots: list) -> None:
@@ -337,8 +346,10 @@ def condition1(pts: np.ndarray, params: LineParams, t: float = 0.0) -> Optional[
         if hi - lo < params.min_length:  # seed S11
             return None
         var = float(dist @ dist) / dist.size  # seed S12
-        if var <= params.max_variance:
-            return line_from_endpoints(c + lo * u, c + hi * u, t, var, pts.shape[0])
+        if var <= params.max_variance:  # endpoints c + lo u, c + hi u
+            cx, cy = c.tolist()
+            return _line_xy(cx + lo * ux, cy + lo * uy, cx + hi * ux, cy + hi * uy, t, var,
+                            pts.shape[0])
         # seed S13: remove the farthest cells and refit
         keep = np.argsort(np.abs(dist))[:pts.shape[0] - params.remove_count]
         keep.sort()
