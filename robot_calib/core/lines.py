@@ -314,7 +314,7 @@ def fit_line(pts: np.ndarray, method: str = 'total') -> tuple[np.ndarray, np.nda
 
 def _fit(pts: np.ndarray, method: str) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Return (centroid, unit direction, points minus centroid) of :func:`fit_line`."""
-    c = pts.sum(axis=0) / pts.shape[0]
+    c = np.add.reduce(pts, axis=0) / pts.shape[0]  # = pts.sum(axis=0), without its wrapper
     d = pts - c
     if method == 'ordinary':
         sxx = float(d[:, 0] @ d[:, 0])
@@ -342,7 +342,7 @@ def condition1(pts: np.ndarray, params: LineParams, t: float = 0.0) -> Optional[
         ux, uy = u.tolist()
         along = d @ u
         dist = d @ np.array([-uy, ux])
-        lo, hi = float(along.min()), float(along.max())
+        lo, hi = float(np.minimum.reduce(along)), float(np.maximum.reduce(along))
         if hi - lo < params.min_length:  # seed S11
             return None
         var = float(dist @ dist) / dist.size  # seed S12
@@ -351,7 +351,7 @@ def condition1(pts: np.ndarray, params: LineParams, t: float = 0.0) -> Optional[
             return _line_xy(cx + lo * ux, cy + lo * uy, cx + hi * ux, cy + hi * uy, t, var,
                             pts.shape[0])
         # seed S13: remove the farthest cells and refit
-        keep = np.argsort(np.abs(dist))[:pts.shape[0] - params.remove_count]
+        keep = np.abs(dist).argsort()[:pts.shape[0] - params.remove_count]
         keep.sort()
         pts = pts[keep]
     return None
