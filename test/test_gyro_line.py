@@ -311,3 +311,33 @@ def test_pipeline_publishes_corrected_odometry_with_input_stamp():
     assert odoms[-1].frame_id == 'map' and np.all(np.isfinite(odoms[-1].pose_cov))
     summary = pipe.summary()
     assert summary['mode'] == 'improved' and 'events' in summary
+
+
+def test_gyro_z_of_an_identity_mounting_equals_the_matrix_product():
+    core = make_estimator()
+    rot = core._imu_rot
+    for g in ([0.1, -0.2, 0.3], [0.0, 0.0, -0.0], [-0.0, 1.0, 0.0], [np.inf, 0.0, 0.2],
+              [np.nan, 1.0, 0.5], [1e-300, -2.0, -7.5]):
+        want = float((rot @ np.asarray(g, dtype=float))[2])
+        got = core._gyro_z(np.asarray(g, dtype=float))
+        assert got == want or (math.isnan(got) and math.isnan(want))
+        assert math.copysign(1.0, got) == math.copysign(1.0, want)
+
+
+def test_scan_points_mounting_and_motion_equal_a_per_beam_deskew():
+    from robot_calib.core import frames
+    rng = np.random.default_rng(2)
+    ranges = rng.uniform(0.1, 8.0, 500)
+    ranges[::7] = np.inf
+    s = T.ScanSample(0.0, -2.0, 0.008, ranges, time_increment=1e-4)
+    pose, motion = (0.2, -0.1, 0.7), frames.constant_motion(0.5, 0.3)
+    pts, idx = frames.scan_points(s, pose, 6.0, motion)
+    idx2, r, ang = s.beams(6.0)
+    ref = frames.deskew(np.column_stack((r * np.cos(ang), r * np.sin(ang))),
+                        np.tile(pose, (r.size, 1)))
+    ref = frames.deskew(ref, motion(s.beam_times(idx2)))
+    assert np.array_equal(idx, idx2)
+    assert np.allclose(pts, ref, rtol=0.0, atol=1e-12)
+    ref = motion.apply(frames.deskew(np.column_stack((r * np.cos(ang), r * np.sin(ang))),
+                                     np.tile(pose, (r.size, 1))), s.beam_times(idx2))
+    assert np.array_equal(pts, ref)   # the same operations, to the bit

@@ -111,3 +111,43 @@ def test_grid_is_bounded_and_forgets_stale_cells():
     assert len(g) == 1            # everything older than the lifetime is gone
     g.clear()
     assert len(g) == 0 and g.centroids().shape == (0, 2)
+
+
+def _grid_reference(scans, p):
+    """Per-hit reference of ObstacleGrid: running sums per cell, capped after each scan."""
+    cells, out = {}, []
+    for pts in scans:
+        keys = [tuple(k) for k in np.floor(pts / p.resolution).astype(np.int64).tolist()]
+        starts = [i for i in range(len(keys)) if i == 0 or keys[i] != keys[i - 1]]
+        sums = np.add.reduceat(pts, starts, axis=0)
+        ends = starts[1:] + [len(keys)]
+        order = []
+        for (i, j), s in zip(zip(starts, ends), sums):
+            c = cells.setdefault(keys[i], [np.zeros(2), 0.0])
+            c[0] = c[0] + s
+            c[1] += float(j - i)
+            if keys[i] not in order:
+                order.append(keys[i])
+        for k in order:
+            if cells[k][1] > p.max_hits_per_cell:
+                cells[k][0] = cells[k][0] * (p.max_hits_per_cell / cells[k][1])
+                cells[k][1] = float(p.max_hits_per_cell)
+        out.append(np.array([cells[k][0] / cells[k][1] for k in order]))
+    return out
+
+
+def test_grid_matches_a_per_hit_reference_exactly():
+    # scans along a grazing wall hit a cell, its neighbour, then the cell again (repeats
+    # that are not consecutive), others hit each cell once: both update paths, to the bit
+    p = LineParams(resolution=0.05, max_hits_per_cell=5)
+    rng = np.random.default_rng(4)
+    scans = []
+    for k in range(30):
+        x = np.linspace(0.0, 1.0, 60)
+        wall = np.column_stack((x, 0.049 + rng.normal(0.0, 0.002, x.size)))
+        scans.append(wall if k % 2 else np.array([[0.01 + 0.05 * i, 0.3] for i in range(20)]))
+    g = ObstacleGrid(p)
+    for pts, ref in zip(scans, _grid_reference(scans, p)):
+        got = g.add_points(pts, 0.0)
+        assert got.shape == ref.shape
+        assert np.array_equal(got, ref)

@@ -100,10 +100,13 @@ class ConstantMotion:
 
     def apply(self, points: np.ndarray, dt: np.ndarray) -> np.ndarray:
         """Return ``R(w dt) p + (v dt, 0)``: points measured ``dt`` s after the stamp, at it."""
+        return np.column_stack(self._apply_xy(points[:, 0], points[:, 1], dt))
+
+    def _apply_xy(self, x: np.ndarray, y: np.ndarray, dt: np.ndarray) -> tuple:
+        """Return :meth:`apply` of points given as x and y arrays (m), as x and y arrays."""
         th = self.w * dt
         c, s = np.cos(th), np.sin(th)
-        x, y = points[:, 0], points[:, 1]
-        return np.column_stack((c * x - s * y + self.v * dt, s * x + c * y))
+        return c * x - s * y + self.v * dt, s * x + c * y
 
 
 def constant_motion(v: float, w: float) -> ConstantMotion:
@@ -138,13 +141,17 @@ def scan_points(scan: ScanSample, sensor_pose: Optional[Sequence[float]] = None,
     0), each point is de-skewed into the frame at the stamp.
     """
     idx, r, ang = scan.beams(max_range)
-    pts = np.column_stack((r * np.cos(ang), r * np.sin(ang)))
-    if sensor_pose is not None and len(pts):
-        x, y, yaw = (float(v) for v in sensor_pose)
-        pts = deskew(pts, np.broadcast_to(np.array([x, y, yaw]), (len(pts), 3)))
-    if motion is not None and len(pts) and scan.time_increment != 0.0 \
+    x, y = r * np.cos(ang), r * np.sin(ang)
+    if sensor_pose is not None and len(x):
+        # deskew() with one pose for every point, its cosine and sine computed once
+        px, py, yaw = (float(v) for v in sensor_pose)
+        c, s = np.cos(np.float64(yaw)), np.sin(np.float64(yaw))
+        x, y = px + c * x - s * y, py + s * x + c * y
+    if motion is not None and len(x) and scan.time_increment != 0.0 \
             and math.isfinite(scan.time_increment):
         dt = scan.beam_times(idx)
-        pts = motion.apply(pts, dt) if isinstance(motion, ConstantMotion) else deskew(
-            pts, motion(dt))
-    return pts, idx
+        if isinstance(motion, ConstantMotion):
+            x, y = motion._apply_xy(x, y, dt)
+        else:
+            return deskew(np.column_stack((x, y)), motion(dt)), idx
+    return np.column_stack((x, y)), idx

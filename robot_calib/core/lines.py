@@ -34,7 +34,6 @@ itself measures perpendicular cell-to-line distances. ``fit_method =
 from __future__ import annotations
 
 from dataclasses import dataclass
-from functools import cached_property
 import itertools
 import math
 from typing import Optional
@@ -73,6 +72,28 @@ class LineParams:
                             choices=('total', 'ordinary'))
 
 
+class _cached:
+    """
+    A lazily computed attribute, stored on the instance on first use.
+
+    Like :class:`functools.cached_property` without its per-access lock (Python
+    3.11), which cost more than the values (a 2-vector) it guards.
+    """
+
+    def __init__(self, func):
+        """Wrap ``func(instance)``."""
+        self.func = func
+        self.name = func.__name__
+        self.__doc__ = func.__doc__
+
+    def __get__(self, obj, owner=None):
+        """Compute the value once and keep it in the instance's ``__dict__``."""
+        if obj is None:
+            return self
+        value = obj.__dict__[self.name] = self.func(obj)
+        return value
+
+
 @dataclass(frozen=True)
 class Line:
     """
@@ -96,22 +117,22 @@ class Line:
     n_cells: int
     t: float = 0.0
 
-    @cached_property
+    @_cached
     def midpoint(self) -> np.ndarray:
         """Return the middle of the segment (m)."""
         return 0.5 * (self.p1 + self.p2)
 
-    @cached_property
+    @_cached
     def direction(self) -> np.ndarray:
         """Return the unit vector along the line, (cos angle, sin angle)."""
         return np.array([math.cos(self.angle), math.sin(self.angle)])
 
-    @cached_property
+    @_cached
     def normal(self) -> np.ndarray:
         """Return the unit vector across the line, (-sin angle, cos angle)."""
         return np.array([-math.sin(self.angle), math.cos(self.angle)])
 
-    @cached_property
+    @_cached
     def rho(self) -> float:
         """Return the signed distance (m) of the line from the origin along :attr:`normal`."""
         return float(self.normal @ self.midpoint)
@@ -132,7 +153,17 @@ def line_from_endpoints(p1, p2, t: float = 0.0, variance: float = 0.0,
     """Return a :class:`Line` through two points (m), endpoints ordered canonically."""
     p1 = np.asarray(p1, dtype=float)
     p2 = np.asarray(p2, dtype=float)
-    dx, dy = float(p2[0] - p1[0]), float(p2[1] - p1[1])
+    (x1, y1), (x2, y2) = p1.tolist(), p2.tolist()
+    return _line_xy(x1, y1, x2, y2, t, variance, n_cells, p1, p2)
+
+
+def _line_xy(x1: float, y1: float, x2: float, y2: float, t: float, variance: float,
+             n_cells: int, p1: Optional[np.ndarray] = None,
+             p2: Optional[np.ndarray] = None) -> Line:
+    """Return :func:`line_from_endpoints` of (x1, y1), (x2, y2) (m) (the arrays when given)."""
+    if p1 is None:
+        p1, p2 = np.array([x1, y1]), np.array([x2, y2])
+    dx, dy = x2 - x1, y2 - y1
     angle = math.atan2(dy, dx)
     if angle > math.pi / 2:
         angle -= math.pi
@@ -205,12 +236,37 @@ class ObstacleGrid:
         keys = self._keys(pts)
         change = np.ones(keys.size, dtype=bool)
         change[1:] = keys[1:] != keys[:-1]
-        starts = np.flatnonzero(change)
+        starts = change.nonzero()[0]
         sums = np.add.reduceat(pts, starts, axis=0)
         counts = np.diff(np.append(starts, keys.size)).astype(float)
         ukeys = keys[starts].tolist()
+        slots = list(map(self._index.get, ukeys, itertools.repeat(-1, len(ukeys))))
+        if -1 in slots:
+            self._new_slots(ukeys, slots)
+        sl = np.asarray(slots, dtype=np.int64)
+        first = dict.fromkeys(slots)  # the distinct slots in the order first hit
+        unique = len(first) == len(slots)
+        if unique:  # the usual case: each cell once, a plain (same-valued) sum
+            self._sum[sl] += sums
+            self._n[sl] += counts
+        else:  # a cell new in this scan hit twice (not consecutively)
+            np.add.at(self._sum, sl, sums)
+            np.add.at(self._n, sl, counts)
+        self._t[sl] = t
+        cap = self.params.max_hits_per_cell
+        over = self._n[sl] > cap
+        if over.any():
+            o = sl[over]
+            f = cap / self._n[o]
+            self._sum[o] *= f[:, None]
+            self._n[o] = cap
+        if not unique:
+            sl = np.fromiter(first, dtype=np.int64, count=len(first))
+        return self._sum[sl] / self._n[sl, None]
+
+    def _new_slots(self, ukeys: list, slots: list) -> None:
+        """Give the cells of ``ukeys`` not in the grid (slot -1 in ``slots``) a free slot."""
         index = self._index
-        slots = list(map(index.get, ukeys, itertools.repeat(-1, len(ukeys))))
         for i, sl in enumerate(slots):
             if sl < 0:
                 sl = index.get(ukeys[i], -1)  # a cell new in this scan, hit twice
@@ -222,19 +278,6 @@ class ObstacleGrid:
                     self._key[sl] = ukeys[i]
                     self._used[sl] = True
                 slots[i] = sl
-        slots = np.asarray(slots, dtype=np.int64)
-        np.add.at(self._sum, slots, sums)
-        np.add.at(self._n, slots, counts)
-        self._t[slots] = t
-        over = self._n[slots] > self.params.max_hits_per_cell
-        if np.any(over):
-            o = slots[over]
-            f = self.params.max_hits_per_cell / self._n[o]
-            self._sum[o] *= f[:, None]
-            self._n[o] = self.params.max_hits_per_cell
-        _, first = np.unique(slots, return_index=True)
-        order = slots[np.sort(first)]
-        return self._sum[order] / self._n[order, None]
 
     def prune(self, t: float) -> None:
         """Clear cells not hit for ``cell_lifetime`` seconds (at most once per 0.5 s)."""
@@ -265,17 +308,23 @@ def fit_line(pts: np.ndarray, method: str = 'total') -> tuple[np.ndarray, np.nda
     ``ordinary``: regression of y on x (minimises vertical distances; undefined
     for a vertical line, where it returns the x axis direction of a degenerate fit).
     """
-    c = pts.sum(axis=0) / pts.shape[0]
+    c, u, _ = _fit(pts, method)
+    return c, u
+
+
+def _fit(pts: np.ndarray, method: str) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Return (centroid, unit direction, points minus centroid) of :func:`fit_line`."""
+    c = np.add.reduce(pts, axis=0) / pts.shape[0]  # = pts.sum(axis=0), without its wrapper
     d = pts - c
     if method == 'ordinary':
         sxx = float(d[:, 0] @ d[:, 0])
         slope = float(d[:, 0] @ d[:, 1]) / sxx if sxx > 1e-12 else 0.0
         u = np.array([1.0, slope]) / math.hypot(1.0, slope)
-        return c, u
-    cov = d.T @ d
+        return c, u, d
+    cov = (d.T @ d).tolist()
     # closed-form principal direction of a 2x2 symmetric matrix
-    phi = 0.5 * math.atan2(2.0 * cov[0, 1], cov[0, 0] - cov[1, 1])
-    return c, np.array([math.cos(phi), math.sin(phi)])
+    phi = 0.5 * math.atan2(2.0 * cov[0][1], cov[0][0] - cov[1][1])
+    return c, np.array([math.cos(phi), math.sin(phi)]), d
 
 
 def condition1(pts: np.ndarray, params: LineParams, t: float = 0.0) -> Optional[Line]:
@@ -287,22 +336,22 @@ def condition1(pts: np.ndarray, params: LineParams, t: float = 0.0) -> Optional[
     else remove the preset number of farthest cells and refit.
     """
     pts = np.asarray(pts, dtype=float)
-    while pts.shape[0] >= max(params.min_cells, 2):
-        c, u = fit_line(pts, params.fit_method)
-        n = np.array([-u[1], u[0]])
-        along = (pts - c) @ u
-        dist = (pts - c) @ n
-        length = float(along.max() - along.min())
-        if length < params.min_length:  # seed S11
+    fewest = max(params.min_cells, 2)
+    while pts.shape[0] >= fewest:
+        c, u, d = _fit(pts, params.fit_method)
+        ux, uy = u.tolist()
+        along = d @ u
+        dist = d @ np.array([-uy, ux])
+        lo, hi = float(np.minimum.reduce(along)), float(np.maximum.reduce(along))
+        if hi - lo < params.min_length:  # seed S11
             return None
         var = float(dist @ dist) / dist.size  # seed S12
-        if var <= params.max_variance:
-            p1 = c + along.min() * u
-            p2 = c + along.max() * u
-            line = line_from_endpoints(p1, p2, t, var, pts.shape[0])
-            return line
+        if var <= params.max_variance:  # endpoints c + lo u, c + hi u
+            cx, cy = c.tolist()
+            return _line_xy(cx + lo * ux, cy + lo * uy, cx + hi * ux, cy + hi * uy, t, var,
+                            pts.shape[0])
         # seed S13: remove the farthest cells and refit
-        keep = np.argsort(np.abs(dist))[:pts.shape[0] - params.remove_count]
+        keep = np.abs(dist).argsort()[:pts.shape[0] - params.remove_count]
         keep.sort()
         pts = pts[keep]
     return None
@@ -311,26 +360,32 @@ def condition1(pts: np.ndarray, params: LineParams, t: float = 0.0) -> Optional[
 def split_segments(pts: np.ndarray, params: LineParams) -> list[np.ndarray]:
     """Split ordered cells (N, 2) (m) into candidate wall segments (gaps, then end-point fit)."""
     pts = np.asarray(pts, dtype=float).reshape(-1, 2)
-    if pts.shape[0] < params.min_cells:
+    min_cells = params.min_cells
+    if pts.shape[0] < min_cells:
         return []
     steps = np.linalg.norm(np.diff(pts, axis=0), axis=1)
-    cuts = np.flatnonzero(steps > params.max_gap) + 1
+    bounds = [0] + ((steps > params.max_gap).nonzero()[0] + 1).tolist() + [pts.shape[0]]
     out = []
-    stack = [p for p in np.split(pts, cuts) if p.shape[0] >= params.min_cells]
+    stack = [pts[i:j] for i, j in zip(bounds[:-1], bounds[1:]) if j - i >= min_cells]
+    split = params.split_distance
     while stack:
         seg = stack.pop()
-        a, b = seg[0], seg[-1]
-        chord = b - a
-        norm = math.hypot(chord[0], chord[1])
+        a = seg[0]
+        ax, ay = a.tolist()
+        bx, by = seg[-1].tolist()
+        cx, cy = bx - ax, by - ay
+        norm = math.hypot(cx, cy)
         if norm < 1e-9:
             d = np.linalg.norm(seg - a, axis=1)
         else:
-            d = np.abs((seg - a) @ np.array([-chord[1], chord[0]]) / norm)
-        k = int(np.argmax(d))
-        if d[k] > params.split_distance and 0 < k < seg.shape[0] - 1:
-            for part in (seg[:k + 1], seg[k:]):
-                if part.shape[0] >= params.min_cells:
-                    stack.append(part)
+            d = np.abs((seg - a) @ np.array([-cy, cx]) / norm)
+        k = int(d.argmax())
+        n = seg.shape[0]
+        if d[k] > split and 0 < k < n - 1:
+            if k + 1 >= min_cells:
+                stack.append(seg[:k + 1])
+            if n - k >= min_cells:
+                stack.append(seg[k:])
             continue
         out.append(seg)
     return out

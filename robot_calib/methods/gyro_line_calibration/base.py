@@ -82,6 +82,7 @@ class GyroLineBase(abc.ABC):
         self._switched = False
         self._t0 = None
         self._imu_t = None
+        self._rot_seen, self._rot_identity = None, False
         self._last_imu_rate = 0.0
         self._odom_prev = None
         self._odom_t = None
@@ -167,6 +168,11 @@ class GyroLineBase(abc.ABC):
         """Return True when lines may be used at time ``t`` (s)."""
         return self.initialized and t >= self._untrusted_until
 
+    @property
+    def scan_rejected(self) -> Optional[str]:
+        """Return why the last scan was rejected (None: accepted), without a whole result."""
+        return self._scan_rejected
+
     def _corrections_snapshot(self) -> tuple:
         """Return the corrections as a tuple, rebuilt only when one was added."""
         last = self.corrections[-1] if self.corrections else None
@@ -236,7 +242,7 @@ class GyroLineBase(abc.ABC):
     def _update_imu(self, s: T.ImuSample) -> None:
         """Integrate one IMU sample (gyro rad/s in the IMU frame)."""
         self._start(s.t)
-        rate = float((self._imu_rot @ np.asarray(s.gyro, dtype=float))[2])
+        rate = self._gyro_z(s.gyro)
         prev = self._imu_t
         prev_rate = self._last_imu_rate
         self._imu_t = s.t
@@ -255,6 +261,20 @@ class GyroLineBase(abc.ABC):
         self._integrate_rate(0.5 * (rate + prev_rate), dt,  # trapezoidal rule
                              self.params.improved.gyro_noise)
         self._carried_check(s.t)
+
+    def _gyro_z(self, gyro: np.ndarray) -> float:
+        """Return the yaw rate (rad/s) in base_link of a gyro vector (rad/s, IMU frame)."""
+        rot = self._imu_rot
+        if rot is not self._rot_seen:  # a new mounting: is it exactly the identity?
+            self._rot_seen = rot
+            self._rot_identity = bool(np.array_equal(rot, np.eye(3)))
+        if self._rot_identity:
+            gx, gy, gz = gyro[0], gyro[1], gyro[2]
+            # the identity's row 2 gives gz exactly, in any summation order, unless an
+            # inf or nan spoils 0 * g or gz is a zero whose sign the sum may change
+            if gz != 0.0 and math.isfinite(gx) and math.isfinite(gy) and math.isfinite(gz):
+                return float(gz)
+        return float((rot @ np.asarray(gyro, dtype=float))[2])
 
     def _integrate_rate(self, rate: float, dt: float, noise: float) -> None:
         # heading = integral of (1 - s) * rate - b; noise: angle random walk (rad/sqrt(s))
@@ -292,7 +312,7 @@ class GyroLineBase(abc.ABC):
         """Apply one odometry sample (pose in the odometry frame, m and rad)."""
         self._start(s.t)
         self._check_phase_time(s.t)
-        cur = np.array([s.x, s.y, s.yaw])
+        cur = (float(s.x), float(s.y), float(s.yaw))
         if not self.initialized:
             self.x[:3] = cur
             self.initialized = True
@@ -334,11 +354,11 @@ class GyroLineBase(abc.ABC):
         self.x[0] += dx
         self.x[1] += dy
         P = self.P
-        # P = F P F^T with F = I - dy e0 e2^T + dx e1 e2^T (rows, then columns)
-        P[0, :] -= dy * P[2, :]
-        P[1, :] += dx * P[2, :]
-        P[:, 0] -= dy * P[:, 2]
-        P[:, 1] += dx * P[:, 2]
+        # P = F P F^T with F = I - dy e0 e2^T + dx e1 e2^T (rows, then columns);
+        # p + (-dy) q is p - dy q exactly (IEEE), so rows 0, 1 go in one outer product
+        f = np.array([-dy, dx])
+        P[:2, :] += np.multiply.outer(f, P[2, :])
+        P[:, :2] += np.multiply.outer(P[:, 2], f)
         q = self.params.improved.odom_noise ** 2 * dist
         P[0, 0] += q
         P[1, 1] += q

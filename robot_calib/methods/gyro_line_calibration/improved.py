@@ -37,7 +37,7 @@ from robot_calib.core.lines import Line, line_from_endpoints
 from robot_calib.methods.gyro_line_calibration.base import GyroLineBase
 from robot_calib.methods.gyro_line_calibration.common import Correction, Reference
 from robot_calib.methods.gyro_line_calibration.improved_gate import (
-    gate, line_jacobian, line_model, line_noise, overlaps, prefilter)
+    gate, line_jacobian, line_model, line_noise, overlaps, prefilter, ref_arrays)
 
 
 class ImprovedGyroLine(GyroLineBase):
@@ -58,6 +58,7 @@ class ImprovedGyroLine(GyroLineBase):
         self._support: deque = deque()
         self._last_update = -math.inf
         self._cum_correction = 0.0
+        self._ref_cache: tuple = ((), None)  # (reference lines, their ref_arrays)
 
     def _tentative_count(self) -> int:
         return len(self.tentative)
@@ -76,8 +77,19 @@ class ImprovedGyroLine(GyroLineBase):
 
     def _gate(self, refs: list, line: Line, margin: float, chi2: float,
               pre: Optional[tuple] = None) -> list[tuple]:
+        if not refs or (pre is not None and not pre[2].any()):
+            return []  # nothing to gate: no need for the line's noise
         return gate(refs, line, margin, chi2, self.x, self.P, self._line_noise(line),
                     self.params.match.angle_tolerance, pre)
+
+    def _ref_arrays(self) -> tuple:
+        """Return :func:`ref_arrays` of the references, rebuilt only when a line changed."""
+        key = [r.line for r in self.references]
+        old, arrays = self._ref_cache
+        if arrays is None or len(key) != len(old) or any(a is not b for a, b in zip(key, old)):
+            arrays = ref_arrays(self.references)
+            self._ref_cache = (key, arrays)  # the lines are frozen: identity is enough
+        return arrays
 
     def _improved_step(self, lines: list[Line], t: float) -> list[Correction]:
         """Match one scan's lines, grow the tentative references, update the filter."""
@@ -85,8 +97,8 @@ class ImprovedGyroLine(GyroLineBase):
         pos_sigma = math.sqrt(max(self.P[0, 0], self.P[1, 1], 0.0))
         margin = ip.overlap_margin + 3.0 * pos_sigma
         matches = []
-        pre = prefilter(self.references, lines, margin, self.params.match.angle_tolerance) \
-            if self.references else None
+        pre = prefilter(self.references, lines, margin, self.params.match.angle_tolerance,
+                        self._ref_arrays()) if self.references else None
         for k, line in enumerate(lines):
             gated = self._gate(self.references, line, margin, 4.0 * ip.gate_chi2,
                                None if pre is None else

@@ -28,7 +28,7 @@ def line_noise(line: Line, ip: ImprovedParams) -> np.ndarray:
     """Return the covariance (angle rad^2, distance m^2) of a fitted line."""
     sa = line.angle_sigma() ** 2 + ip.line_angle_sigma ** 2
     sr = line.variance / max(line.n_cells, 1) + ip.line_sigma ** 2
-    return np.diag([sa, sr])
+    return np.array([[sa, 0.0], [0.0, sr]])
 
 
 def line_jacobian(line: Line, normal: np.ndarray, position: np.ndarray) -> np.ndarray:
@@ -121,36 +121,34 @@ def gate(refs: list, line: Line, margin: float, chi2: float, x: np.ndarray, P: n
         pre = (err[0], dist[0], ok[0], u, nrm)
     err, dist, ok, u, nrm = pre
     out = []
-    idx = np.flatnonzero(ok)
+    idx = ok.nonzero()[0]
     if idx.size == 0:
         return out
-    p00, p01, p02, p11, p12, p22 = P[0, 0], P[0, 1], P[0, 2], P[1, 1], P[1, 2], P[2, 2]
-    m = line.midpoint
-    lx, ly = m[0] - x[0], m[1] - x[1]
-    rl0, rl1 = R_line[0, 0], R_line[1, 1]
-    for i in idx.tolist():
-        ref = refs[i]
-        nx, ny = float(nrm[i, 0]), float(nrm[i, 1])
-        ux, uy = float(u[i, 0]), float(u[i, 1])
-        y0 = float(err[i])
-        y1 = float(dist[i])  # rho_ref - n . midpoint
+    (p00, p01, p02), (_, p11, p12), (_, _, p22) = P[:3, :3].tolist()
+    mx, my = line.midpoint.tolist()
+    x0, x1 = x[:2].tolist()
+    lx, ly = mx - x0, my - x1
+    rl0, rl1 = float(R_line[0, 0]), float(R_line[1, 1])
+    for i, (nx, ny), (ux, uy), y0, y1 in zip(idx.tolist(), nrm[idx].tolist(), u[idx].tolist(),
+                                             err[idx].tolist(), dist[idx].tolist()):
+        ref = refs[i]  # y0: angle error (rad), y1: rho_ref - n . midpoint (m)
         h12 = nx * -ly + ny * lx
-        rm = ref.line.midpoint
-        sl = ux * (m[0] - rm[0]) + uy * (m[1] - rm[1])
-        C = ref.cov
+        rmx, rmy = ref.line.midpoint.tolist()
+        sl = ux * (mx - rmx) + uy * (my - rmy)
+        (c00, c01), (_, c11) = ref.cov.tolist()
         # S = H P H^T + A C A^T + R_line, H = [[0, 0, 1], [nx, ny, h12]], A = [[1, 0], [s, 1]]
-        s00 = p22 + C[0, 0] + rl0
-        s01 = nx * p02 + ny * p12 + h12 * p22 + sl * C[0, 0] + C[0, 1]
+        s00 = p22 + c00 + rl0
+        s01 = nx * p02 + ny * p12 + h12 * p22 + sl * c00 + c01
         s11 = (nx * nx * p00 + 2 * nx * ny * p01 + ny * ny * p11 + 2 * nx * h12 * p02
                + 2 * ny * h12 * p12 + h12 * h12 * p22
-               + sl * sl * C[0, 0] + 2 * sl * C[0, 1] + C[1, 1] + rl1)
+               + sl * sl * c00 + 2 * sl * c01 + c11 + rl1)
         det = s00 * s11 - s01 * s01
         if not det > 0.0:
             continue
         nis = (s11 * y0 * y0 - 2.0 * s01 * y0 * y1 + s00 * y1 * y1) / det
         if nis <= chi2:
-            r01 = sl * C[0, 0] + C[0, 1]
-            R = np.array([[C[0, 0] + rl0, r01],
-                          [r01, sl * sl * C[0, 0] + 2 * sl * C[0, 1] + C[1, 1] + rl1]])
+            r01 = sl * c00 + c01
+            R = np.array([[c00 + rl0, r01],
+                          [r01, sl * sl * c00 + 2 * sl * c01 + c11 + rl1]])
             out.append((nis, ref, np.array([y0, y1]), None, R))
     return out

@@ -73,7 +73,7 @@ class GyroLinePipeline(Pipeline):
         """Feed one accepted sample to the estimator; return the corrected pose and diagnostics."""
         made = self.core.update(sample)
         if key == 'scan':
-            reason = self.core.result().scan_rejected
+            reason = self.core.scan_rejected
             if reason is not None:
                 self.reject('scan', reason)
             if made:
