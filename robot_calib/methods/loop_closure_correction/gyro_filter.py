@@ -15,7 +15,7 @@ removed) saw as ``dth_gyro``. To first order
 (the bias at the end of the interval; the scale error acts on the turn), a
 linear measurement of the error state, so a Kalman update (Kalman 1960;
 Groves, *Principles of GNSS, Inertial, and Multisensor Integrated
-Navigation*, 2nd ed., eqs. 3.14-3.16, 14.x for the bias states) corrects
+Navigation*, 2nd ed., ch. 3 and, for the bias states, ch. 14) corrects
 ``x``. The process model propagates ``b += d dt`` with random walks on ``b``
 and ``d``; the scale is constant.
 """
