@@ -535,3 +535,26 @@ def test_an_acceleration_spike_is_clamped_to_the_robot_limit():
             break
     # 60 m/s^2 for 10 ms would add 0.6 m/s; clamped to 5 m/s^2 it adds at most 0.05
     assert 0.0 < abs(f.result().state[IV] - f_ref.result().state[IV]) < 0.06
+
+
+def test_standstill_learns_the_bias_without_moving_the_pose():
+    """REP-105: the odom pose is continuous; a standstill teaches the biases only."""
+    samples, truth = drive(duration=180.0, seed=2, gyro_bias=0.01)
+    # the robot drives from its first sample: the bias is learnt at the first stop
+    samples = [(k, s) for k, s in samples if k == 'tf_static' or s.t >= 2.0]
+
+    def steps_while_still(params):
+        outs, f = run(samples, params)
+        t = np.array([o.t for o in outs])
+        xy = np.array([(o.x, o.y) for o in outs])
+        speed = np.interp(t, truth[1:, 0], np.hypot(np.diff(truth[:, 1]), np.diff(truth[:, 2])))
+        still = (speed[1:] == 0) & (speed[:-1] == 0)
+        assert still.sum() > 100
+        return np.hypot(*np.diff(xy, axis=0).T)[still], f
+
+    steps, f = steps_while_still(FusionParams())
+    assert steps.max() < 0.005
+    assert f.state[IBG] == pytest.approx(0.01, abs=0.002)
+    # letting the standstill update correct the pose through its cross-covariances moves it
+    jumps, _ = steps_while_still(FusionParams(continuous_pose=False))
+    assert jumps.max() > 0.01

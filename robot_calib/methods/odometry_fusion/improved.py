@@ -45,6 +45,8 @@ IX, IY, IYAW, IV, IBG, IBA, IKW, IKV = range(8)
 
 _EYE8 = np.eye(8)
 _CONSIDER_W = np.array([True, True, True, True, True, True, False, False])
+_CONSIDER_POSE = np.array([True, True, True, False, False, False, False, False])
+"""States a standstill update leaves alone with ``continuous_pose``: x, y, yaw."""
 """States the wheel yaw rate does not correct by default (only its scale and offset)."""
 
 
@@ -268,12 +270,17 @@ class ImprovedFusion(FusionFilter):
         if still:
             h = np.zeros(8)
             h[IV] = 1.0
-            self._scalar_update(h, -self.x[IV], 1e-4)
+            self._scalar_update(h, -self.x[IV], 1e-4, self._still_consider)
         self._last_upd_t = t
         self._after_update(t, v, r_v, rejected, nis_total, dof)
         if rejected:
             return None if dof else 'gated_' + rejected[0]
         return None
+
+    @property
+    def _still_consider(self) -> Optional[np.ndarray]:
+        """Return the states a standstill update leaves uncorrected (None: none)."""
+        return _CONSIDER_POSE if self.p.continuous_pose else None
 
     def _predict_to_wheels(self, t: float, v: float, w: float) -> None:
         """Predict to the odometry time ``t`` (s); wheels only while the IMU is stale."""
@@ -304,7 +311,7 @@ class ImprovedFusion(FusionFilter):
         nis_v = res_v * res_v / s_v
         used = not (nis_v > self._gate and not still)
         if used:
-            self._scalar_update(h, res_v, r_eff)
+            self._scalar_update(h, res_v, r_eff, self._still_consider if still else None)
         self.noise.adapt(0, res_v, s_pred, r_v, s_v, t)
         return nis_v if used else None
 
@@ -345,7 +352,8 @@ class ImprovedFusion(FusionFilter):
             # yaw-rate channel's scale also carries wheel noise; an adapted-down value
             # here made the bias over-confident)
             self._scalar_update(h, 0.0 - (gz_avg - x[IBG]),
-                                (p.gyro_noise ** 2) / max(interval, 1e-3) + 1e-6)
+                                (p.gyro_noise ** 2) / max(interval, 1e-3) + 1e-6,
+                                self._still_consider)
         return nis_w if used else None
 
     def _after_update(self, t: float, v: float, r_v: float, rejected: list, nis_total: float,

@@ -112,6 +112,10 @@ class FusionParams:
                                    'off: the bias is a consider state there (wheel slip and '
                                    'radius mismatch mimic a bias) and is learnt at standstill')
     zero_velocity_update: bool = param(True, '', 'Wheels exactly still: pin speed and yaw rate')
+    continuous_pose: bool = param(True, '', 'Standstill updates learn the speed and the biases '
+                                  'without moving the pose (REP-105: odom is continuous); off: '
+                                  'their cross-covariances also correct x, y and yaw, which '
+                                  'can jump metres after a long drive')
     zero_velocity_threshold: float = param(1e-3, 'm/s or rad/s', 'Wheel speed and yaw rate '
                                            'below which the robot is taken as stationary',
                                            minimum=0.0)
