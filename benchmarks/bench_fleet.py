@@ -35,6 +35,7 @@ import time
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 
+from bench_throughput import compile_package  # noqa: E402 - a sibling script
 from robot_calib.fleet import run_fleet  # noqa: E402
 from robot_calib.sim.fleet import read_truth, simulate_fleet  # noqa: E402
 
@@ -223,9 +224,7 @@ def timing_section(args: argparse.Namespace, tmp: Path) -> list[str]:
     keys = [f'fleet.robots={max(1, args.timing_bags // 2)}', 'fleet.recordings=2']
     simulate_fleet(tmp / 'fleet', seed=2, duration=args.duration, overrides=keys, workers=2,
                    progress=False)
-    # bytecode compiled, as installing the package does (this machine sets PYTHONDONTWRITEBYTECODE)
-    subprocess.run([sys.executable, '-m', 'compileall', '-q', str(REPO / 'robot_calib')],
-                   check=True)
+    compile_package()
     load0 = _load()
     walls = _fleet_walls(tmp / 'fleet', tmp)
     bags = 2 * max(1, args.timing_bags // 2)

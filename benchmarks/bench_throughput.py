@@ -40,6 +40,7 @@ from robot_calib.sim import run_scenario, simulate  # noqa: E402
 OUT = REPO / 'docs' / 'bench' / '13-throughput.md'
 EXE = REPO / '.venv' / 'bin' / 'robot-calib'
 WHEEL_ROW = '| wheel_odometry_calibration |'
+STARTUP_ROW = '| `robot-calib replay` of a 10 s drive bag'
 
 
 def _children_cpu() -> float:
@@ -161,18 +162,20 @@ def startup_only(args: argparse.Namespace) -> int:
         tmp = Path(name)
         simulate('drive', tmp / 'ten', seed=0, duration=10.0)
         ten = replay_runs(tmp / 'ten', '', tmp / 'out_ten', max(args.runs, 5))
-    lines = OUT.read_text().splitlines()
-    at = [k for k, line in enumerate(lines) if line.startswith(STARTUP_ROW)]
-    if not at:
-        print(f'{OUT}: no start-up row to replace; run the whole benchmark', file=sys.stderr)
-        return 1
-    lines[at[0]] = startup_row(ten, args)
-    OUT.write_text('\n'.join(lines) + '\n')
-    print(lines[at[0]])
+    lines = OUT.read_text().split('\n')
+    at = _row_index(lines, STARTUP_ROW)
+    lines[at] = startup_row(ten, args)
+    OUT.write_text('\n'.join(lines))
+    print(lines[at])
     return 0
 
 
-STARTUP_ROW = '| `robot-calib replay` of a 10 s drive bag'
+def _row_index(lines: list[str], prefix: str) -> int:
+    """Return the index of the table row starting with ``prefix`` (SystemExit if none)."""
+    at = next((i for i, line in enumerate(lines) if line.startswith(prefix)), None)
+    if at is None:
+        raise SystemExit(f'{OUT}: no row {prefix!r} to replace; run the whole benchmark')
+    return at
 
 
 def startup_row(ten: dict, args: argparse.Namespace) -> str:
@@ -214,7 +217,7 @@ def _row_line(row: dict) -> str:
 def replace_wheel_row(text: str, row: dict, load0: float, load1: float) -> str:
     """Return ``text`` with its wheel calibration row replaced by ``row`` (and a note)."""
     lines = text.split('\n')
-    at = next(i for i, line in enumerate(lines) if line.startswith(WHEEL_ROW))
+    at = _row_index(lines, WHEEL_ROW)
     lines[at] = _row_line(row)
     note = (f'The wheel calibration row was measured again alone (`--only wheel`; load '
             f'average {load0:.1f} at the start, {load1:.1f} at the end); the other rows are '

@@ -45,9 +45,9 @@ IX, IY, IYAW, IV, IBG, IBA, IKW, IKV = range(8)
 
 _EYE8 = np.eye(8)
 _CONSIDER_W = np.array([True, True, True, True, True, True, False, False])
+"""States the wheel yaw rate does not correct by default (only its scale and offset)."""
 _CONSIDER_POSE = np.array([True, True, True, False, False, False, False, False])
 """States a standstill update leaves alone with ``continuous_pose``: x, y, yaw."""
-"""States the wheel yaw rate does not correct by default (only its scale and offset)."""
 
 
 class ImprovedFusion(FusionFilter):
