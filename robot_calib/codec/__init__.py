@@ -16,12 +16,15 @@ from __future__ import annotations
 from typing import Any, Callable, Optional
 
 from robot_calib.codec import cdr as _cdr  # noqa: F401 - registers the fast paths
+from robot_calib.codec import cdr_more as _cdr_more  # noqa: F401 - and the others
+from robot_calib.codec.definitions import DEFINITIONS
 from robot_calib.codec.messages import clock_to_msg, header, typestore
 from robot_calib.codec.table import BY_SAMPLE, Decode, KINDS, MessageType, ROWS, TYPES
 from robot_calib.core import types as T
 
 __all__ = ['BY_SAMPLE', 'Decode', 'KINDS', 'MessageType', 'ROWS', 'TYPES', 'accepts',
-           'batch_decoder', 'clock_to_msg', 'decoder', 'deserialize', 'from_msg', 'header',
+           'batch_decoder', 'clock_to_msg', 'decoder', 'definition', 'deserialize', 'from_msg',
+           'header',
            'msgtype_of', 'normalize_type', 'sample_time_ns', 'serialize', 'supported', 'to_msg',
            'typestore']
 
@@ -32,6 +35,20 @@ def normalize_type(msgtype: str) -> str:
     if len(parts) == 2:
         return f'{parts[0]}/msg/{parts[1]}'
     return msgtype
+
+
+def definition(msgtype: str) -> tuple[str, str]:
+    """
+    Return (definition text, RIHS01 hash) of ``msgtype``, as a bag connection records them.
+
+    Stored for the types of the table (:mod:`robot_calib.codec.definitions`), else
+    derived from the type store.
+    """
+    stored = DEFINITIONS.get(msgtype)
+    if stored is not None:
+        return stored[1], stored[0]
+    store = typestore()
+    return store.generate_msgdef(msgtype, ros_version=2)[0], store.hash_rihs01(msgtype)
 
 
 def supported(msgtype: str) -> bool:
@@ -72,12 +89,17 @@ def to_msg(sample: Any) -> tuple[str, Any]:
 
 def serialize(sample: Any) -> tuple[str, bytes]:
     """Return (msgtype, CDR bytes) of a core sample, as rclpy publishes them."""
-    row = None if isinstance(sample, list) else BY_SAMPLE.get(type(sample))
-    if row is not None and row.fast.encode_cdr is not None and sample.stamp_ns < 2**62 and (
-            sample.stamp_ns >= 0 or 0 <= sample.t < 2**31):
+    row = KINDS['tf_static'] if isinstance(sample, list) else BY_SAMPLE.get(type(sample))
+    if row is not None and row.fast.encode_cdr is not None and all(
+            _stamp_fits(s) for s in (sample if isinstance(sample, list) else (sample,))):
         return row.msgtype, row.fast.encode_cdr(sample)
     msgtype, msg = to_msg(sample)
     return msgtype, bytes(typestore().serialize_cdr(msg, msgtype))
+
+
+def _stamp_fits(sample: Any) -> bool:
+    """Return whether a sample's stamp fits a ROS time (else the generic path says why)."""
+    return sample.stamp_ns < 2**62 and (sample.stamp_ns >= 0 or 0 <= sample.t < 2**31)
 
 
 def deserialize(msgtype: str, data: bytes, bag_time_ns: Optional[int] = None) -> list:
@@ -98,15 +120,20 @@ def decoder(msgtype: str, generic: Optional[Decode] = None, ros1: bool = False) 
         def generic(raw: bytes, time_ns: int) -> list:
             return deserialize(row.msgtype, raw, time_ns)
     fast = row.fast.decode_ros1 if ros1 else row.fast.decode_cdr
-    if fast is None:
-        return generic
     if ros1:
-        return lambda raw, time_ns: [fast(raw)]
+        return generic if fast is None else lambda raw, time_ns: [fast(raw)]
+    if fast is not None:
+        def full(raw: bytes, time_ns: int) -> list:
+            return [fast(raw)]
+    else:
+        full = row.fast.decode
+        if full is None:
+            return generic
 
     def decode(raw: bytes, time_ns: int) -> list:
         if raw[1] != 1:  # big-endian CDR: rare, take the generic path
             return generic(raw, time_ns)
-        return [fast(raw)]
+        return full(raw, time_ns)
     return decode
 
 

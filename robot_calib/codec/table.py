@@ -27,6 +27,8 @@ class FastPaths:
     """Direct (de)serializers of one message type, without rosbags; each may be None."""
 
     decode_cdr: Optional[Callable[[bytes], Any]] = None
+    decode: Optional[Decode] = None
+    """Little-endian CDR and receive time (ns) -> samples, where decode_cdr does not fit."""
     decode_ros1: Optional[Callable[[bytes], Any]] = None
     decode_cdr_batch: Optional[Callable[[list], list]] = None
     encode_cdr: Optional[Callable[[Any], bytes]] = None

@@ -176,7 +176,7 @@ class BagSet:
             raise BagError(f'cannot read bag {path}: {_one_line(exc)} (expected a ROS 2 '
                            'bag folder or a ROS 1 .bag file)') from None
         self._readers.append((reader, ros1))
-        store = codec.typestore()
+        # the type store is imported on first use: the fast paths read ROS 2 bags without it
         for conn in reader.connections:
             msgtype = codec.normalize_type(conn.msgtype)
             if ros1:
@@ -184,12 +184,11 @@ class BagSet:
                     return _r.typestore.deserialize_ros1(raw, _t)
 
                 def to_cdr(raw: bytes, _m=to_msg, _t=msgtype) -> bytes:
-                    return bytes(store.serialize_cdr(_m(raw), _t))
+                    return bytes(codec.typestore().serialize_cdr(_m(raw), _t))
             else:
-                known = msgtype in store.fielddefs
-
-                def to_msg(raw: bytes, _t=msgtype, _known=known) -> Any:
-                    if not _known:
+                def to_msg(raw: bytes, _t=msgtype) -> Any:
+                    store = codec.typestore()
+                    if _t not in store.fielddefs:
                         raise KeyError(f'type {_t} is not in the ROS 2 Jazzy typestore')
                     return store.deserialize_cdr(raw, _t)
 
@@ -422,7 +421,8 @@ class BagWriter:
             qos = ()
             if topic in self._latched:
                 qos = (_latched_qos(),)
-            conn = self._writer.add_connection(topic, msgtype, typestore=codec.typestore(),
+            msgdef, rihs01 = codec.definition(msgtype)
+            conn = self._writer.add_connection(topic, msgtype, msgdef=msgdef, rihs01=rihs01,
                                                offered_qos_profiles=qos)
             self._conns[topic] = conn
         elif conn.msgtype != msgtype:
@@ -431,14 +431,11 @@ class BagWriter:
 
     def write(self, topic: str, sample: Any, time_ns: Optional[int] = None) -> None:
         """Write one core sample on ``topic`` at receive time ``time_ns`` (default: its stamp)."""
-        if isinstance(sample, list):
-            msgtype, msg = codec.to_msg(sample)
-            self.write_msg(topic, msgtype, msg, time_ns if time_ns is not None else (
-                codec.sample_time_ns(sample[0]) if sample else 0))
-            return
         msgtype, data = codec.serialize(sample)
-        self.write_raw(topic, msgtype, data, time_ns if time_ns is not None else
-                       codec.sample_time_ns(sample))
+        if time_ns is None:  # a list of transforms: the first one's stamp
+            first = (sample[0] if sample else None) if isinstance(sample, list) else sample
+            time_ns = codec.sample_time_ns(first) if first is not None else 0
+        self.write_raw(topic, msgtype, data, time_ns)
 
     def write_msg(self, topic: str, msgtype: str, msg: Any, time_ns: int) -> None:
         """Write an already built rosbags message."""

@@ -1,0 +1,145 @@
+# Copyright 2026 robot_calib contributors
+# SPDX-License-Identifier: Apache-2.0
+"""The codec's fast paths against rosbags' type store, and the stored type definitions."""
+
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from robot_calib import codec
+from robot_calib.codec import cdr_more
+from robot_calib.codec.definitions import DEFINITIONS
+from robot_calib.core import types as T
+from test_io_bags import assert_same
+
+
+def _frame(rng):
+    """Return a frame id of 0-9 characters (every string padding case)."""
+    return 'base_link_'[:int(rng.integers(0, 10))]
+
+
+def _stamp(rng):
+    """Return (t, stamp_ns): an exact stamp, or none (time from t)."""
+    if rng.random() < 0.5:
+        return float(rng.uniform(0, 2e9)), -1
+    ns = int(rng.integers(0, 2**31 * 10**9))
+    return ns * 1e-9, ns
+
+
+def _array(rng, n, scale=1.0):
+    return rng.normal(scale=scale, size=n)
+
+
+def _samples(kind, rng, count=40):
+    """Return ``count`` random core samples of ``kind`` covering empty and odd-sized fields."""
+    out = []
+    for i in range(count):
+        t, ns = _stamp(rng)
+        n = int(rng.integers(0, 6))
+        if kind == 'scan':
+            out.append(T.ScanSample(t, float(rng.uniform(-3, 0)), float(rng.uniform(-0.1, 0.1)),
+                                    np.abs(_array(rng, n * 7, 5.0)), float(rng.uniform(0, 1)),
+                                    float(rng.uniform(1, 40)), _frame(rng),
+                                    None if i % 2 else np.abs(_array(rng, n * 7)),
+                                    float(rng.uniform(-1e-4, 1e-4)), 0.1, ns))
+        elif kind == 'joint_states':
+            names = tuple(f'wheel_{k}'[:3 + k] for k in range(n))
+            out.append(T.JointStateSample(t, names, _array(rng, n), _array(rng, n), ns))
+        elif kind == 'cmd_vel':
+            out.append(T.TwistSample(t, *_array(rng, 3), stamp_ns=ns))
+        elif kind == 'cmd_vel_stamped':
+            out.append(T.StampedTwistSample(t, *_array(rng, 3), ns, _frame(rng)))
+        elif kind == 'fix':
+            cov = _array(rng, 9).reshape(3, 3)
+            if i % 3 == 0:
+                cov[1, 2] = np.nan
+            out.append(T.NavSatSample(t, *_array(rng, 3, 50.0), int(rng.integers(-1, 3)), cov,
+                                      _frame(rng), ns))
+        elif kind == 'bool':
+            out.append(T.BoolSample(t, bool(i % 2), ns))
+        elif kind == 'diagnostics':
+            statuses = tuple(T.DiagnosticStatus(
+                _frame(rng), int(rng.integers(0, 4)), 'ok'[:k], _frame(rng),
+                tuple((f'k{j}'[:j + 1], f'{j * 1.5}') for j in range(k + i % 3)))
+                for k in range(n))
+            out.append(T.DiagnosticSample(t, statuses, ns))
+        elif kind == 'tf_static':
+            q = _array(rng, 4)
+            out.append([T.StaticTransform(_frame(rng), _frame(rng), _array(rng, 3),
+                                          q / np.linalg.norm(q), t, ns) for _ in range(n)])
+    return out
+
+
+KINDS = ['scan', 'joint_states', 'cmd_vel', 'cmd_vel_stamped', 'fix', 'bool', 'diagnostics',
+         'tf_static']
+
+
+@pytest.mark.parametrize('kind', KINDS)
+def test_fast_paths_match_the_type_store(kind):
+    store = codec.typestore()
+    rng = np.random.default_rng(KINDS.index(kind))
+    row = codec.KINDS[kind]
+    assert row.fast.encode_cdr is not None and row.fast.decode is not None
+    for sample in _samples(kind, rng):
+        msgtype, msg = codec.to_msg(sample)
+        generic = bytes(store.serialize_cdr(msg, msgtype))
+        assert codec.serialize(sample) == (msgtype, generic)
+        time_ns = int(rng.integers(0, 2**62))
+        expected = codec.from_msg(msgtype, store.deserialize_cdr(generic, msgtype), time_ns)
+        assert_same(codec.decoder(msgtype)(generic, time_ns), expected)
+
+
+def test_fast_joint_state_decoder_with_efforts_and_missing_values():
+    store = codec.typestore()
+    ty = store.types
+    hdr = ty['std_msgs/msg/Header'](ty['builtin_interfaces/msg/Time'](3, 4), 'abc')
+    for pos, vel, eff in [([], [1.0, 2.0], [5.0]), ([1.0, 2.0], [], []),
+                          ([1.0, 2.0], [3.0, 4.0], [5.0, 6.0, 7.0])]:
+        msg = ty['sensor_msgs/msg/JointState'](hdr, ['a', 'bb'], np.array(pos),
+                                               np.array(vel), np.array(eff))
+        raw = bytes(store.serialize_cdr(msg, 'sensor_msgs/msg/JointState'))
+        assert_same(cdr_more.joint_state_from_cdr(raw),
+                    codec.from_msg('sensor_msgs/msg/JointState', msg))
+
+
+def test_big_endian_messages_take_the_generic_path():
+    store = codec.typestore()
+    sample = _samples('scan', np.random.default_rng(1), 2)[1]
+    msgtype, msg = codec.to_msg(sample)
+    raw = bytes(store.serialize_cdr(msg, msgtype, little_endian=False))
+    assert raw[1] == 0
+    assert_same(codec.decoder(msgtype)(raw, 0),
+                codec.from_msg(msgtype, store.deserialize_cdr(raw, msgtype)))
+
+
+def test_stored_definitions_match_the_type_store():
+    store = codec.typestore()
+    assert set(DEFINITIONS) == set(codec.TYPES)
+    for msgtype in codec.TYPES:
+        text, _ = store.generate_msgdef(msgtype, ros_version=2)
+        assert codec.definition(msgtype) == (text, store.hash_rihs01(msgtype)), msgtype
+    assert codec.definition('geometry_msgs/msg/PoseStamped')[1].startswith('RIHS01_')
+
+
+def test_replay_of_supported_types_needs_no_type_store(tmp_path):
+    """Reading and writing every supported type goes without the Jazzy type store."""
+    from robot_calib.io import bags
+    from test_io_bags import _samples as every_type
+    path = tmp_path / 'bag'
+    with bags.BagWriter(path) as w:
+        for topic, sample, time_ns in every_type():
+            w.write(topic, sample, time_ns)
+    code = (
+        'import sys\n'
+        'from robot_calib.io import bags\n'
+        f'msgs = list(bags.read_messages([{str(path)!r}]))\n'
+        f'with bags.BagWriter({str(tmp_path / "copy")!r}) as w:\n'
+        '    for m in msgs:\n'
+        '        for s in m.samples:\n'
+        '            w.write(m.topic, s if not hasattr(s, "parent") else [s], m.time_ns)\n'
+        'print(len(msgs), "rosbags.typesys.stores.ros2_jazzy" in sys.modules)\n')
+    out = subprocess.run([sys.executable, '-c', code], capture_output=True, text=True,
+                         check=True).stdout.split()
+    assert int(out[0]) == len(every_type()) and out[1] == 'False'
