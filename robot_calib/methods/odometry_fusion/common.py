@@ -24,12 +24,6 @@ from robot_calib.core import types as T
 from robot_calib.methods.odometry_fusion.params import FusionParams
 
 
-def chi2_ppf(probability: float, dof: float) -> float:
-    """Return the chi-square quantile of ``probability`` with ``dof`` degrees of freedom."""
-    from scipy.special import chdtri  # here: scipy.special costs 0.2 s of start-up
-    return float(chdtri(dof, 1.0 - probability))
-
-
 def lidar_accuracy(d: float, d_lidar: float) -> tuple[float, bool]:
     """
     Return the seed's accuracy ``1 - |d - d_l| / d_l`` and whether it is valid (>= 0.95).

@@ -35,8 +35,9 @@ from typing import Optional
 
 import numpy as np
 from robot_calib.core import types as T
+from robot_calib.core.chi2 import chi2_ppf
 from robot_calib.core.geometry import wrap_scalar
-from robot_calib.methods.odometry_fusion.common import chi2_ppf, FusionOutput
+from robot_calib.methods.odometry_fusion.common import FusionOutput
 from robot_calib.methods.odometry_fusion.filter_base import FusionFilter
 from robot_calib.methods.odometry_fusion.improved_consistency import NisMonitor, NoiseAdapter
 

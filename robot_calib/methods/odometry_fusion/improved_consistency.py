@@ -35,8 +35,9 @@ import math
 from typing import Optional
 
 import numpy as np
+from robot_calib.core.chi2 import chi2_ppf
 from robot_calib.core.series import Thinned
-from robot_calib.methods.odometry_fusion.common import chi2_ppf, NisStats
+from robot_calib.methods.odometry_fusion.common import NisStats
 from robot_calib.methods.odometry_fusion.params import FusionParams
 
 

@@ -42,6 +42,7 @@ from typing import Iterable, Optional
 
 import numpy as np
 from robot_calib.core import kinematics as K
+from robot_calib.core.chi2 import chi2_isf, chi2_sf
 from robot_calib.core.geometry import wrap_angle
 from robot_calib.core.kinematics import Segment
 from robot_calib.methods.wheel_odometry_calibration.common import CalibResult
@@ -385,10 +386,9 @@ def joint_fit(drive_type: str, segments: list[Segment], nominal: dict,
     r0 = residuals(drive_type, x, steps, meas)
     sigma = _robust_sigma(r0)
     from scipy.optimize import least_squares  # here: scipy costs 0.5 s of start-up
-    from scipy.special import chdtrc, chdtri
 
     # the 3-dof chi-square quantile of the probability mass within outlier_sigma in 1 dof
-    gate = chdtri(3, chdtrc(1, sp.outlier_sigma ** 2))
+    gate = chi2_isf(chi2_sf(sp.outlier_sigma ** 2, 1), 3)
     scale = np.where(np.abs(x_nom) > 1e-9, np.abs(x_nom), 1.0)
     for it in range(sp.outlier_iterations + 1):
         s_in, m_in = steps[inl], meas[inl]
