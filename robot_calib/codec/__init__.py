@@ -17,7 +17,7 @@ from typing import Any, Callable, Optional
 
 from robot_calib.codec import cdr as _cdr  # noqa: F401 - registers the fast paths
 from robot_calib.codec import cdr_more as _cdr_more  # noqa: F401 - and the others
-from robot_calib.codec.definitions import DEFINITIONS
+from robot_calib.codec.definitions import definition as stored_definition, DEFINITIONS
 from robot_calib.codec.messages import clock_to_msg, header, typestore
 from robot_calib.codec.table import BY_SAMPLE, Decode, KINDS, MessageType, ROWS, TYPES
 from robot_calib.core import types as T
@@ -44,9 +44,8 @@ def definition(msgtype: str) -> tuple[str, str]:
     Stored for the types of the table (:mod:`robot_calib.codec.definitions`), else
     derived from the type store.
     """
-    stored = DEFINITIONS.get(msgtype)
-    if stored is not None:
-        return stored[1], stored[0]
+    if msgtype in DEFINITIONS:
+        return stored_definition(msgtype)
     store = typestore()
     return store.generate_msgdef(msgtype, ros_version=2)[0], store.hash_rihs01(msgtype)
 
