@@ -244,9 +244,14 @@ def _normals(points: np.ndarray, tree: Optional[cKDTree], k: int,
         return np.zeros((n, 2)), np.zeros(n, dtype=bool)
     k = min(k, n)
     _, idx = tree.query(points, k=k)
-    nb = points[idx]                                   # (N, k, 2)
-    centred = nb - nb.mean(axis=1, keepdims=True)
-    cov = np.einsum('nki,nkj->nij', centred, centred) / k
+    x, y = points[:, 0][idx], points[:, 1][idx]        # (N, k) neighbour coordinates (m)
+    cx = x - (x.sum(axis=1) / k)[:, None]
+    cy = y - (y.sum(axis=1) / k)[:, None]
+    cov = np.empty((n, 2, 2))
+    cov[:, 0, 0] = (cx * cx).sum(axis=1)
+    cov[:, 0, 1] = cov[:, 1, 0] = (cx * cy).sum(axis=1)
+    cov[:, 1, 1] = (cy * cy).sum(axis=1)
+    cov /= k
     evals, evecs = np.linalg.eigh(cov)                 # ascending eigenvalues
     normals = evecs[:, :, 0]                           # direction of least spread
     spread = evals[:, 0] / np.maximum(evals[:, 1], 1e-12)
@@ -313,8 +318,7 @@ class _Nearest:
         found = idx[:, 0] < len(self.target)
         self.at[rows] = pts
         self.idx[rows] = idx[:, 0]
-        with np.errstate(invalid='ignore'):
-            gap = 0.5 * (np.minimum(dist[:, 1], bound) - dist[:, 0])
+        gap = 0.5 * (np.minimum(dist[:, 1], bound) - dist[:, 0])   # -inf where none found
         self.slack[rows] = np.where(found, gap, bound) - _ROUNDING
         self.miss[rows] = ~found
 

@@ -88,8 +88,7 @@ class _Stack:
         found = idx != self.miss
         self.at[rows] = pts
         self.idx[rows] = idx
-        with np.errstate(invalid='ignore'):
-            gap = 0.5 * (np.minimum(dist[:, 1], bound) - dist[:, 0])
+        gap = 0.5 * (np.minimum(dist[:, 1], bound) - dist[:, 0])   # -inf where none found
         self.slack[rows] = np.where(found, gap, bound) - _ROUNDING
         self.nomatch[rows] = ~found
 
