@@ -179,3 +179,49 @@ def test_pose_is_wrapped(yaw):
     res = sm.register(source, target, truth + np.array([0.02, 0.0, 0.02]))
     assert -math.pi < res.pose[2] <= math.pi
     assert _err(res.pose, truth)[1] < 1e-4
+
+
+def _plain_query(self, moved, gate):
+    """The KD-tree search the tracker replaces: every point, every query."""
+    _, idx = self.target.tree.query(moved, distance_upper_bound=gate)
+    offset = moved - self.target.padded[idx]
+    return idx, np.einsum('ij,ij->i', offset, offset), offset
+
+
+def test_tracked_nearest_is_the_kd_tree_answer():
+    rng = np.random.default_rng(3)
+    target = sm.PreparedScan(_raycast(_segments_room(), (3.0, 1.5, 0.3), noise=0.01))
+    source = target.points[::2] + rng.normal(0.0, 0.05, (len(target.points[::2]), 2))
+    tracker = sm._Nearest(target, len(source))
+    pose = np.zeros(3)
+    searched = []
+    for k in range(60):
+        # large, small and zero steps; the gate shrinks, stays and grows again
+        step = rng.normal(0.0, [0.05, 0.05, 0.01]) * (0.5 ** (k % 12)) * (k % 7 != 0)
+        pose = pose + step
+        gate = [0.8, 0.5, 0.3, 0.1, 0.1, np.nextafter(0.1, 1.0), 0.4][k % 7]
+        moved = source @ sm.rot2(pose[2]).T + pose[:2]
+        before = tracker.searched
+        idx, sq, _ = tracker.query(moved, gate)
+        searched.append(tracker.searched - before)
+        dist, ref = target.tree.query(moved, distance_upper_bound=gate)
+        np.testing.assert_array_equal(idx, ref)
+        found = ref < len(target)
+        np.testing.assert_array_equal(np.sqrt(sq[found]), dist[found])
+    # the point of tracking: most queries search few points again
+    assert np.median(searched) < 0.25 * len(source)
+
+
+@pytest.mark.parametrize('coarse', ['kiss_icp', 'none'])
+def test_tracking_leaves_the_registration_unchanged(monkeypatch, coarse):
+    target = _raycast(_segments_room(), (3.0, 1.5, 0.3), noise=0.01, seed=1)
+    truth = np.array([0.3, -0.1, 0.08])
+    source = se2_apply(se2_inverse(truth), _raycast(_segments_room(), (3.0, 1.5, 0.3),
+                                                    noise=0.01, seed=2))
+    params = sm.ScanMatchParams(coarse=coarse)
+    tracked = sm.register(source, target, (0.1, 0.0, 0.0), params)
+    monkeypatch.setattr(sm._Nearest, 'query', _plain_query)
+    plain = sm.register(source, target, (0.1, 0.0, 0.0), params)
+    assert tracked.iterations == plain.iterations > 3
+    for name in ('pose', 'covariance', 'hessian', 'min_eigenvalue', 'inliers', 'rmse'):
+        np.testing.assert_array_equal(getattr(tracked, name), getattr(plain, name))

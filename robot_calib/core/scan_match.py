@@ -33,7 +33,12 @@ Stages
    comes from a PCA of the target point's ``normal_neighbours`` nearest
    neighbours; correspondences farther than a gate that shrinks from
    ``refine_max_correspondence`` to ``refine_min_correspondence`` are dropped and
-   the rest weighted by a Cauchy kernel (scale ``robust_scale``).
+   the rest weighted by a Cauchy kernel (scale ``robust_scale``). The nearest
+   target points are tracked between iterations (:class:`_Nearest`): a point
+   is searched in the KD-tree again only when its move since the last search
+   could have changed its nearest point, so the answer is the KD-tree's own
+   and the result unchanged (about 13 % of the points searched per iteration
+   in the wheel calibration's matches).
 
 Quality: the Gauss-Newton Hessian ``H = sum J^T J`` (J = [n^T, n^T R' p]) of the
 final inliers gives the covariance ``sigma^2 H^-1`` and the observability of the
@@ -173,6 +178,9 @@ class PreparedScan:
         self.normals, self.normal_ok = _normals(self.points, self.tree,
                                                 self.params.normal_neighbours,
                                                 self.params.max_line_spread)
+        # a missed search returns index len(points): padded rows make it a far, unusable point
+        self.padded = np.vstack((self.points, np.full((1, 2), np.inf)))
+        self.usable = np.append(self.normal_ok, False)
         self._voxel_map = None
 
     def __len__(self) -> int:
@@ -236,14 +244,83 @@ def _normals(points: np.ndarray, tree: Optional[cKDTree], k: int,
         return np.zeros((n, 2)), np.zeros(n, dtype=bool)
     k = min(k, n)
     _, idx = tree.query(points, k=k)
-    nb = points[idx]                                   # (N, k, 2)
-    centred = nb - nb.mean(axis=1, keepdims=True)
-    cov = np.einsum('nki,nkj->nij', centred, centred) / k
+    x, y = points[:, 0][idx], points[:, 1][idx]        # (N, k) neighbour coordinates (m)
+    cx = x - (x.sum(axis=1) / k)[:, None]
+    cy = y - (y.sum(axis=1) / k)[:, None]
+    cov = np.empty((n, 2, 2))
+    cov[:, 0, 0] = (cx * cx).sum(axis=1)
+    cov[:, 0, 1] = cov[:, 1, 0] = (cx * cy).sum(axis=1)
+    cov[:, 1, 1] = (cy * cy).sum(axis=1)
+    cov /= k
     evals, evecs = np.linalg.eigh(cov)                 # ascending eigenvalues
     normals = evecs[:, :, 0]                           # direction of least spread
     spread = evals[:, 0] / np.maximum(evals[:, 1], 1e-12)
     ok = (spread <= max_spread) & (evals[:, 1] > 0)
     return normals, ok
+
+
+_ROUNDING = 1e-9
+"""Margin (m) for rounding in the distances that decide a nearest point cannot have changed."""
+
+
+_SEARCH_REACH = 2.0
+"""KD-tree searches reach this many gates, so that later queries need fewer."""
+
+
+class _Nearest:
+    """
+    Nearest target point of each moved source point, searched again only where it may change.
+
+    A 2-nearest search at position q gives the nearest distance d1 and a lower bound d2 on
+    every other target point's distance (the second nearest, or the search gate g0). Moved
+    since by delta, the point keeps that nearest target point while ``d2 - d1 > 2 delta``
+    (triangle inequality), and a point with no target point within g0 has none within a gate
+    g while ``delta < g0 - g``. Only the other points are searched again, so the answer is the
+    KD-tree's own: a search bounded by the gate finds a point when its squared distance is
+    below the squared gate.
+    """
+
+    def __init__(self, target: PreparedScan, n: int):
+        """Track ``n`` source points against ``target``; the first query searches them all."""
+        self.target = target
+        self.at = np.zeros((n, 2))                       # where each was last searched (m)
+        self.idx = np.full(n, len(target), dtype=np.intp)
+        self.slack = np.full(n, -1.0)                    # (m); negative: search again
+        self.miss = np.zeros(n)                          # 1.0: no target within the gate
+        self.searched = 0
+        """Points searched in the KD-tree so far (the cost the tracking saves)."""
+
+    def query(self, moved: np.ndarray,
+              gate: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """
+        Return each point's nearest target index, squared distance (m^2) and offset (m).
+
+        :param moved: (N, 2) source points in the target frame (m).
+        :param gate: search bound (m); the index is ``len(target)`` when none is closer.
+        :return: index (N,), squared distance (N,) and ``moved - nearest`` (N, 2), the last
+            two also for points beyond the gate (inf where none was ever found).
+        """
+        step = moved - self.at
+        moved_by = np.sqrt(np.einsum('ij,ij->i', step, step))
+        again = np.flatnonzero(~(moved_by < self.slack - gate * self.miss))
+        if len(again):
+            self._search(moved, again, gate)
+        offset = moved - self.target.padded[self.idx]
+        sq = np.einsum('ij,ij->i', offset, offset)
+        return np.where(sq < gate * gate, self.idx, len(self.target)), sq, offset
+
+    def _search(self, moved: np.ndarray, rows: np.ndarray, gate: float) -> None:
+        # twice the gate: a point without a target point within it keeps none for a while
+        bound = _SEARCH_REACH * gate
+        pts = moved[rows]
+        dist, idx = self.target.tree.query(pts, k=2, distance_upper_bound=bound)
+        self.searched += len(rows)
+        found = idx[:, 0] < len(self.target)
+        self.at[rows] = pts
+        self.idx[rows] = idx[:, 0]
+        gap = 0.5 * (np.minimum(dist[:, 1], bound) - dist[:, 0])   # -inf where none found
+        self.slack[rows] = np.where(found, gap, bound) - _ROUNDING
+        self.miss[rows] = ~found
 
 
 def _coarse(source: np.ndarray, target: PreparedScan, guess: np.ndarray,
@@ -266,7 +343,7 @@ def _coarse(source: np.ndarray, target: PreparedScan, guess: np.ndarray,
 
 
 def _refine(source: np.ndarray, target: PreparedScan, pose: np.ndarray,
-            p: ScanMatchParams) -> tuple[np.ndarray, bool, int]:
+            p: ScanMatchParams, nearest: _Nearest) -> tuple[np.ndarray, bool, int]:
     """Point-to-line Gauss-Newton with an annealed gate and a Cauchy kernel."""
     pose = np.array(pose, dtype=float)
     converged = False
@@ -277,7 +354,7 @@ def _refine(source: np.ndarray, target: PreparedScan, pose: np.ndarray,
     ratio = p.refine_min_correspondence / p.refine_max_correspondence
     rot_jac = np.column_stack((-source[:, 1], source[:, 0]))  # d(R p)/d yaw = R [-p_y, p_x]
     # a missed query returns index len(points): that row of usable is False
-    usable = np.append(target.normal_ok, False)
+    usable = target.usable
     damping = 1e-9 * np.eye(3)
     for it in range(1, n_it + 1):
         # The gate shrinks geometrically from the wide to the narrow value, then stays.
@@ -285,14 +362,15 @@ def _refine(source: np.ndarray, target: PreparedScan, pose: np.ndarray,
         gate = p.refine_max_correspondence * ratio ** frac
         r_t = rot2(pose[2]).T
         moved = source @ r_t + pose[:2]
-        _, idx = target.tree.query(moved, distance_upper_bound=gate)
+        idx, _, offset = nearest.query(moved, gate)
         use = np.flatnonzero(usable[idx])
         if len(use) < 3:
             break
-        near = idx[use]
-        nrm = target.normals[near]
-        res = np.einsum('ij,ij->i', nrm, moved[use] - target.points[near])  # point-line (m)
-        jac = np.column_stack((nrm, np.einsum('ij,ij->i', nrm, rot_jac[use] @ r_t)))
+        nrm = target.normals[idx[use]]
+        res = np.einsum('ij,ij->i', nrm, offset[use])              # point-line (m)
+        jac = np.empty((len(use), 3))
+        jac[:, :2] = nrm
+        jac[:, 2] = np.einsum('ij,ij->i', nrm, rot_jac[use] @ r_t)
         w = 1.0 / (1.0 + (res / p.robust_scale) ** 2)      # Cauchy weights
         h = jac.T @ (jac * w[:, None])
         g = jac.T @ (w * res)
@@ -314,24 +392,25 @@ def _refine(source: np.ndarray, target: PreparedScan, pose: np.ndarray,
 
 
 def _quality(source: np.ndarray, target: PreparedScan, pose: np.ndarray,
-             p: ScanMatchParams, result: MatchResult) -> None:
+             p: ScanMatchParams, result: MatchResult, nearest: _Nearest) -> None:
     """Fill inliers, RMSE, Hessian, covariance and degeneracy of ``result`` at ``pose``."""
     r_mat = rot2(pose[2])
     moved = source @ r_mat.T + pose[:2]
-    # only inliers are used: the search stops beyond inlier_distance (a miss: inf, index N)
+    # only inliers are used: the search stops beyond inlier_distance (a miss: index N)
     bound = np.nextafter(p.inlier_distance, np.inf)
-    dist, idx = target.tree.query(moved, distance_upper_bound=bound)
-    inl = dist <= p.inlier_distance
+    idx, sq, offset = nearest.query(moved, bound)
+    inl = np.sqrt(sq) <= p.inlier_distance
+    inl &= idx < len(target)
     result.inliers = int(inl.sum())
     result.inlier_ratio = result.inliers / max(1, len(source))
-    use = inl & np.append(target.normal_ok, False)[idx]
+    use = inl & target.usable[idx]
     if use.sum() < 3:
         result.degenerate = True
         result.min_eigenvalue = 0.0
         return
     nrm = target.normals[idx[use]]
     src = source[use]
-    res = np.einsum('ij,ij->i', nrm, moved[use] - target.points[idx[use]])
+    res = np.einsum('ij,ij->i', nrm, offset[use])
     dp = np.column_stack((-src[:, 1], src[:, 0])) @ r_mat.T
     jac = np.column_stack((nrm, np.einsum('ij,ij->i', nrm, dp)))
     h = jac.T @ jac
@@ -383,14 +462,15 @@ def register(source_points: Union[np.ndarray, PreparedScan],
     if p.coarse == 'kiss_icp' and HAVE_KISS_ICP:
         pose, coarse_ok = _coarse(source, target, guess, p)
     result.coarse_pose = pose.copy()
+    nearest = _Nearest(target, len(source))
     if p.refine:
-        pose, converged, iters = _refine(source, target, pose, p)
+        pose, converged, iters = _refine(source, target, pose, p, nearest)
         result.iterations = iters
     else:
         converged = coarse_ok
     result.pose = np.array([pose[0], pose[1], wrap_angle(pose[2])])
     result.converged = bool(converged)
-    _quality(source, target, result.pose, p, result)
+    _quality(source, target, result.pose, p, result, nearest)
     if result.inlier_ratio < p.min_inlier_ratio:
         result.converged = False
     return result

@@ -64,6 +64,26 @@ def default_rematcher(source: np.ndarray, target: Any, guess: np.ndarray) -> Opt
                                                'min_eigenvalue': float(res.min_eigenvalue)}
 
 
+def default_rematch_many(sources: list[np.ndarray], targets: list[Any],
+                         guesses: list[np.ndarray]) -> list[Optional[tuple]]:
+    """
+    Return :func:`default_rematcher` of many pairs, run together (scan_match_many).
+
+    The pairs' refinements iterate in lock step over stacked arrays: the same
+    iterations and quality check as one by one, poses equal to rounding.
+    """
+    from robot_calib.core import scan_match, scan_match_many
+    results = scan_match_many.register_many(sources, targets, guesses,
+                                            scan_match.ScanMatchParams(coarse='none'))
+    return [(np.asarray(r.pose, dtype=float), {'rmse': float(r.rmse),
+                                               'min_eigenvalue': float(r.min_eigenvalue)})
+            if r.ok else None for r in results]
+
+
+REMATCH_CHUNK = 256
+"""Key-frame pairs re-matched together (bounds the memory of the prepared targets)."""
+
+
 def prepare_target(points: np.ndarray) -> Any:
     """Prepare key-frame points as a registration target (scan_match.PreparedScan)."""
     from robot_calib.core import scan_match
@@ -109,6 +129,7 @@ class DriveSegmenter:
         self.sensor_pose = np.array([p.lidar_x, p.lidar_y, p.lidar_yaw], dtype=float)
         self.matcher = matcher or default_matcher
         self.rematcher = matcher or default_rematcher
+        self.rematch_many = None if matcher else default_rematch_many
         self.prepare = prepare or prepare_target
         self.max_range = max_range
         self.joint_names = drive_detect.JointNames(p.left_wheel_joint, p.right_wheel_joint,
@@ -394,7 +415,9 @@ class DriveSegmenter:
         ``x`` holds the calibrated parameters in :func:`keys_of` order. The
         first pass deskews with the nominal geometry; a wrong track width or
         radius left in the deskew biases the matched motion (measured: 0.03 deg
-        of lidar yaw in simulation). Returns None when no scan needs deskewing.
+        of lidar yaw in simulation). The pairs are re-matched together,
+        ``REMATCH_CHUNK`` at a time (:func:`default_rematch_many`; one by one
+        with a replaced matcher). Returns None when no scan needs deskewing.
         """
         segs = [s for s in self.segments if 'scans' in s.info]
         if not segs or not any(s.info['scans'][1].time_increment != 0 for s in segs):
@@ -409,12 +432,18 @@ class DriveSegmenter:
             if key not in cache:
                 cache[key] = self.deskewed_points(scan, poses, lp)
             return cache[key]
-        for seg in segs:
-            s0, s1 = seg.info['scans']
+        for lo in range(0, len(segs), REMATCH_CHUNK):
+            chunk = segs[lo:lo + REMATCH_CHUNK]
+            sources = [points(seg.info['scans'][1]) for seg in chunk]
+            targets = [self.prepare(points(seg.info['scans'][0])) for seg in chunk]
             # the first match is the guess: deskewing moves points, not the scan stamps
-            m = self.rematcher(points(s1), self.prepare(points(s0)), seg.sensor_motion)
-            if m is None:
-                continue
-            out.append(Segment(seg.t0, seg.t1, seg.steps, np.asarray(m[0], dtype=float),
-                               {**m[1], 'scans': seg.info['scans']}))
+            guesses = [seg.sensor_motion for seg in chunk]
+            if self.rematch_many is not None:
+                found = self.rematch_many(sources, targets, guesses)
+            else:
+                found = [self.rematcher(*job) for job in zip(sources, targets, guesses)]
+            for seg, m in zip(chunk, found):
+                if m is not None:
+                    out.append(Segment(seg.t0, seg.t1, seg.steps, np.asarray(m[0], dtype=float),
+                                       {**m[1], 'scans': seg.info['scans']}))
         return out
