@@ -300,9 +300,7 @@ class _Nearest:
         :return: index (N,), squared distance (N,) and ``moved - nearest`` (N, 2), the last
             two also for points beyond the gate (inf where none was ever found).
         """
-        step = moved - self.at
-        moved_by = np.sqrt(np.einsum('ij,ij->i', step, step))
-        again = np.flatnonzero(~(moved_by < self.slack - gate * self.miss))
+        again = stale_rows(moved, self.at, self.slack, self.miss, gate)
         if len(again):
             self._search(moved, again, gate)
         offset = moved - self.target.padded[self.idx]
@@ -318,9 +316,22 @@ class _Nearest:
         found = idx[:, 0] < len(self.target)
         self.at[rows] = pts
         self.idx[rows] = idx[:, 0]
-        gap = 0.5 * (np.minimum(dist[:, 1], bound) - dist[:, 0])   # -inf where none found
-        self.slack[rows] = np.where(found, gap, bound) - _ROUNDING
+        self.slack[rows] = search_slack(dist, found, bound)
         self.miss[rows] = ~found
+
+
+def stale_rows(moved: np.ndarray, at: np.ndarray, slack: np.ndarray, miss: np.ndarray,
+               gate: float) -> np.ndarray:
+    """Return the rows whose nearest target point may have changed (see :class:`_Nearest`)."""
+    step = moved - at
+    moved_by = np.sqrt(np.einsum('ij,ij->i', step, step))
+    return np.flatnonzero(~(moved_by < slack - gate * miss))
+
+
+def search_slack(dist: np.ndarray, found: np.ndarray, bound: float) -> np.ndarray:
+    """Return how far (m) each point may move before it is searched again (:class:`_Nearest`)."""
+    gap = 0.5 * (np.minimum(dist[:, 1], bound) - dist[:, 0])   # -inf where none found
+    return np.where(found, gap, bound) - _ROUNDING
 
 
 def _coarse(source: np.ndarray, target: PreparedScan, guess: np.ndarray,

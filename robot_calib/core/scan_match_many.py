@@ -23,9 +23,9 @@ from typing import Optional, Sequence, Union
 
 import numpy as np
 from robot_calib.core.geometry import wrap_angle
-from robot_calib.core.scan_match import (_Nearest, _quality, _ROUNDING, _SEARCH_REACH,
-                                         clean_points, MatchResult, PreparedScan, register,
-                                         ScanMatchParams)
+from robot_calib.core.scan_match import (_Nearest, _quality, _SEARCH_REACH, clean_points,
+                                         MatchResult, PreparedScan, register, ScanMatchParams,
+                                         search_slack, stale_rows)
 
 
 class _Stack:
@@ -53,9 +53,7 @@ class _Stack:
     def query(self, sel: np.ndarray, moved: np.ndarray,
               gate: float) -> tuple[np.ndarray, np.ndarray]:
         """Return the global nearest index (``miss`` beyond ``gate``) and offset of ``sel``."""
-        step = moved - self.at[sel]
-        moved_by = np.sqrt(np.einsum('ij,ij->i', step, step))
-        again = np.flatnonzero(~(moved_by < self.slack[sel] - gate * self.nomatch[sel]))
+        again = stale_rows(moved, self.at[sel], self.slack[sel], self.nomatch[sel], gate)
         if len(again):
             self._search(sel[again], moved[again], gate)
         idx = self.idx[sel]
@@ -88,8 +86,7 @@ class _Stack:
         found = idx != self.miss
         self.at[rows] = pts
         self.idx[rows] = idx
-        gap = 0.5 * (np.minimum(dist[:, 1], bound) - dist[:, 0])   # -inf where none found
-        self.slack[rows] = np.where(found, gap, bound) - _ROUNDING
+        self.slack[rows] = search_slack(dist, found, bound)
         self.nomatch[rows] = ~found
 
 
