@@ -326,6 +326,8 @@ def main() -> int:
     ap.add_argument('--merge', nargs='*', default=[],
                     help='render saved --json results (of runs over other seeds) instead '
                          'of simulating')
+    ap.add_argument('--concurrent', action='store_true',
+                    help='with --merge: the runs merged ran at the same time')
     args = ap.parse_args()
     out = Path(args.out)
     sys.path.insert(0, str(REPO))
@@ -344,7 +346,8 @@ def main() -> int:
         data['rows'].sort(key=lambda r: r['n'])
         lines += [f'Simulated results merged from {len(parts)} runs of this script over '
                   'disjoint seed ranges (`--first-seed N --json FILE`, then `--merge FILE ...`), '
-                  'run one after the other on the shared machine.', '']
+                  f'run {"at the same time, one per core," if args.concurrent else "one after"}'
+                  f'{"" if args.concurrent else " the other"} on the shared machine.', '']
         goals = render_simulated(data, lines)
     else:
         goals = simulated(args, lines)

@@ -24,9 +24,8 @@ from robot_calib.core import types as T
 
 __all__ = ['BY_SAMPLE', 'Decode', 'KINDS', 'MessageType', 'ROWS', 'TYPES', 'accepts',
            'batch_decoder', 'clock_to_msg', 'decoder', 'definition', 'deserialize', 'from_msg',
-           'header',
-           'msgtype_of', 'normalize_type', 'sample_time_ns', 'serialize', 'supported', 'to_msg',
-           'typestore']
+           'header', 'msgtype_of', 'normalize_type', 'sample_time_ns', 'serialize', 'supported',
+           'to_msg', 'typestore']
 
 
 def normalize_type(msgtype: str) -> str:
