@@ -182,7 +182,7 @@ def test_pose_is_wrapped(yaw):
 
 
 def _plain_query(self, moved, gate):
-    """The KD-tree search the tracker replaces: every point, every query."""
+    """Search the KD-tree as before the tracker: every point, every query."""
     _, idx = self.target.tree.query(moved, distance_upper_bound=gate)
     offset = moved - self.target.padded[idx]
     return idx, np.einsum('ij,ij->i', offset, offset), offset
