@@ -39,11 +39,7 @@ def default_matcher(source: np.ndarray, target: Any, guess: np.ndarray) -> Optio
     m, rad) or None when the match failed or is degenerate.
     """
     from robot_calib.core import scan_match
-    res = scan_match.register(source, target, guess)
-    if not res.ok:
-        return None
-    return np.asarray(res.pose, dtype=float), {'rmse': float(res.rmse),
-                                               'min_eigenvalue': float(res.min_eigenvalue)}
+    return _motion(scan_match.register(source, target, guess))
 
 
 def default_rematcher(source: np.ndarray, target: Any, guess: np.ndarray) -> Optional[tuple]:
@@ -57,11 +53,8 @@ def default_rematcher(source: np.ndarray, target: Any, guess: np.ndarray) -> Opt
     :func:`default_matcher`.
     """
     from robot_calib.core import scan_match
-    res = scan_match.register(source, target, guess, scan_match.ScanMatchParams(coarse='none'))
-    if not res.ok:
-        return None
-    return np.asarray(res.pose, dtype=float), {'rmse': float(res.rmse),
-                                               'min_eigenvalue': float(res.min_eigenvalue)}
+    return _motion(scan_match.register(source, target, guess,
+                                       scan_match.ScanMatchParams(coarse='none')))
 
 
 def default_rematch_many(sources: list[np.ndarray], targets: list[Any],
@@ -75,9 +68,15 @@ def default_rematch_many(sources: list[np.ndarray], targets: list[Any],
     from robot_calib.core import scan_match, scan_match_many
     results = scan_match_many.register_many(sources, targets, guesses,
                                             scan_match.ScanMatchParams(coarse='none'))
-    return [(np.asarray(r.pose, dtype=float), {'rmse': float(r.rmse),
-                                               'min_eigenvalue': float(r.min_eigenvalue)})
-            if r.ok else None for r in results]
+    return [_motion(r) for r in results]
+
+
+def _motion(res: Any) -> Optional[tuple]:
+    """Return (sensor motion, match quality) of a registration result, None when it failed."""
+    if not res.ok:
+        return None
+    return np.asarray(res.pose, dtype=float), {'rmse': float(res.rmse),
+                                               'min_eigenvalue': float(res.min_eigenvalue)}
 
 
 REMATCH_CHUNK = 256
