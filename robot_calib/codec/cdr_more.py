@@ -22,15 +22,13 @@ from typing import Any, Optional
 
 import numpy as np
 
-from robot_calib.codec.cdr import _cdr_header, _CDR_LE, _pad
+from robot_calib.codec.cdr import _cdr_header, _CDR_LE, _pad, _U32
 from robot_calib.codec.table import register_fast
 from robot_calib.core import types as T
 from robot_calib.core.geometry import quat_normalize
 
-_U32 = struct.Struct('<I')
 _SEC_NSEC = struct.Struct('<iI')
 _F7 = struct.Struct('<7f')
-_D3 = struct.Struct('<3d')
 _D6 = struct.Struct('<6d')
 _D7 = struct.Struct('<7d')
 _NAVSAT = struct.Struct('<3d9dB')
@@ -137,7 +135,8 @@ def navsat_from_cdr(raw: bytes, time_ns: Optional[int] = None) -> list:
     ns, frame = r.header()
     status = struct.unpack_from('<b', raw, r.pos)[0]
     r.pos += 1
-    r.unpack(struct.Struct('<H'), 2)  # service
+    r.align(2)
+    r.pos += 2  # the uint16 service, not kept
     values = r.unpack(_NAVSAT, 8)
     cov = np.array(values[3:12]).reshape(3, 3)
     return [T.NavSatSample(ns * 1e-9, values[0], values[1], values[2], status, cov, frame, ns)]

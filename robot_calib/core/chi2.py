@@ -91,7 +91,8 @@ def chi2_isf(p: float, dof: float) -> float:
         return 0.0
     a = 0.5 * dof
     upper = p <= 0.5          # solve on the smaller tail, in logs (both are accurate there)
-    target = math.log(p if upper else 1.0 - p)
+    goal = p if upper else 1.0 - p
+    target = math.log(goal)
     # Wilson-Hilferty start (A&S 26.4.17); in the lower tail P(a, x/2) <= (x/2)^a / Gamma(a+1)
     # gives a lower bound, the better start for few degrees of freedom
     z = -NormalDist().inv_cdf(p)
@@ -104,7 +105,7 @@ def chi2_isf(p: float, dof: float) -> float:
     for _ in range(300):
         cdf, sf = _tails(x, dof)
         tail = sf if upper else cdf
-        if (tail > math.exp(target)) == upper:
+        if (tail > goal) == upper:
             lo = x
         else:
             hi = x

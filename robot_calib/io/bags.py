@@ -437,11 +437,6 @@ class BagWriter:
             time_ns = codec.sample_time_ns(first) if first is not None else 0
         self.write_raw(topic, msgtype, data, time_ns)
 
-    def write_msg(self, topic: str, msgtype: str, msg: Any, time_ns: int) -> None:
-        """Write an already built rosbags message."""
-        data = codec.typestore().serialize_cdr(msg, msgtype)
-        self.write_raw(topic, msgtype, data, time_ns)
-
     def write_raw(self, topic: str, msgtype: str, data: bytes, time_ns: int) -> None:
         """Write CDR bytes of ``msgtype``."""
         topic = normalize_topic(topic)
