@@ -99,6 +99,8 @@ class LoopClosureBase(abc.ABC):
         self.params = params if params is not None else LoopClosureParams()
         self.match_params = self._registration_params()
         self._mounts: dict[tuple[str, str], StaticTransform] = {}
+        # rotation sensor -> base of each IMU frame seen (None: no mounting), per frame id
+        self._imu_rotations: dict[str, Optional[np.ndarray]] = {}
         self.reset()
 
     def reset(self) -> None:
@@ -140,6 +142,7 @@ class LoopClosureBase(abc.ABC):
     def set_mounting(self, transform: StaticTransform) -> None:
         """Take a static transform base_frame -> sensor frame (the imu's or the laser's)."""
         self._mounts[(transform.parent, transform.child)] = transform
+        self._imu_rotations.clear()
 
     def update(self, sample: Any) -> Optional[ClosureReport]:
         """
@@ -150,9 +153,9 @@ class LoopClosureBase(abc.ABC):
         """
         if isinstance(sample, ImuSample):
             gyro = np.asarray(sample.gyro, dtype=float)
-            mount = self._mount(sample.frame_id)
-            if mount is not None:
-                gyro = rotation_matrix(mount) @ gyro
+            rotation = self._imu_rotation(sample.frame_id)
+            if rotation is not None:
+                gyro = rotation @ gyro
             self._integrate_gyro(sample.t, float(gyro[2]))
         elif isinstance(sample, OdomSample):
             self._advance_odom(sample.t, sample.x, sample.y, sample.yaw)
@@ -177,6 +180,16 @@ class LoopClosureBase(abc.ABC):
     def pose(self) -> np.ndarray:
         """Return the corrected pose: x, y, yaw (m, m, rad)."""
         return se2_compose(self.correction, self.raw)
+
+    def _imu_rotation(self, frame: str) -> Optional[np.ndarray]:
+        """Return the rotation sensor -> base of the IMU frame ``frame``, or None if unmounted."""
+        try:
+            return self._imu_rotations[frame]
+        except KeyError:
+            mount = self._mount(frame)
+            rotation = rotation_matrix(mount) if mount is not None else None
+            self._imu_rotations[frame] = rotation
+            return rotation
 
     def _mount(self, frame: str) -> Optional[StaticTransform]:
         """Return the mounting whose child is ``frame``, or None."""

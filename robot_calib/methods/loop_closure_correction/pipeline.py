@@ -70,26 +70,25 @@ class LoopClosurePipeline(Pipeline):
             return [('odom', corrected)] + self.correction_tf(corrected, sample)
         if key == 'scan':
             closure = self.estimator.update(sample)
-            res = self.estimator.result()
-            if res.scans_refused_few_beams > self._refused_scans:
-                self._refused_scans = res.scans_refused_few_beams
+            refused = self.estimator.scans_refused_few_beams
+            if refused > self._refused_scans:
+                self._refused_scans = refused
                 return self.reject('scan', 'few_valid_beams')
             if closure is None:
                 return []
             stamp_ns = T.stamp_of(sample.t, sample.stamp_ns)
-            return [('diagnostics', report.diagnostic(closure, res, stamp_ns))]
+            return [('diagnostics',
+                     report.diagnostic(closure, self.estimator.result(), stamp_ns))]
         return []
 
     def _corrected_odom(self, sample: T.OdomSample) -> T.OdomSample:
         """Return the odometry message of the corrected pose at the time of ``sample``."""
-        res = self.estimator.result()
-        pose = res.pose
-        sxy2 = 0.5 * res.sigma_xy ** 2
-        cov = np.diag([sxy2, sxy2, res.sigma_yaw ** 2])
-        wz = sample.wz
-        if res.heading_source == 'imu':
-            wz = res.yaw_rate
-        raw = res.raw_pose
+        est = self.estimator  # its live state: result() would copy the reports and counts
+        pose = est.pose
+        sxy2 = 0.5 * est.sigma_xy ** 2
+        cov = np.diag([sxy2, sxy2, est.sigma_yaw ** 2])
+        wz = est.rate if est.using_imu else sample.wz
+        raw = est.raw
         if not self._track or sample.t - self._track[-1][0] >= 0.2:
             self._track.append((sample.t, float(pose[0]), float(pose[1]), float(pose[2]),
                                 float(raw[0]), float(raw[1])))
