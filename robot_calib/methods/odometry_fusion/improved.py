@@ -452,7 +452,8 @@ class ImprovedFusion(FusionFilter):
         var_w = (self.p.gyro_noise ** 2) * 30.0 + P[IBG, IBG] if not self.imu_stale else \
             self.p.odom_yaw_rate_noise ** 2
         lat = (self.p.lateral_slip * abs(x[IV])) ** 2 + 1e-6
-        twist_cov = np.diag([P[IV, IV], lat, var_w])
+        twist_cov = np.zeros((3, 3))
+        twist_cov[0, 0], twist_cov[1, 1], twist_cov[2, 2] = P[IV, IV], lat, var_w
         return FusionOutput(self.t, float(x[IX]), float(x[IY]), float(x[IYAW]), float(x[IV]),
                             float(w), pose_cov, twist_cov)
 
