@@ -96,7 +96,8 @@ class FusionFilter(abc.ABC):
         acc, valid = self._lidar_check()
         rot = self.front.rot
         return FusionResult(
-            mode=self.mode, t=self.t, state=np.array(self.x, dtype=float), covariance=self.P.copy(),
+            mode=self.mode, t=self.t, state=np.array(self.x, dtype=float),
+            covariance=self.P.copy(),
             estimates=self._estimates(), imu_extrinsic=self.front.rot_source,
             imu_rotation=None if rot is None else rot.copy(),
             imu_forward_known=self.front.forward_known, accel_units=self.front.units_source,
