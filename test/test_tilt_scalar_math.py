@@ -32,6 +32,24 @@ def test_lowpass3_equals_the_general_bank_to_the_bit():
         LowPass3(2, 0.5, 0.005)
 
 
+def test_lowpass_bank_is_direct_form_one():
+    """LowPass(9) after its start is y = b0 x + b1 x1 + b2 x2 - a1 y1 - a2 y2, to the bit."""
+    rng = np.random.default_rng(6)
+    f = LowPass(9, 0.05, 0.005)
+    xs = rng.normal(size=(100, 9)).tolist()
+    for x in xs[:10]:
+        f(x)
+    assert f.ready
+    b0, b1, b2, a1, a2 = f.coef
+    x1, x2, y1, y2 = list(f.x1), list(f.x2), list(f.y1), list(f.y2)
+    for x in xs[10:]:
+        y = [b0 * x[i] + b1 * x1[i] + b2 * x2[i] - a1 * y1[i] - a2 * y2[i] for i in range(9)]
+        out = f(x)
+        assert out == y
+        out[0] = 1e9  # the caller's list is its own
+        x1, x2, y1, y2 = list(x), x1, y, y1
+
+
 def test_qmul_unit_is_qnorm_of_qmul():
     """qmul_unit(a, b) is exactly qnorm(qmul(a, b))."""
     rng = np.random.default_rng(4)

@@ -62,6 +62,7 @@ class LowPass:
         self.ready = True
 
     def __call__(self, x: list) -> list:
+        """Filter one input ``x`` (n values); return the output as a new list."""
         n = self.n
         if not self.ready:
             self.count += 1
@@ -77,20 +78,13 @@ class LowPass:
                 self.ready = True
             return mean
         b0, b1, b2, a1, a2 = self.coef
-        x1 = self.x1
-        x2 = self.x2
-        y1 = self.y1
-        y2 = self.y2
-        y = [0.0] * n
-        for i in range(n):
-            xi = x[i]
-            yi = b0 * xi + b1 * x1[i] + b2 * x2[i] - a1 * y1[i] - a2 * y2[i]
-            x2[i] = x1[i]
-            x1[i] = xi
-            y2[i] = y1[i]
-            y1[i] = yi
-            y[i] = yi
-        return y
+        y = [b0 * xi + b1 * u1 + b2 * u2 - a1 * v1 - a2 * v2
+             for xi, u1, u2, v1, v2 in zip(x, self.x1, self.x2, self.y1, self.y2)]
+        self.x2 = self.x1
+        self.x1 = list(x[:n])
+        self.y2 = self.y1
+        self.y1 = y
+        return list(y)
 
 
 class LowPass3:
