@@ -250,7 +250,8 @@ class AttitudeEstimator:
             e = [-ey / dt + rbf[0] - hx[0], ex / dt + rbf[1] - hx[1], -hx[2]]
             s2 = (p.bias_sigma_motion * deg) ** 2
             wm = s2 * s2 / v + s2
-            PHt = [[_dot6(row, h) for h in H] for row in P]
+            PHt = [[r0 * h[0] + r1 * h[1] + r2 * h[2] + r3 * h[3] + r4 * h[4] + r5 * h[5]
+                    for h in H] for r0, r1, r2, r3, r4, r5 in P]
             # S = H P H' + W (symmetric: the lower triangle mirrors the upper one)
             c0, c1, c2 = zip(*PHt)
             s00, s01, s02 = _dot6(H[0], c0), _dot6(H[0], c1), _dot6(H[0], c2)
