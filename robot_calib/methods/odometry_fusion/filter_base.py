@@ -96,7 +96,8 @@ class FusionFilter(abc.ABC):
         acc, valid = self._lidar_check()
         rot = self.front.rot
         return FusionResult(
-            mode=self.mode, t=self.t, state=self.x.copy(), covariance=self.P.copy(),
+            mode=self.mode, t=self.t, state=np.array(self.x, dtype=float),
+            covariance=self.P.copy(),
             estimates=self._estimates(), imu_extrinsic=self.front.rot_source,
             imu_rotation=None if rot is None else rot.copy(),
             imu_forward_known=self.front.forward_known, accel_units=self.front.units_source,
@@ -158,28 +159,31 @@ class FusionFilter(abc.ABC):
         """Check one IMU sample and use it; return a rejection reason or None when used."""
         gx, gy, gz = np.asarray(s.gyro, dtype=float).tolist()
         ax, ay, az = np.asarray(s.accel, dtype=float).tolist()
-        if not math.isfinite(gx + gy + gz + ax + ay + az + s.t):
+        t = s.t
+        p = self.p
+        front = self.front
+        if not math.isfinite(gx + gy + gz + ax + ay + az + t):
             return 'non_finite'
-        if max(abs(gx), abs(gy), abs(gz)) > self.p.max_gyro:
+        if max(abs(gx), abs(gy), abs(gz)) > p.max_gyro:
             return 'gyro_out_of_range'
-        if math.sqrt(ax * ax + ay * ay + az * az) * (self.front.accel_scale or 1.0) > \
-                self.p.max_accel:
+        if math.sqrt(ax * ax + ay * ay + az * az) * (front.accel_scale or 1.0) > p.max_accel:
             return 'accel_out_of_range'
-        if self.last_imu_t is not None and s.t <= self.last_imu_t:
+        last = self.last_imu_t
+        if last is not None and t <= last:
             return 'out_of_order'
-        if self.last_imu_t is None or s.t - self.last_imu_t > self.p.sensor_timeout:
-            self.imu_run_start = s.t
-        conv = self.front.convert(s, (gx, gy, gz), (ax, ay, az))
-        while self.front.warnings:
-            self.warn(s.t, self.front.warnings.pop(0))
+        silent = last is None or t - last > p.sensor_timeout
+        if silent:
+            self.imu_run_start = t
+        conv = front.convert(s, (gx, gy, gz), (ax, ay, az))
+        while front.warnings:
+            self.warn(t, front.warnings.pop(0))
+        self.last_imu_t = t
         if conv is None:
-            self.last_imu_t = s.t
             return 'initialising'
-        if self.last_imu_t is not None and s.t - self.last_imu_t > self.p.sensor_timeout:
+        if silent and last is not None:
             self.count('imu_gaps')
-            self.warn(s.t, f'IMU silent for {s.t - self.last_imu_t:.2f} s; resumed')
-        self.last_imu_t = s.t
-        return self._imu_step(s.t, *conv)
+            self.warn(t, f'IMU silent for {t - last:.2f} s; resumed')
+        return self._imu_step(t, *conv)
 
     def _odom_sample(self, s: T.OdomSample) -> Optional[str]:
         """Check one wheel-odometry message and use it; return a rejection reason or None."""

@@ -45,10 +45,11 @@ IX, IY, IYAW, IV, IBG, IBA, IKW, IKV = range(8)
 """Indices of the improved state."""
 
 _EYE8 = np.eye(8)
-_CONSIDER_W = np.array([True, True, True, True, True, True, False, False])
-"""States the wheel yaw rate does not correct by default (only its scale and offset)."""
-_CONSIDER_POSE = np.array([True, True, True, False, False, False, False, False])
-"""States a standstill update leaves alone with ``continuous_pose``: x, y, yaw."""
+_CONSIDER_W = 6
+"""States the wheel yaw rate does not correct by default: the first 6 (all but k_w, k_v)."""
+_CONSIDER_POSE = 3
+"""States a standstill update leaves alone with ``continuous_pose``: the first 3 (pose)."""
+_outer = np.multiply.outer
 
 
 class ImprovedFusion(FusionFilter):
@@ -60,7 +61,8 @@ class ImprovedFusion(FusionFilter):
         """Set the initial state: still at the origin, biases 0, scale 1, their priors."""
         super()._start()
         p = self.p
-        self.x = np.array([0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0])
+        # the state as Python floats (cheaper per element than a small array; same arithmetic)
+        self.x = [0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0]
         self.P = np.diag([1e-6, 1e-6, 1e-6, 0.25, p.gyro_bias_init ** 2,
                           p.accel_bias_init ** 2, p.yaw_rate_scale_init ** 2,
                           p.yaw_rate_offset_init ** 2])
@@ -87,7 +89,7 @@ class ImprovedFusion(FusionFilter):
         if self.initialised:
             return
         if s is not None and self.p.initial_pose_from_odom:
-            self.x[IX], self.x[IY], self.x[IYAW] = s.x, s.y, s.yaw
+            self.x[IX], self.x[IY], self.x[IYAW] = float(s.x), float(s.y), float(s.yaw)
         self.initialised = True
 
     def reinitialise(self, t: float, v: float, reason: str) -> None:
@@ -214,27 +216,43 @@ class ImprovedFusion(FusionFilter):
 
     # -- odometry update -------------------------------------------------------------------
     def _scalar_update(self, h: np.ndarray, resid: float, r: float,
-                       consider: Optional[np.ndarray] = None) -> tuple[float, float]:
+                       consider: Optional[int] = None) -> tuple[float, float]:
         """
         Kalman update with one scalar observation; return (innovation variance, NIS).
 
-        ``consider`` masks states left uncorrected (Schmidt-Kalman consider update):
-        their uncertainty enters the innovation variance, their values are kept.
+        ``consider`` (n) leaves the first n states uncorrected (Schmidt-Kalman
+        consider update): their uncertainty enters the innovation variance,
+        their values are kept.
         """
         Ph = self.P @ h
-        s = float(h @ Ph) + r
+        return self._gain_update(Ph, float(h @ Ph) + r, resid, consider)
+
+    def _unit_update(self, i: int, sign: float, resid: float, r: float,
+                     consider: Optional[int] = None) -> tuple[float, float]:
+        """:meth:`_scalar_update` with ``h = sign * e_i`` (sign +-1): ``P h`` is a column."""
+        Ph = self.P[:, i] if sign > 0.0 else -self.P[:, i]
+        return self._gain_update(Ph, float(Ph[i] * sign) + r, resid, consider)
+
+    def _gain_update(self, Ph: np.ndarray, s: float, resid: float,
+                     consider: Optional[int]) -> tuple[float, float]:
+        """Apply the update of gain ``Ph / s`` to the innovation ``resid``; (s, NIS)."""
         k = Ph / s
+        P = self.P
         if consider is None:
-            self.x += k * resid
-            # P = (I - k h') P = P - Ph Ph' / s: symmetric by construction
-            self.P = self.P - np.outer(k, Ph)
+            # P = (I - k h') P = P - k Ph': symmetric by construction
+            self.P = P - _outer(k, Ph)
         else:
-            k[consider] = 0.0
-            self.x += k * resid
+            k[:consider] = 0.0
             # Joseph form for any gain, expanded: (I - k h') P (I - k h')' + r k k'
             #   = P - k Ph' - Ph k' + s k k'
-            kPh = np.outer(k, Ph)
-            self.P = self.P - kPh - kPh.T + s * np.outer(k, k)
+            kPh = _outer(k, Ph)
+            P = P - kPh
+            P -= kPh.T
+            P += s * _outer(k, k)
+            self.P = P
+        x = self.x
+        for i, ki in enumerate((k * resid).tolist()):
+            x[i] += ki
         return s, resid * resid / s
 
     def _wheel_step(self, t: float, v: float, w: float) -> Optional[str]:
@@ -269,9 +287,7 @@ class ImprovedFusion(FusionFilter):
                 nis_total += nis_w
                 dof += 1
         if still:
-            h = np.zeros(8)
-            h[IV] = 1.0
-            self._scalar_update(h, -self.x[IV], 1e-4, self._still_consider)
+            self._unit_update(IV, 1.0, -self.x[IV], 1e-4, self._still_consider)
         self._last_upd_t = t
         self._after_update(t, v, r_v, rejected, nis_total, dof)
         if rejected:
@@ -279,7 +295,7 @@ class ImprovedFusion(FusionFilter):
         return None
 
     @property
-    def _still_consider(self) -> Optional[np.ndarray]:
+    def _still_consider(self) -> Optional[int]:
         """Return the states a standstill update leaves uncorrected (None: none)."""
         return _CONSIDER_POSE if self.p.continuous_pose else None
 
@@ -303,8 +319,6 @@ class ImprovedFusion(FusionFilter):
 
     def _speed_update(self, t: float, v: float, r_v: float, still: bool) -> Optional[float]:
         """Update with the wheel speed (z = v); return its NIS, or None when gated out."""
-        h = np.zeros(8)
-        h[IV] = 1.0
         res_v = v - self.x[IV]
         s_pred = float(self.P[IV, IV])
         r_eff = r_v * self.noise.scales[0]
@@ -312,7 +326,7 @@ class ImprovedFusion(FusionFilter):
         nis_v = res_v * res_v / s_v
         used = not (nis_v > self._gate and not still)
         if used:
-            self._scalar_update(h, res_v, r_eff, self._still_consider if still else None)
+            self._unit_update(IV, 1.0, res_v, r_eff, self._still_consider if still else None)
         self.noise.adapt(0, res_v, s_pred, r_v, s_v, t)
         return nis_v if used else None
 
@@ -347,14 +361,12 @@ class ImprovedFusion(FusionFilter):
         self.noise.adapt(1, res_w, s_pred + r_gyro, r_w, s_w, t)
         if still:
             # zero-velocity update: the gyro must read its bias
-            h = np.zeros(8)
-            h[IBG] = -1.0
             # nominal gyro noise of the average over the interval (not adapted: the
             # yaw-rate channel's scale also carries wheel noise; an adapted-down value
             # here made the bias over-confident)
-            self._scalar_update(h, 0.0 - (gz_avg - x[IBG]),
-                                (p.gyro_noise ** 2) / max(interval, 1e-3) + 1e-6,
-                                self._still_consider)
+            self._unit_update(IBG, -1.0, 0.0 - (gz_avg - x[IBG]),
+                              (p.gyro_noise ** 2) / max(interval, 1e-3) + 1e-6,
+                              self._still_consider)
         return nis_w if used else None
 
     def _after_update(self, t: float, v: float, r_v: float, rejected: list, nis_total: float,
@@ -408,14 +420,17 @@ class ImprovedFusion(FusionFilter):
     def _guard(self, t: float, v: float) -> None:
         """Re-initialise when the state or covariance is no longer finite or sane."""
         P = self.P
-        bad = not math.isfinite(float(self.x.sum()) + float(P.sum()))
+        x = self.x
+        # the sum of the 8 states in numpy's (pairwise) order: only its finiteness counts
+        xsum = ((x[0] + x[1]) + (x[2] + x[3])) + ((x[4] + x[5]) + (x[6] + x[7]))
+        bad = not math.isfinite(xsum + float(P.sum()))
         if not bad:
-            d = P.diagonal()
-            bad = float(d.min()) < 0 or d[IBG] > 1.0 or abs(self.x[IBG]) > 1.0 or \
-                not (0.05 < self.x[IKW] < 20.0)
+            d = P.diagonal().tolist()
+            bad = min(d) < 0 or d[IBG] > 1.0 or abs(x[IBG]) > 1.0 or \
+                not (0.05 < x[IKW] < 20.0)
         if bad:
-            if not np.all(np.isfinite(self.x[:3])):
-                self.x[:3] = 0.0
+            if not all(math.isfinite(v) for v in x[:3]):
+                x[0] = x[1] = x[2] = 0.0
             self.x[IBG] = 0.0 if not (abs(self.x[IBG]) <= 1.0) else self.x[IBG]
             self.x[IBA] = 0.0
             self.x[IKW] = 1.0
@@ -437,7 +452,8 @@ class ImprovedFusion(FusionFilter):
         var_w = (self.p.gyro_noise ** 2) * 30.0 + P[IBG, IBG] if not self.imu_stale else \
             self.p.odom_yaw_rate_noise ** 2
         lat = (self.p.lateral_slip * abs(x[IV])) ** 2 + 1e-6
-        twist_cov = np.diag([P[IV, IV], lat, var_w])
+        twist_cov = np.zeros((3, 3))
+        twist_cov[0, 0], twist_cov[1, 1], twist_cov[2, 2] = P[IV, IV], lat, var_w
         return FusionOutput(self.t, float(x[IX]), float(x[IY]), float(x[IYAW]), float(x[IV]),
                             float(w), pose_cov, twist_cov)
 

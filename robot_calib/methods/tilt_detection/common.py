@@ -267,8 +267,13 @@ class TiltEstimatorBase(abc.ABC):
             self._episodes.append((t, None))
         elif changed is False and self._episodes:
             self._episodes[-1] = (self._episodes[-1][0], t)
-        state = TiltState(t, q, tilt, self._detector.alert, changed is not None, roll, pitch,
-                          bias, rest, gap, *self._in_base_frame(sample))
+        if self._mounted:
+            state = TiltState(t, q, tilt, self._detector.alert, changed is not None, roll,
+                              pitch, bias, rest, gap, *self._in_base_frame(sample))
+        else:
+            state = TiltState(t, q, tilt, self._detector.alert, changed is not None, roll,
+                              pitch, bias, rest, gap, sample.gyro, sample.accel,
+                              sample.frame_id, False)
         self._last = state
         self._samples += 1
         return state
@@ -325,6 +330,7 @@ class TiltEstimatorBase(abc.ABC):
     def _set_mount(self, q: tuple) -> None:
         """Set the mounting rotation (IMU frame in base_link, unit (w, x, y, z))."""
         self._mount = q
+        self._mount_conj = (q[0], -q[1], -q[2], -q[3])
         self._mounted = q != IDENTITY
         self._mount_matrix = None
         if self._mounted:

@@ -31,13 +31,11 @@ from __future__ import annotations
 import math
 from typing import Optional
 
-import numpy as np
-
 from robot_calib.methods.tilt_detection.common import TiltEstimatorBase
 from robot_calib.methods.tilt_detection.lowpass import LowPass, LowPass3
 from robot_calib.methods.tilt_detection.params import ImprovedFilterParams
-from robot_calib.methods.tilt_detection.quaternion import (align_up, positive_w, qmul, qnorm,
-                                                           qrot, tilt_of)
+from robot_calib.methods.tilt_detection.quaternion import (align_up, positive_w, qmul,
+                                                           qmul_unit, qrot)
 
 
 class AttitudeEstimator:
@@ -54,6 +52,12 @@ class AttitudeEstimator:
         self.ts = ts
         self._deg = math.pi / 180.0
         self._still_rate2 = (p.rest_gyro_threshold * self._deg) ** 2
+        th_g = p.rest_gyro_threshold * self._deg
+        self._rest_gyr2 = th_g * th_g
+        self._rest_acc2 = p.rest_accel_threshold ** 2
+        self._snap_on = p.rest_snap_angle > 0.0
+        self._snap_cos = math.cos(p.rest_snap_angle * self._deg)
+        self._bias_on = p.motion_bias or p.rest_bias
         self.reset()
 
     # -- state ---------------------------------------------------------------------------
@@ -82,8 +86,8 @@ class AttitudeEstimator:
         if not hasattr(self, 'bias'):
             self.bias = [0.0, 0.0, 0.0]
             self.scale = [0.0, 0.0, 0.0]
-            self.P6 = np.diag([(p.bias_sigma_init * self._deg) ** 2] * 3
-                              + [p.scale_sigma_init ** 2] * 3)
+            d6 = [(p.bias_sigma_init * self._deg) ** 2] * 3 + [p.scale_sigma_init ** 2] * 3
+            self.P6 = [[d6[i] if i == j else 0.0 for j in range(6)] for i in range(6)]
             s0 = (p.bias_sigma_init * self._deg) ** 2
             self.P = [[s0, 0.0, 0.0], [0.0, s0, 0.0], [0.0, 0.0, s0]]
 
@@ -105,7 +109,8 @@ class AttitudeEstimator:
                dt: float) -> tuple:
         """Process one sample (rad/s, m/s^2, s since the previous one); return the quaternion."""
         p = self.p
-        if abs(dt - self.ts) > 0.2 * self.ts:
+        ts = self.ts
+        if abs(dt - ts) > 0.2 * ts:
             self._set_ts(dt)
         if not self.initialised:
             n = math.sqrt(ax * ax + ay * ay + az * az)
@@ -123,22 +128,22 @@ class AttitudeEstimator:
             if wn > 1e-12:
                 half = 0.5 * wn * dt
                 s = math.sin(half) / wn
-                self.q_gyr = qnorm(qmul(self.q_gyr, (math.cos(half), s * wx, s * wy, s * wz)))
+                self.q_gyr = qmul_unit(self.q_gyr, (math.cos(half), s * wx, s * wy, s * wz))
         self._rest_detection(gx, gy, gz, ax, ay, az, dt)
 
         # Acceleration in the almost-inertial frame, low-pass filtered there.
-        a_i = qrot(self.q_gyr, ax, ay, az)
-        lp = self.acc_lp(a_i)
-        if p.rest_snap_angle > 0.0 and self.rest_time >= p.rest_snap_time \
-                and self.acc_lp.ready and self._turn_rate2(gx, gy, gz) < self._still_rate2:
+        a0, a1, a2 = qrot(self.q_gyr, ax, ay, az)
+        lp = self.acc_lp.step(a0, a1, a2)
+        if self._snap_on and self.rest_time >= p.rest_snap_time and self.acc_lp.ready \
+                and self._turn_rate2(gx, gy, gz) < self._still_rate2:
             lp = self._rest_snap(lp)
         # Into the earth frame; correct the inclination so that it points up.
         ex, ey, ez = qrot(self.q_inc, lp[0], lp[1], lp[2])
         n = math.sqrt(ex * ex + ey * ey + ez * ez)
         if n > 1e-9:
             ex, ey, ez = ex / n, ey / n, ez / n
-            self.q_inc = qnorm(qmul(align_up(ex, ey, ez), self.q_inc))
-        if p.motion_bias or p.rest_bias:
+            self.q_inc = qmul_unit(align_up(ex, ey, ez), self.q_inc)
+        if self._bias_on:
             # Average the corrections over bias_update_period, then one Kalman update.
             self._acc_x += ex
             self._acc_y += ey
@@ -158,39 +163,38 @@ class AttitudeEstimator:
                 self._acc_n = 0
                 self._acc_x = self._acc_y = self._acc_dt = 0.0
                 self._acc_g = [0.0, 0.0, 0.0]
-        return self.quat
+        return qmul(self.q_inc, self.q_gyr)
 
     def _turn_rate2(self, gx: float, gy: float, gz: float) -> float:
         """Return the squared bias-corrected rate ((rad/s)^2)."""
         b = self.bias
         return (gx - b[0]) ** 2 + (gy - b[1]) ** 2 + (gz - b[2]) ** 2
 
-    def _rest_snap(self, lp: list) -> list:
+    def _rest_snap(self, lp: tuple) -> tuple:
         """At rest, restart the acceleration filter from the mean reading if they disagree."""
         m = self._rest_acc
         mi = qrot(self.q_gyr, m[0], m[1], m[2])
         dot = mi[0] * lp[0] + mi[1] * lp[1] + mi[2] * lp[2]
         n2 = (mi[0] ** 2 + mi[1] ** 2 + mi[2] ** 2) * (lp[0] ** 2 + lp[1] ** 2 + lp[2] ** 2)
         n = math.sqrt(n2)
-        if n <= 0.0 or dot / n > math.cos(self.p.rest_snap_angle * self._deg):
+        if n <= 0.0 or dot / n > self._snap_cos:
             return lp
-        self.acc_lp.fill(list(mi))
+        self.acc_lp.fill(mi)
         self.snaps += 1
-        return list(mi)
+        return mi
 
     def _rest_detection(self, gx: float, gy: float, gz: float, ax: float, ay: float,
                         az: float, dt: float) -> None:
-        p = self.p
-        g = self.rest_gyr_lp([gx, gy, gz])
-        a = self.rest_acc_lp([ax, ay, az])
-        dg = (gx - g[0]) ** 2 + (gy - g[1]) ** 2 + (gz - g[2]) ** 2
-        da = (ax - a[0]) ** 2 + (ay - a[1]) ** 2 + (az - a[2]) ** 2
-        th_g = p.rest_gyro_threshold * self._deg
-        if dg < th_g * th_g and da < p.rest_accel_threshold ** 2:
+        """Count the time the IMU has been still (rates and force near their low-pass means)."""
+        g0, g1, g2 = self.rest_gyr_lp.step(gx, gy, gz)
+        a0, a1, a2 = self.rest_acc_lp.step(ax, ay, az)
+        dg = (gx - g0) ** 2 + (gy - g1) ** 2 + (gz - g2) ** 2
+        da = (ax - a0) ** 2 + (ay - a1) ** 2 + (az - a2) ** 2
+        if dg < self._rest_gyr2 and da < self._rest_acc2:
             self.rest_time += dt
-            self.rest = self.rest_time >= p.rest_min_time
-            self.rest_gyr = (g[0], g[1], g[2])
-            self._rest_acc = (a[0], a[1], a[2])
+            self.rest = self.rest_time >= self.p.rest_min_time
+            self.rest_gyr = (g0, g1, g2)
+            self._rest_acc = (a0, a1, a2)
         else:
             self.rest_time = 0.0
             self.rest = False
@@ -223,44 +227,61 @@ class AttitudeEstimator:
         P = self.P6
         v = (0.1 * deg) ** 2 * dt / p.bias_forgetting_time
         vs = p.scale_sigma_init ** 2 * dt / (10.0 * p.bias_forgetting_time)
-        if P[0, 0] < (p.bias_sigma_init * deg) ** 2:
-            P[0, 0] += v
-            P[1, 1] += v
-            P[2, 2] += v
-        if P[3, 3] < p.scale_sigma_init ** 2:
-            P[3, 3] += vs
-            P[4, 4] += vs
-            P[5, 5] += vs
-        xs = np.array(b + sc)
+        if P[0][0] < (p.bias_sigma_init * deg) ** 2:
+            P[0][0] += v
+            P[1][1] += v
+            P[2][2] += v
+        if P[3][3] < p.scale_sigma_init ** 2:
+            P[3][3] += vs
+            P[4][4] += vs
+            P[5][5] += vs
+        xs = b + sc
         if self.rest and p.rest_bias:
-            H = np.hstack((np.eye(3), np.zeros((3, 3))))
-            e = np.array([self.rest_gyr[i] - b[i] for i in range(3)])
+            # H = [I 0]: P H' is the first three columns of P, H P H' its upper left block
+            PHt = [row[:3] for row in P]
+            e = [self.rest_gyr[0] - b[0], self.rest_gyr[1] - b[1], self.rest_gyr[2] - b[2]]
             s2 = (p.bias_sigma_rest * deg) ** 2
-            W = np.diag([s2 * s2 / v + s2] * 3)
+            wr = s2 * s2 / v + s2
+            S = [[P[0][0] + wr, P[0][1], P[0][2]], [P[1][0], P[1][1] + wr, P[1][2]],
+                 [P[2][0], P[2][1], P[2][2] + wr]]
         elif p.motion_bias and not self.rest:
-            H = np.hstack((np.array(Rf).reshape(3, 3), np.array(RDf).reshape(3, 3)))
-            hx = H @ xs
-            e = np.array([-ey / dt + rbf[0] - hx[0], ex / dt + rbf[1] - hx[1], -hx[2]])
+            H = (Rf[0:3] + RDf[0:3], Rf[3:6] + RDf[3:6], Rf[6:9] + RDf[6:9])
+            hx = [_dot6(h, xs) for h in H]
+            e = [-ey / dt + rbf[0] - hx[0], ex / dt + rbf[1] - hx[1], -hx[2]]
             s2 = (p.bias_sigma_motion * deg) ** 2
             wm = s2 * s2 / v + s2
-            W = np.diag([wm, wm, wm / p.bias_vertical_factor])
+            PHt = [[r0 * h[0] + r1 * h[1] + r2 * h[2] + r3 * h[3] + r4 * h[4] + r5 * h[5]
+                    for h in H] for r0, r1, r2, r3, r4, r5 in P]
+            # S = H P H' + W (symmetric: the lower triangle mirrors the upper one)
+            c0, c1, c2 = zip(*PHt)
+            s00, s01, s02 = _dot6(H[0], c0), _dot6(H[0], c1), _dot6(H[0], c2)
+            s11, s12, s22 = _dot6(H[1], c1), _dot6(H[1], c2), _dot6(H[2], c2)
+            S = [[s00 + wm, s01, s02], [s01, s11 + wm, s12],
+                 [s02, s12, s22 + wm / p.bias_vertical_factor]]
         else:
             return
         clip = p.bias_clip * deg
-        e = np.clip(e, -clip, clip)
-        PHt = P @ H.T
-        S = H @ PHt + W
-        try:
-            K = np.linalg.solve(S, PHt.T).T
-        except np.linalg.LinAlgError:
+        e = [_clip(ei, clip) for ei in e]
+        # K = P H' S^-1 (closed-form inverse of the 3x3 SPD S instead of an LU solve)
+        Si = _inv3(S)
+        if Si is None:
             return
-        xs = xs + K @ e
-        xs[:3] = np.clip(xs[:3], -clip, clip)
-        xs[3:] = np.clip(xs[3:], -p.scale_clip, p.scale_clip)
-        P = P - K @ PHt.T
-        self.P6 = 0.5 * (P + P.T)   # keep it symmetric over hours of updates
-        self.bias = [float(v) for v in xs[:3]]
-        self.scale = [float(v) for v in xs[3:]]
+        (a00, a01, a02), (a10, a11, a12), (a20, a21, a22) = Si
+        K = [(r0 * a00 + r1 * a10 + r2 * a20, r0 * a01 + r1 * a11 + r2 * a21,
+              r0 * a02 + r1 * a12 + r2 * a22) for r0, r1, r2 in PHt]
+        e0, e1, e2 = e
+        xs = [xi + k0 * e0 + k1 * e1 + k2 * e2 for xi, (k0, k1, k2) in zip(xs, K)]
+        # P -= K (P H')' : symmetric, so the upper triangle is computed and mirrored
+        for i in range(6):
+            k0, k1, k2 = K[i]
+            Pi = P[i]
+            for j in range(i, 6):
+                h0, h1, h2 = PHt[j]
+                Pi[j] -= k0 * h0 + k1 * h1 + k2 * h2
+                P[j][i] = Pi[j]
+        sclip = p.scale_clip
+        self.bias = [_clip(xs[0], clip), _clip(xs[1], clip), _clip(xs[2], clip)]
+        self.scale = [_clip(xs[3], sclip), _clip(xs[4], sclip), _clip(xs[5], sclip)]
 
     def _bias_update(self, ex: float, ey: float, dt: float) -> None:
         """
@@ -324,7 +345,18 @@ class AttitudeEstimator:
                    for j in range(3)] for i in range(3)]
 
 
+def _dot6(a: list, b: list) -> float:
+    """Return the dot product of two 6-vectors."""
+    return a[0] * b[0] + a[1] * b[1] + a[2] * b[2] + a[3] * b[3] + a[4] * b[4] + a[5] * b[5]
+
+
+def _clip(v: float, lim: float) -> float:
+    """Return ``v`` clipped to [-lim, lim] (NaN stays NaN, like numpy.clip)."""
+    return -lim if v < -lim else (lim if v > lim else v)
+
+
 def _inv3(m: list) -> Optional[list]:
+    """Return the inverse of a 3x3 matrix (cofactors), None when singular or not finite."""
     a, b, c = m[0]
     d, e, f = m[1]
     g, h, i = m[2]
@@ -364,11 +396,11 @@ class ImprovedTiltEstimator(TiltEstimatorBase):
         """Run the attitude filter on one sample (see :meth:`TiltEstimatorBase._estimate`)."""
         f = self._filter
         q_imu = f.update(gx, gy, gz, ax, ay, az, dt)
-        m = self._mount
         # base_link -> earth = (imu -> earth) * (base_link -> imu)
-        q = positive_w(qmul(q_imu, (m[0], -m[1], -m[2], -m[3])))
-        tilt = tilt_of(q)
+        q = positive_w(qmul(q_imu, self._mount_conj))
         w, x, y, z = q
+        c = 1.0 - 2.0 * (x * x + y * y)   # tilt_of(q), inlined
+        tilt = math.acos(-1.0 if c < -1.0 else (1.0 if c > 1.0 else c))
         roll = math.atan2(2 * (w * x + y * z), 1 - 2 * (x * x + y * y))
         pitch = math.asin(max(-1.0, min(1.0, 2 * (w * y - z * x))))
         return q, tilt, roll, pitch, tuple(f.bias), f.rest, tilt

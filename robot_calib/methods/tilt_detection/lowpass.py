@@ -62,6 +62,7 @@ class LowPass:
         self.ready = True
 
     def __call__(self, x: list) -> list:
+        """Filter one input ``x`` (n values); return the output as a new list."""
         n = self.n
         if not self.ready:
             self.count += 1
@@ -77,41 +78,77 @@ class LowPass:
                 self.ready = True
             return mean
         b0, b1, b2, a1, a2 = self.coef
-        x1 = self.x1
-        x2 = self.x2
-        y1 = self.y1
-        y2 = self.y2
-        y = [0.0] * n
-        for i in range(n):
-            xi = x[i]
-            yi = b0 * xi + b1 * x1[i] + b2 * x2[i] - a1 * y1[i] - a2 * y2[i]
-            x2[i] = x1[i]
-            x1[i] = xi
-            y2[i] = y1[i]
-            y1[i] = yi
-            y[i] = yi
-        return y
+        y = [b0 * xi + b1 * u1 + b2 * u2 - a1 * v1 - a2 * v2
+             for xi, u1, u2, v1, v2 in zip(x, self.x1, self.x2, self.y1, self.y2)]
+        self.x2 = self.x1
+        self.x1 = list(x[:n])
+        self.y2 = self.y1
+        self.y1 = y
+        return list(y)
 
 
-class LowPass3(LowPass):
-    """The 3-channel case of :class:`LowPass`, unrolled (it runs several times per sample)."""
+class LowPass3:
+    """
+    The 3-channel case of :class:`LowPass` on scalar state (it runs several times per sample).
 
-    __slots__ = ()
+    Same filter and start as :class:`LowPass`, term for term (the same results
+    to the bit); :meth:`step` takes and returns three floats without lists.
+    """
+
+    __slots__ = ('n', 'tau', 'coef', 'count', 's0', 's1', 's2', 'init_n', 'ready',
+                 'x10', 'x11', 'x12', 'x20', 'x21', 'x22',
+                 'y10', 'y11', 'y12', 'y20', 'y21', 'y22')
+
+    def __init__(self, n: int, tau: float, ts: float):
+        """Create the bank (``n`` must be 3) with time constant ``tau`` (s), period ``ts`` (s)."""
+        if n != 3:
+            raise ValueError('LowPass3 filters exactly 3 channels')
+        self.n = 3
+        self.tau = tau
+        self.coef = butter2(tau, ts)
+        self.count = 0
+        self.s0 = self.s1 = self.s2 = 0.0
+        self.init_n = max(1, int(round(tau / ts)))
+        self.ready = False
+
+    def set_ts(self, ts: float) -> None:
+        """Recompute the coefficients for sampling period ``ts`` (s)."""
+        self.coef = butter2(self.tau, ts)
+        if not self.ready:
+            self.init_n = max(1, int(round(self.tau / ts)))
+
+    def fill(self, value: list) -> None:
+        """Set the filter to the steady state of a constant input ``value``."""
+        v0, v1, v2 = value
+        self.x10 = self.x20 = self.y10 = self.y20 = v0
+        self.x11 = self.x21 = self.y11 = self.y21 = v1
+        self.x12 = self.x22 = self.y12 = self.y22 = v2
+        self.ready = True
 
     def __call__(self, x: list) -> list:
+        """Filter one input ``x`` (3 values); return the output as a list."""
+        return list(self.step(x[0], x[1], x[2]))
+
+    def step(self, u0: float, u1: float, u2: float) -> tuple:
+        """Filter one input (three floats); return the output (three floats)."""
         if not self.ready:
-            return LowPass.__call__(self, x)
+            self.count += 1
+            self.s0 += u0
+            self.s1 += u1
+            self.s2 += u2
+            c = self.count
+            mean = (self.s0 / c, self.s1 / c, self.s2 / c)
+            if c >= self.init_n:
+                self.fill(mean)
+            return mean
         b0, b1, b2, a1, a2 = self.coef
-        x1 = self.x1
-        x2 = self.x2
-        y1 = self.y1
-        y2 = self.y2
-        u0, u1, u2 = x[0], x[1], x[2]
-        v0 = b0 * u0 + b1 * x1[0] + b2 * x2[0] - a1 * y1[0] - a2 * y2[0]
-        v1 = b0 * u1 + b1 * x1[1] + b2 * x2[1] - a1 * y1[1] - a2 * y2[1]
-        v2 = b0 * u2 + b1 * x1[2] + b2 * x2[2] - a1 * y1[2] - a2 * y2[2]
-        self.x2 = x1
-        self.x1 = [u0, u1, u2]
-        self.y2 = y1
-        self.y1 = [v0, v1, v2]
-        return [v0, v1, v2]
+        x10, x11, x12 = self.x10, self.x11, self.x12
+        y10, y11, y12 = self.y10, self.y11, self.y12
+        v0 = b0 * u0 + b1 * x10 + b2 * self.x20 - a1 * y10 - a2 * self.y20
+        v1 = b0 * u1 + b1 * x11 + b2 * self.x21 - a1 * y11 - a2 * self.y21
+        v2 = b0 * u2 + b1 * x12 + b2 * self.x22 - a1 * y12 - a2 * self.y22
+        self.x20, self.x21, self.x22 = x10, x11, x12
+        self.x10, self.x11, self.x12 = u0, u1, u2
+        self.y20, self.y21, self.y22 = y10, y11, y12
+        self.y10, self.y11, self.y12 = v0, v1, v2
+        return v0, v1, v2

@@ -1,0 +1,56 @@
+# Copyright 2026 robot_calib contributors
+# SPDX-License-Identifier: Apache-2.0
+"""The improved fusion filter's unit-vector update against the general scalar update."""
+
+import copy
+
+import numpy as np
+import pytest
+from robot_calib.methods.odometry_fusion.improved import IBG, ImprovedFusion, IV
+from robot_calib.methods.odometry_fusion.params import FusionParams
+from test_fusion_core import drive  # noqa: I100 - the test helper module
+
+
+def _filter_after_a_drive():
+    """Return an improved filter that has fused 30 s of a synthetic drive (P is dense)."""
+    f = ImprovedFusion(FusionParams())
+    samples, _ = drive(duration=30.0, seed=2)
+    for kind, s in samples:
+        if kind == 'tf_static':
+            f.set_mounting(s)
+        else:
+            f.update(s)
+    return f
+
+
+@pytest.mark.parametrize('i, sign, consider', [(IV, 1.0, None), (IV, 1.0, 3), (IBG, -1.0, 3),
+                                               (IBG, -1.0, None)])
+def test_unit_update_equals_the_scalar_update_with_a_unit_h(i, sign, consider):
+    """A column of P is P h for h = +-e_i: the same state and covariance, bit for bit."""
+    a = _filter_after_a_drive()
+    assert np.count_nonzero(a.P) > 40
+    b = copy.deepcopy(a)
+    h = np.zeros(8)
+    h[i] = sign
+    sa = a._unit_update(i, sign, 0.03, 1e-3, consider)
+    sb = b._scalar_update(h, 0.03, 1e-3, consider)
+    assert sa == sb
+    assert a.x == b.x
+    assert np.array_equal(a.P, b.P)
+    assert a.x != _filter_after_a_drive().x  # the update moved the state
+
+
+@pytest.mark.parametrize('n', [3, 6])
+def test_consider_update_keeps_the_leading_states(n):
+    """A consider update of n leaves the first n states as they were and corrects the rest."""
+    f = _filter_after_a_drive()
+    x0 = list(f.x)
+    h = np.zeros(8)
+    h[IBG], h[6], h[7] = -1.0, 0.2, 0.5
+    free = _filter_after_a_drive()
+    free._scalar_update(h, 0.05, 1e-3)
+    assert all(a != b for a, b in zip(free.x[:3], x0[:3]))  # without consider they move
+    f._scalar_update(h, 0.05, 1e-3, n)
+    assert f.x[:n] == x0[:n]
+    assert f.x[6:] != x0[6:]
+    assert np.allclose(f.P, f.P.T, rtol=0.0, atol=1e-15)
