@@ -60,7 +60,7 @@ def test_qmul_unit_is_qnorm_of_qmul():
 
 
 def _reference_update(f, ex, ey, dt, g):
-    """The bias/scale Kalman update as numpy matrices with an LU solve (the former code)."""
+    """Apply the bias/scale Kalman update as numpy matrices with an LU solve (the former code)."""
     p = f.p
     deg = math.pi / 180.0
     b, sc = f.bias, f.scale
