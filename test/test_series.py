@@ -38,6 +38,18 @@ def test_reservoir_keeps_exact_count_and_sum_and_close_percentiles():
     assert abs(r.percentile(99) - np.percentile(values, 99)) < 0.5
 
 
+def test_reservoir_sample_is_uniform_over_the_whole_stream():
+    """Every part of a long stream is kept in proportion (skipping keeps the sample uniform)."""
+    n, k = 400000, 4000
+    r = Reservoir(capacity=k, seed=3)
+    for i in range(n):
+        r.append(float(i))
+    counts = np.histogram(r.values, bins=8, range=(0, n))[0]
+    assert len(r.values) == k and len(set(r.values)) == k
+    assert np.all(np.abs(counts - k / 8) < 4 * np.sqrt(k / 8)), counts
+    assert r.count == n and r.total == n * (n - 1) / 2
+
+
 def test_rows_read_like_a_list_of_arrays():
     rows = Rows(3)
     data = np.arange(30, dtype=float).reshape(10, 3) * 0.5
