@@ -25,6 +25,7 @@ from robot_calib import codec
 from robot_calib.core import types as T
 from robot_calib.core.series import Thinned
 from robot_calib.io.bags import BagSet, BagWriter
+from robot_calib.pipelines.validation import sample_problem, UNCHECKED
 from robot_calib.replay.config import OUTPUT_BAG
 from robot_calib.replay.select import NodeRun, Plan
 
@@ -50,11 +51,11 @@ class RunStats:
 
 
 def _routes(plan: Plan) -> dict[str, list]:
-    """Return topic -> [(process, input key, run, add_time)] of the nodes reading it."""
+    """Return topic -> [(process_checked, input key, run, add_time)] of the nodes reading it."""
     routes: dict[str, list] = defaultdict(list)
     for run in plan.runs:
         for key, topic in run.inputs.items():
-            routes[topic].append((run.pipeline.process, key, run, run.times.append))
+            routes[topic].append((run.pipeline.process_checked, key, run, run.times.append))
     return routes
 
 
@@ -84,25 +85,38 @@ class _Emitter:
     def __init__(self, writer: BagWriter, stats: RunStats):
         self.writer = writer
         self.stats = stats
+        self._routes: dict[tuple[int, str], Optional[tuple]] = {}
+        """(id(run), output key) -> (topic, declared type, write), None when undeclared."""
+
+    def _route(self, run: NodeRun, out_key: str) -> Optional[tuple]:
+        spec = run.outputs.get(out_key)
+        route = None if spec is None else (spec[0], spec[1],
+                                           self.writer.raw_writer(spec[0], spec[1]))
+        self._routes[(id(run), out_key)] = route
+        return route
 
     def __call__(self, run: NodeRun, outs: list) -> None:
         """Write outputs ``(key, sample)`` of ``run``; a bad one is counted, never fatal."""
+        routes = self._routes
         for out_key, sample in outs:
-            spec = run.outputs.get(out_key)
+            route = routes.get((id(run), out_key), False)
+            if route is False:
+                route = self._route(run, out_key)
             try:
-                if spec is None:
+                if route is None:
                     raise KeyError(f'output {out_key!r} is not declared in outputs')
+                topic, declared, write = route
                 msgtype, data = codec.serialize(sample)
-                if msgtype != spec[1]:
-                    raise TypeError(f'output {out_key!r} is {msgtype}, declared {spec[1]}')
-                self.writer.write_raw(spec[0], msgtype, data, codec.sample_time_ns(
+                if msgtype != declared:
+                    raise TypeError(f'output {out_key!r} is {msgtype}, declared {declared}')
+                write(data, codec.sample_time_ns(
                     sample if not isinstance(sample, list) else sample[0]))
             except Exception as exc:  # noqa: B902 - counted, never fatal
                 run.error('output', exc)
                 continue
-            self.stats.out_counts[spec[0]] += 1
+            self.stats.out_counts[topic] += 1
             if isinstance(sample, T.OdomSample):
-                self.stats.out_traj[spec[0]].append((sample.t, sample.x, sample.y, sample.yaw))
+                self.stats.out_traj[topic].append((sample.t, sample.x, sample.y, sample.yaw))
 
 
 def _progress_bar(total: int, progress: Optional[bool]) -> Any:
@@ -134,17 +148,25 @@ def _loop(bagset: BagSet, streams: list, stream_info: dict, emit: _Emitter, stat
         stats.n_msgs += 1
         stats.read[topic] += 1
         for sample in samples:
+            try:  # once for every node reading the sample (each counts its own rejections)
+                problem = (None if isinstance(sample, T.StaticTransform)
+                           else sample_problem(sample))
+            except Exception:  # noqa: B902 - each node fails on it below, as it would alone
+                problem = UNCHECKED
+            t0 = perf()
             for process, key, run, add_time in targets:
-                t0 = perf()
                 try:
-                    outs = process(key, sample)
+                    outs = process(key, sample, problem)
                 except Exception as exc:  # noqa: B902 - counted, never fatal
                     run.error('process', exc)
                     run.pipeline.reject(key, 'processing_error')
                     outs = None
-                add_time(perf() - t0)
+                t1 = perf()
+                add_time(t1 - t0)
                 if outs:
                     emit(run, outs)
+                    t1 = perf()  # a node's time leaves out writing its outputs
+                t0 = t1
             if traj is not None:
                 stats.trajectories[traj].append((sample.t, sample.x, sample.y, sample.yaw))
         if bar is not None and not stats.n_msgs % 2000:
