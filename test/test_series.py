@@ -50,6 +50,20 @@ def test_reservoir_sample_is_uniform_over_the_whole_stream():
     assert r.count == n and r.total == n * (n - 1) / 2
 
 
+def test_reservoir_extend_keeps_what_appending_one_by_one_keeps():
+    values = np.random.default_rng(5).exponential(1.0, 30000).tolist()
+    for capacity in (0, 1, 7, 1000, 40000):
+        one, many = Reservoir(capacity, seed=2), Reservoir(capacity, seed=2)
+        for v in values:
+            one.append(v)
+        sizes = np.random.default_rng(capacity).integers(0, 3000, 100)
+        edges = np.minimum(np.cumsum(sizes), len(values)).tolist()
+        for a, b in zip([0] + edges, edges + [len(values)]):
+            many.extend(values[a:b])
+        assert many.values == one.values and many.count == one.count == len(values)
+        assert many.total == pytest.approx(one.total, rel=1e-12)
+
+
 def test_rows_read_like_a_list_of_arrays():
     rows = Rows(3)
     data = np.arange(30, dtype=float).reshape(10, 3) * 0.5

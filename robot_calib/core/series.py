@@ -17,7 +17,7 @@ from __future__ import annotations
 from array import array
 import math
 import random
-from typing import Any, Iterator, Optional
+from typing import Any, Iterator, Optional, Sequence
 
 import numpy as np
 
@@ -76,7 +76,7 @@ class Reservoir:
         self.count = 0
         self.total = 0.0
         self._rng = random.Random(seed)
-        self._next = 0
+        self._next: float = 0 if self.capacity > 0 else math.inf
         """Count at which the next value is kept (every one until the sample is full)."""
         self._w = 1.0
 
@@ -99,15 +99,31 @@ class Reservoir:
                 return
         else:
             self.values[self._rng.randrange(self.capacity)] = value
-        self._skip()
+        self._skip(self.count)
 
-    def _skip(self) -> None:
-        """Draw the count of the next value to keep (Li 1994, algorithm L)."""
+    def extend(self, values: Sequence[float]) -> None:
+        """Add many values: the same sample as appending them one by one, with fewer steps."""
+        start = self.count
+        self.count += len(values)
+        self.total += math.fsum(values)
+        room = self.capacity - len(self.values)
+        if room > 0 and values:
+            self.values.extend(values[:room])
+            self._next = start + min(room, len(values)) + 1
+            if len(self.values) < self.capacity:
+                return
+            self._skip(start + room)
+        while self._next <= self.count:
+            self.values[self._rng.randrange(self.capacity)] = values[self._next - start - 1]
+            self._skip(self._next)
+
+    def _skip(self, count: int) -> None:
+        """Draw the count of the next value to keep after value ``count`` (algorithm L)."""
         rng = self._rng
         self._w *= math.exp(math.log(1.0 - rng.random()) / self.capacity)
         step = math.log1p(-self._w)
         skip = int(math.log(1.0 - rng.random()) / step) if step < 0.0 else 2**62
-        self._next = self.count + skip + 1
+        self._next = count + skip + 1
 
     def percentile(self, q: float) -> float:
         """Return the percentile ``q`` (0..100): exact up to ``capacity`` values, then sampled."""

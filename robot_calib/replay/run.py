@@ -50,13 +50,27 @@ class RunStats:
     seconds: float = 0.0
 
 
-def _routes(plan: Plan) -> dict[str, list]:
-    """Return topic -> [(process_checked, input key, run, add_time)] of the nodes reading it."""
+def _routes(plan: Plan, times: list) -> dict[str, list]:
+    """
+    Return topic -> [(process_checked, input key, run, add_time)] of the nodes reading it.
+
+    ``add_time`` collects a node's seconds per input into a list appended to
+    ``times`` as (run, list): :func:`_flush_times` moves them into ``run.times``.
+    """
     routes: dict[str, list] = defaultdict(list)
     for run in plan.runs:
+        pending: list[float] = []
+        times.append((run, pending))
         for key, topic in run.inputs.items():
-            routes[topic].append((run.pipeline.process_checked, key, run, run.times.append))
+            routes[topic].append((run.pipeline.process_checked, key, run, pending.append))
     return routes
+
+
+def _flush_times(times: list) -> None:
+    """Move the seconds per input collected by the loop into each run's reservoir."""
+    for run, pending in times:
+        run.times.extend(pending)
+        pending.clear()
 
 
 def _deliver_static(bagset: BagSet, plan: Plan, stats: RunStats) -> None:
@@ -129,7 +143,7 @@ def _progress_bar(total: int, progress: Optional[bool]) -> Any:
 
 
 def _loop(bagset: BagSet, streams: list, stream_info: dict, emit: _Emitter, stats: RunStats,
-          window: tuple[float, Optional[float]], bar: Any) -> None:
+          window: tuple[float, Optional[float]], bar: Any, times: list) -> None:
     """Feed every message of ``streams`` inside ``window`` (s from the start, length)."""
     perf = time.perf_counter
     t_lo = bagset.start_ns + int(round(window[0] * 1e9))
@@ -169,10 +183,12 @@ def _loop(bagset: BagSet, streams: list, stream_info: dict, emit: _Emitter, stat
                 t0 = t1
             if traj is not None:
                 stats.trajectories[traj].append((sample.t, sample.x, sample.y, sample.yaw))
-        if bar is not None and not stats.n_msgs % 2000:
-            bar.update(2000)
+        if not stats.n_msgs % 2048:
+            _flush_times(times)
+            if bar is not None:
+                bar.update(2048)
     if bar is not None:
-        bar.update(stats.n_msgs % 2000)
+        bar.update(stats.n_msgs % 2048)
         bar.close()
 
 
@@ -208,7 +224,8 @@ def run(bagset: BagSet, plan: Plan, tmp: Path, progress: Optional[bool], storage
     """
     wall0 = time.perf_counter()
     stats = RunStats()
-    routes = _routes(plan)
+    times: list = []
+    routes = _routes(plan, times)
     traj_topics = {t for t in routes if plots and plan.bag_topics[t][0] == _ODOM_TYPE}
     if plots and plan.bag_topics.get(GROUND_TRUTH, ('',))[0] == _ODOM_TYPE:
         traj_topics.add(GROUND_TRUTH)
@@ -231,8 +248,9 @@ def run(bagset: BagSet, plan: Plan, tmp: Path, progress: Optional[bool], storage
         gc.freeze()
         gc.set_threshold(max(gc_threshold[0], 20000), *gc_threshold[1:])
         try:
-            _loop(bagset, streams, stream_info, emit, stats, window, bar)
+            _loop(bagset, streams, stream_info, emit, stats, window, bar, times)
         finally:
+            _flush_times(times)
             gc.set_threshold(*gc_threshold)
             gc.unfreeze()
         _finish(plan, emit, stats)
