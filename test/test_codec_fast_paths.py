@@ -2,6 +2,7 @@
 # SPDX-License-Identifier: Apache-2.0
 """The codec's fast paths against rosbags' type store, and the stored type definitions."""
 
+import math
 import subprocess
 import sys
 
@@ -187,3 +188,26 @@ def test_whole_message_encoders_on_odd_fields():
         assert codec.serialize(sample) == expected
         written += 1
     assert written > 500
+
+
+def test_odometry_decoder_takes_the_orientation_as_quat_normalize_does():
+    """Roll, pitch, yaw and covariances are bit for bit the geometry helpers' on any quaternion."""
+    from robot_calib.codec import cdr
+    from robot_calib.codec.messages import POSE_IDX
+    from robot_calib.core.geometry import quat_normalize, quat_to_rpy
+    rng = np.random.default_rng(8)
+    quats = [rng.normal(size=4), -np.abs(rng.normal(size=4)), rng.normal(size=4) * 1e-160,
+             rng.normal(size=4) * 1e160, np.zeros(4), [np.nan, 0.0, 0.0, 1.0],
+             [0.0, np.inf, 0.0, 1.0], [-0.0, 0.0, 0.0, -1.0]]
+    for i in range(200):
+        v = rng.normal(size=85)
+        v[3:7] = quats[i % len(quats)] if i < 80 else rng.normal(size=4) * 10.0 ** (i % 9 - 4)
+        q = (float(v[6]), float(v[3]), float(v[4]), float(v[5]))
+        with np.errstate(all='ignore'):
+            rpy = quat_to_rpy(quat_normalize(q))
+            s = cdr._odom_sample(5, 'odom', 'base', v)
+        got = (s.roll, s.pitch, s.yaw, s.x, s.y, s.z, s.vx, s.vy, s.wz, s.orientation_norm)
+        expected = (*rpy, *v[[0, 1, 2, 43, 44, 48]], math.hypot(*q))
+        assert np.array(got).tobytes() == np.array(expected, dtype=float).tobytes()
+        assert s.pose_cov.tobytes() == v[7:43].reshape(6, 6)[POSE_IDX].tobytes()
+        assert s.twist_cov.tobytes() == v[49:85].reshape(6, 6)[POSE_IDX].tobytes()

@@ -22,8 +22,7 @@ import numpy as np
 from robot_calib.codec.messages import cov3, POSE_IDX
 from robot_calib.codec.table import register_fast
 from robot_calib.core import types as T
-from robot_calib.core.geometry import (quat_from_rpy, quat_normalize, quat_to_rpy,
-                                       quat_tuple_from_rpy)
+from robot_calib.core.geometry import quat_from_rpy, quat_to_rpy, quat_tuple_from_rpy
 
 _U32 = struct.Struct('<I')
 _STAMP2 = struct.Struct('<iII')  # CDR: sec, nanosec, frame_id length (incl. NUL)
@@ -61,17 +60,35 @@ def imu_from_ros1(raw: bytes) -> T.ImuSample:
     return _imu_sample(sec * 1_000_000_000 + nsec, frame, v)
 
 
+_POSE_COV = np.ravel_multi_index(POSE_IDX, (6, 6)).astype(np.intp) + 7
+"""Where the (x, y, yaw) covariance is in the doubles of an Odometry (pose covariance at 7)."""
+_TWIST_COV = _POSE_COV + 42
+"""Where the (vx, vy, wz) covariance is (twist covariance at 49)."""
+
+
 def _odom_sample(ns: int, frame: str, child: str, v: np.ndarray) -> T.OdomSample:
     """Build an OdomSample from the 85 doubles of a nav_msgs/Odometry after its frames."""
     # v: position (0:3), orientation x y z w (3:7), pose cov 6x6 (7:43), linear (43:46),
     # angular (46:49), twist cov 6x6 (49:85)
-    q = (float(v[6]), float(v[3]), float(v[4]), float(v[5]))
-    roll, pitch, yaw = quat_to_rpy(quat_normalize(q))
-    pcov = v[7:43].reshape(6, 6)[POSE_IDX]
-    tcov = v[49:85].reshape(6, 6)[POSE_IDX]
-    return T.OdomSample(ns * 1e-9, float(v[0]), float(v[1]), yaw, float(v[43]), float(v[44]),
-                        float(v[48]), frame, child, pcov, tcov, float(v[2]), roll, pitch, ns,
-                        math.hypot(*q))
+    x, y, z, qx, qy, qz, qw = v[:7].tolist()
+    q = (qw, qx, qy, qz)
+    roll, pitch, yaw = quat_to_rpy(_unit_quat(q))
+    return T.OdomSample(ns * 1e-9, x, y, yaw, float(v[43]), float(v[44]), float(v[48]), frame,
+                        child, v[_POSE_COV], v[_TWIST_COV], z, roll, pitch, ns, math.hypot(*q))
+
+
+def _unit_quat(q: tuple[float, float, float, float]) -> tuple[float, ...]:
+    """
+    Return ``q`` (w, x, y, z) over its norm: :func:`quat_normalize` without choosing the sign.
+
+    The same values (the norm is taken as np.linalg.norm takes it), up to the
+    sign, which :func:`quat_to_rpy` does not depend on (products of two terms).
+    """
+    a = np.array(q)
+    n = math.sqrt(a.dot(a))
+    if not math.isfinite(n) or n == 0.0:
+        return (1.0, 0.0, 0.0, 0.0)
+    return (q[0] / n, q[1] / n, q[2] / n, q[3] / n)
 
 
 def odom_from_cdr(raw: bytes) -> T.OdomSample:
