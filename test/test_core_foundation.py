@@ -13,6 +13,7 @@ from robot_calib.core import types as T
 from robot_calib.core.params import describe, flatten_nested, from_flat, param, ParamError
 from robot_calib.core.params import to_flat
 from robot_calib.pipelines.base import InputSpec, OutputSpec, Pipeline
+from robot_calib.pipelines.validation import sample_problem, UNCHECKED
 
 
 def test_wrap_angle_range_is_half_open():
@@ -149,6 +150,35 @@ def test_pipeline_base_counts_bad_samples_per_reason():
     assert counts['gaps'] == 1
     assert pipe.summary()['outputs'] == {'out': 2}
     assert pipe.summary()['params']['mode'] == 'improved'
+
+
+def test_a_verdict_taken_once_gives_what_each_pipeline_finds_alone():
+    """process_checked with sample_problem's verdict (or none yet) is process, counts included."""
+    bad, nan = 1e9, float('nan')
+    stream = [(0.0, 0.0), (0.01, 0.0), (0.01, 0.0), (0.005, 0.0), (0.02, nan), (0.03, bad),
+              (5000.0, 0.0), (0.04, 0.0)]  # duplicate, backwards, non-finite, implausible, stray
+    stream += [(900.0 + 0.01 * k, 0.0) for k in range(6)]  # a clock jump
+    stream += [(902.0 + 1e-7 * k, 0.0) for k in range(80)]  # a burst
+    samples = [_imu(t, gz) for t, gz in stream]
+    samples.append(T.StaticTransform('base_link', 'imu_link', np.zeros(3),
+                                     np.array([1.0, 0.0, 0.0, 0.0])))
+    runs = []
+    for how in ('alone', 'verdict', 'unchecked'):
+        pipe, outs = _Counter(), []
+        for s in samples:
+            if how == 'alone':
+                outs.append(pipe.process('imu', s))
+            else:
+                problem = UNCHECKED if how == 'unchecked' or isinstance(
+                    s, T.StaticTransform) else sample_problem(s)
+                outs.append(pipe.process_checked('imu', s, problem))
+        summary = pipe.summary()
+        runs.append((outs, list(summary['inputs']['imu'].items()), summary['outputs'],
+                     pipe.static_transforms))
+    counts = dict(runs[0][1])
+    assert counts['rejected_implausible'] and counts['rejected_non_finite']
+    assert counts['clock_jumps'] == 1 and counts['rejected_implausible_rate']
+    assert runs[1] == runs[0] and runs[2] == runs[0]
 
 
 def test_wrap_scalar_is_wrap_angle_for_floats():

@@ -478,3 +478,36 @@ def test_direct_mcap_records_are_byte_identical(tmp_path, compress):
         files.append({p.name: p.read_bytes() for p in (tmp_path / str(fast) / 'bag').iterdir()})
     assert files[0] == files[1]
     assert len(list(bags.read_messages([tmp_path / 'True' / 'bag']))) == len(items)
+
+
+@pytest.mark.parametrize('fast', [False, True])
+def test_raw_writer_writes_what_write_raw_writes(tmp_path, fast):
+    """A topic's raw writer adds its connection at its first message and the same records."""
+    rng = np.random.default_rng(4)
+    items = []
+    for i in range(3000):
+        ns = 10**9 + i * 5_000_000 + int(rng.integers(0, 20_000_000))
+        sample = (T.ImuSample(ns * 1e-9, rng.normal(size=3), rng.normal(size=3), stamp_ns=ns)
+                  if i % 3 else T.OdomSample(ns * 1e-9, *rng.normal(size=3), stamp_ns=ns))
+        items.append(('/a' if i % 3 else 'b', *codec.serialize(sample), ns))
+    files = []
+    for how in ('write_raw', 'raw_writer'):
+        (tmp_path / how).mkdir()
+        writer = bags.BagWriter(tmp_path / how / 'bag', compress=True)
+        writer.fast_mcap = fast
+        with writer as w:
+            writers = {}
+            for topic, msgtype, data, ns in items:
+                if how == 'write_raw':
+                    w.write_raw(topic, msgtype, data, ns)
+                else:
+                    if topic not in writers:
+                        writers[topic] = w.raw_writer(topic, msgtype)
+                    writers[topic](data, ns)
+            with pytest.raises(bags.BagError, match='two types'):
+                w.raw_writer('/b', 'sensor_msgs/msg/Imu')(items[1][2], 10**9)
+            counts = (w.count, list(w.counts.items()))
+        files.append(({p.name: p.read_bytes() for p in (tmp_path / how / 'bag').iterdir()},
+                      counts))
+    assert files[0] == files[1]
+    assert files[0][1] == (3000, [('/b', 1000), ('/a', 2000)])

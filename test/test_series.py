@@ -38,6 +38,32 @@ def test_reservoir_keeps_exact_count_and_sum_and_close_percentiles():
     assert abs(r.percentile(99) - np.percentile(values, 99)) < 0.5
 
 
+def test_reservoir_sample_is_uniform_over_the_whole_stream():
+    """Every part of a long stream is kept in proportion (skipping keeps the sample uniform)."""
+    n, k = 400000, 4000
+    r = Reservoir(capacity=k, seed=3)
+    for i in range(n):
+        r.append(float(i))
+    counts = np.histogram(r.values, bins=8, range=(0, n))[0]
+    assert len(r.values) == k and len(set(r.values)) == k
+    assert np.all(np.abs(counts - k / 8) < 4 * np.sqrt(k / 8)), counts
+    assert r.count == n and r.total == n * (n - 1) / 2
+
+
+def test_reservoir_extend_keeps_what_appending_one_by_one_keeps():
+    values = np.random.default_rng(5).exponential(1.0, 30000).tolist()
+    for capacity in (0, 1, 7, 1000, 40000):
+        one, many = Reservoir(capacity, seed=2), Reservoir(capacity, seed=2)
+        for v in values:
+            one.append(v)
+        sizes = np.random.default_rng(capacity).integers(0, 3000, 100)
+        edges = np.minimum(np.cumsum(sizes), len(values)).tolist()
+        for a, b in zip([0] + edges, edges + [len(values)]):
+            many.extend(values[a:b])
+        assert many.values == one.values and many.count == one.count == len(values)
+        assert many.total == pytest.approx(one.total, rel=1e-12)
+
+
 def test_rows_read_like_a_list_of_arrays():
     rows = Rows(3)
     data = np.arange(30, dtype=float).reshape(10, 3) * 0.5

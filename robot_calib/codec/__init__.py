@@ -87,10 +87,16 @@ def to_msg(sample: Any) -> tuple[str, Any]:
 
 def serialize(sample: Any) -> tuple[str, bytes]:
     """Return (msgtype, CDR bytes) of a core sample, as rclpy publishes them."""
-    row = KINDS['tf_static'] if isinstance(sample, list) else BY_SAMPLE.get(type(sample))
-    if row is not None and row.fast.encode_cdr is not None and all(
-            _stamp_fits(s) for s in (sample if isinstance(sample, list) else (sample,))):
-        return row.msgtype, row.fast.encode_cdr(sample)
+    if isinstance(sample, list):
+        row = KINDS['tf_static']
+        encode = row.fast.encode_cdr
+        if encode is not None and all(_stamp_fits(s) for s in sample):
+            return row.msgtype, encode(sample)
+    else:
+        row = BY_SAMPLE.get(type(sample))
+        encode = None if row is None else row.fast.encode_cdr
+        if encode is not None and _stamp_fits(sample):
+            return row.msgtype, encode(sample)
     msgtype, msg = to_msg(sample)
     return msgtype, bytes(typestore().serialize_cdr(msg, msgtype))
 

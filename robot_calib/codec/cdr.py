@@ -22,7 +22,7 @@ import numpy as np
 from robot_calib.codec.messages import cov3, POSE_IDX
 from robot_calib.codec.table import register_fast
 from robot_calib.core import types as T
-from robot_calib.core.geometry import quat_from_rpy, quat_normalize, quat_to_rpy
+from robot_calib.core.geometry import quat_from_rpy, quat_to_rpy, quat_tuple_from_rpy
 
 _U32 = struct.Struct('<I')
 _STAMP2 = struct.Struct('<iII')  # CDR: sec, nanosec, frame_id length (incl. NUL)
@@ -60,17 +60,35 @@ def imu_from_ros1(raw: bytes) -> T.ImuSample:
     return _imu_sample(sec * 1_000_000_000 + nsec, frame, v)
 
 
+_POSE_COV = np.ravel_multi_index(POSE_IDX, (6, 6)).astype(np.intp) + 7
+"""Where the (x, y, yaw) covariance is in the doubles of an Odometry (pose covariance at 7)."""
+_TWIST_COV = _POSE_COV + 42
+"""Where the (vx, vy, wz) covariance is (twist covariance at 49)."""
+
+
 def _odom_sample(ns: int, frame: str, child: str, v: np.ndarray) -> T.OdomSample:
     """Build an OdomSample from the 85 doubles of a nav_msgs/Odometry after its frames."""
     # v: position (0:3), orientation x y z w (3:7), pose cov 6x6 (7:43), linear (43:46),
     # angular (46:49), twist cov 6x6 (49:85)
-    q = (float(v[6]), float(v[3]), float(v[4]), float(v[5]))
-    roll, pitch, yaw = quat_to_rpy(quat_normalize(q))
-    pcov = v[7:43].reshape(6, 6)[POSE_IDX]
-    tcov = v[49:85].reshape(6, 6)[POSE_IDX]
-    return T.OdomSample(ns * 1e-9, float(v[0]), float(v[1]), yaw, float(v[43]), float(v[44]),
-                        float(v[48]), frame, child, pcov, tcov, float(v[2]), roll, pitch, ns,
-                        math.hypot(*q))
+    x, y, z, qx, qy, qz, qw = v[:7].tolist()
+    q = (qw, qx, qy, qz)
+    roll, pitch, yaw = quat_to_rpy(_unit_quat(q))
+    return T.OdomSample(ns * 1e-9, x, y, yaw, float(v[43]), float(v[44]), float(v[48]), frame,
+                        child, v[_POSE_COV], v[_TWIST_COV], z, roll, pitch, ns, math.hypot(*q))
+
+
+def _unit_quat(q: tuple[float, float, float, float]) -> tuple[float, ...]:
+    """
+    Return ``q`` (w, x, y, z) over its norm: :func:`quat_normalize` without choosing the sign.
+
+    The same values (the norm is taken as np.linalg.norm takes it), up to the
+    sign, which :func:`quat_to_rpy` does not depend on (products of two terms).
+    """
+    a = np.array(q)
+    n = math.sqrt(a.dot(a))
+    if not math.isfinite(n) or n == 0.0:
+        return (1.0, 0.0, 0.0, 0.0)
+    return (q[0] / n, q[1] / n, q[2] / n, q[3] / n)
 
 
 def odom_from_cdr(raw: bytes) -> T.OdomSample:
@@ -138,8 +156,8 @@ def _cov36(cov3: np.ndarray) -> list:
     return out
 
 
-def imu_to_cdr(s: T.ImuSample) -> bytes:
-    """Serialize an :class:`ImuSample` as the generic path does, without building a message."""
+def _imu_to_cdr_any(s: T.ImuSample) -> bytes:
+    """Serialize an :class:`ImuSample` of any field types, field by field."""
     buf = _cdr_header(T.stamp_of(s.t, s.stamp_ns), s.frame_id)
     _pad(buf, 8)
     if s.orientation is None:
@@ -153,8 +171,8 @@ def imu_to_cdr(s: T.ImuSample) -> bytes:
     return bytes(buf)
 
 
-def odom_to_cdr(s: T.OdomSample) -> bytes:
-    """Serialize an :class:`OdomSample` as the generic path does, without building a message."""
+def _odom_to_cdr_any(s: T.OdomSample) -> bytes:
+    """Serialize an :class:`OdomSample` of any field types, field by field."""
     buf = _cdr_header(T.stamp_of(s.t, s.stamp_ns), s.frame_id)
     _pad(buf, 4)
     cb = s.child_frame_id.encode()
@@ -167,6 +185,112 @@ def odom_to_cdr(s: T.OdomSample) -> bytes:
                      float(q[0]), *_cov36(s.pose_cov), float(s.vx), float(s.vy), 0.0, 0.0, 0.0,
                      float(s.wz), *_cov36(s.twist_cov))
     return bytes(buf)
+
+
+# Whole messages in one pack call: a struct layout per frame id (pair of frame ids for
+# Odometry), header and padding included; zeros of the covariances are pad bytes (+0.0).
+_F8 = np.dtype('float64')
+_MAX_LAYOUTS = 256
+"""Frame ids (pairs) whose layouts are kept; others are built per message."""
+_IMU_LAYOUTS: dict = {}
+_ODOM_LAYOUTS: dict = {}
+_COV36 = '2d24xd2d24xd16xd48xd48xd8x2d24xd'
+"""A 6x6 covariance from a 3x3 one of (x, y, yaw) and 1e6 on z, roll, pitch (_cov36)."""
+_ORIENTATION_UNKNOWN = (1.0, 0.0, 0.0, 0.0, *_cov9(None, -1.0))
+"""Quaternion (w, x, y, z) and covariance of an Imu without orientation (w first)."""
+
+
+def _imu_layout(frame: str) -> tuple:
+    """Return (pack, frame length, frame bytes) of a whole sensor_msgs/Imu in ``frame``."""
+    fb = frame.encode()
+    layout = (struct.Struct(f'<4siII{len(fb) + 1}s{-(13 + len(fb)) % 8}x37d').pack,
+              len(fb) + 1, fb)
+    if len(_IMU_LAYOUTS) < _MAX_LAYOUTS:
+        _IMU_LAYOUTS[frame] = layout
+    return layout
+
+
+def _odom_layout(frames: tuple[str, str]) -> tuple:
+    """Return (pack, frame length, bytes, child frame length, bytes) of a nav_msgs/Odometry."""
+    fb, cb = frames[0].encode(), frames[1].encode()
+    pad1 = -(13 + len(fb)) % 4
+    pad2 = -(13 + len(fb) + pad1 + 5 + len(cb)) % 8
+    fmt = f'<4siII{len(fb) + 1}s{pad1}xI{len(cb) + 1}s{pad2}x7d{_COV36}2d24xd{_COV36}'
+    layout = (struct.Struct(fmt).pack, len(fb) + 1, fb, len(cb) + 1, cb)
+    if len(_ODOM_LAYOUTS) < _MAX_LAYOUTS:
+        _ODOM_LAYOUTS[frames] = layout
+    return layout
+
+
+def _covs(covs: tuple) -> Optional[list]:
+    """Return the values of 3x3 float64 covariances in a row; None when one is not one."""
+    out: list = []
+    for cov in covs:
+        if type(cov) is not np.ndarray or cov.dtype != _F8 or cov.size != 9:
+            return None
+        out += cov.ravel().tolist()
+    return out
+
+
+def _imu_covs(covs: tuple) -> Optional[list]:
+    """Return the values of 3x3 covariances as _cov9 writes them; None when not float64 3x3."""
+    out = _covs(covs)
+    # a sum is finite only when every term is (an overflow just takes the slower check)
+    if out is None or math.isfinite(sum(out)):
+        return out
+    return [v for cov in covs for v in _cov9(cov, 0.0)]
+
+
+def imu_to_cdr(s: T.ImuSample) -> bytes:
+    """Serialize an :class:`ImuSample` as the generic path does, without building a message."""
+    g, a, q = s.gyro, s.accel, s.orientation
+    if type(g) is not np.ndarray or type(a) is not np.ndarray or not (
+            q is None or type(q) is np.ndarray):
+        return _imu_to_cdr_any(s)
+    covs = _imu_covs((s.gyro_cov, s.accel_cov) if q is None else
+                     (s.orientation_cov, s.gyro_cov, s.accel_cov))
+    if covs is None:
+        return _imu_to_cdr_any(s)
+    ns = s.stamp_ns
+    sec, nsec = divmod(int(ns) if ns >= 0 else int(round(s.t * 1e9)), 1_000_000_000)
+    try:
+        pack, nf, fb = _IMU_LAYOUTS.get(s.frame_id) or _imu_layout(s.frame_id)
+        g0, g1, g2 = g.tolist()
+        a0, a1, a2 = a.tolist()
+        if q is None:
+            qw, qx, qy, qz, *ocov = _ORIENTATION_UNKNOWN
+            return pack(_CDR_LE, sec, nsec, nf, fb, qx, qy, qz, qw, *ocov, g0, g1, g2, *covs[:9],
+                        a0, a1, a2, *covs[9:])
+        qw, qx, qy, qz = q.tolist()
+        return pack(_CDR_LE, sec, nsec, nf, fb, qx, qy, qz, qw, *covs[:9], g0, g1, g2,
+                    *covs[9:18], a0, a1, a2, *covs[18:])
+    except (ValueError, TypeError, AttributeError, struct.error):  # odd fields: one by one
+        return _imu_to_cdr_any(s)
+
+
+def _cov_terms(cov: list) -> list:
+    """Return the pack arguments of _COV36 from the 9 values of a 3x3 covariance."""
+    c0, c1, c2, c3, c4, c5, c6, c7, c8 = cov
+    return [c0, c1, c2, c3, c4, c5, 1e6, 1e6, 1e6, c6, c7, c8]
+
+
+def odom_to_cdr(s: T.OdomSample) -> bytes:
+    """Serialize an :class:`OdomSample` as the generic path does, without building a message."""
+    covs = _covs((s.pose_cov, s.twist_cov))
+    if covs is None:
+        return _odom_to_cdr_any(s)
+    if not math.isfinite(sum(covs)):  # non-finite values are written as 0 (_cov36)
+        covs = [v if math.isfinite(v) else 0.0 for v in covs]
+    ns = s.stamp_ns
+    sec, nsec = divmod(int(ns) if ns >= 0 else int(round(s.t * 1e9)), 1_000_000_000)
+    try:
+        frames = (s.frame_id, s.child_frame_id)
+        pack, nf, fb, nc, cb = _ODOM_LAYOUTS.get(frames) or _odom_layout(frames)
+        qw, qx, qy, qz = quat_tuple_from_rpy(s.roll, s.pitch, s.yaw)
+        return pack(_CDR_LE, sec, nsec, nf, fb, nc, cb, s.x, s.y, s.z, qx, qy, qz, qw,
+                    *_cov_terms(covs[:9]), s.vx, s.vy, s.wz, *_cov_terms(covs[9:]))
+    except (ValueError, TypeError, AttributeError, struct.error):  # odd fields: one by one
+        return _odom_to_cdr_any(s)
 
 
 def imu_batch_from_cdr(raws: list) -> list:

@@ -142,17 +142,21 @@ def matrix_to_quat(m: np.ndarray) -> np.ndarray:
     return quat_normalize(np.array(q))
 
 
-def quat_from_rpy(roll: float, pitch: float, yaw: float) -> np.ndarray:
-    """Return (w, x, y, z) of R = Rz(yaw) Ry(pitch) Rx(roll) (rad)."""
+def quat_tuple_from_rpy(roll: float, pitch: float, yaw: float
+                        ) -> tuple[float, float, float, float]:
+    """Return (w, x, y, z) of R = Rz(yaw) Ry(pitch) Rx(roll) (rad) as a tuple of floats."""
     cr, sr = math.cos(roll / 2), math.sin(roll / 2)
     cp, sp = math.cos(pitch / 2), math.sin(pitch / 2)
     cy, sy = math.cos(yaw / 2), math.sin(yaw / 2)
-    return np.array([
-        cr * cp * cy + sr * sp * sy,
-        sr * cp * cy - cr * sp * sy,
-        cr * sp * cy + sr * cp * sy,
-        cr * cp * sy - sr * sp * cy,
-    ])
+    return (cr * cp * cy + sr * sp * sy,
+            sr * cp * cy - cr * sp * sy,
+            cr * sp * cy + sr * cp * sy,
+            cr * cp * sy - sr * sp * cy)
+
+
+def quat_from_rpy(roll: float, pitch: float, yaw: float) -> np.ndarray:
+    """Return (w, x, y, z) of R = Rz(yaw) Ry(pitch) Rx(roll) (rad)."""
+    return np.array(quat_tuple_from_rpy(roll, pitch, yaw))
 
 
 def quat_to_rpy(q: np.ndarray) -> tuple[float, float, float]:

@@ -7,15 +7,17 @@ A live node or a replay may run for hours; what it keeps for plots and
 statistics must not grow with the recording. :class:`Thinned` keeps an evenly
 thinned copy of a series (every 2^k-th item, k growing as needed) plus its
 latest item; :class:`Reservoir` keeps a uniform random sample of values (fixed
-seed) with their exact count and sum, for percentiles; :class:`Rows` stores a
-growing table of floats at 8 bytes a value (a list of small arrays costs ~20x).
+seed) with their exact count and sum, for percentiles (cheap per value once full);
+:class:`Rows` stores a growing table of floats at 8 bytes a value (a list of small
+arrays costs ~20x).
 """
 
 from __future__ import annotations
 
 from array import array
+import math
 import random
-from typing import Any, Iterator, Optional
+from typing import Any, Iterator, Optional, Sequence
 
 import numpy as np
 
@@ -74,17 +76,54 @@ class Reservoir:
         self.count = 0
         self.total = 0.0
         self._rng = random.Random(seed)
+        self._next: float = 0 if self.capacity > 0 else math.inf
+        """Count at which the next value is kept (every one until the sample is full)."""
+        self._w = 1.0
 
     def append(self, value: float) -> None:
-        """Add one value (Vitter's algorithm R)."""
+        """
+        Add one value.
+
+        Once the sample is full, values are skipped over in runs of random length
+        (Li 1994, algorithm L: the sample stays uniform), so that most appends
+        only count and sum.
+        """
         self.count += 1
         self.total += value
+        if self.count < self._next:
+            return
         if len(self.values) < self.capacity:
             self.values.append(value)
+            self._next = self.count + 1
+            if len(self.values) < self.capacity:
+                return
         else:
-            j = self._rng.randrange(self.count)
-            if j < self.capacity:
-                self.values[j] = value
+            self.values[self._rng.randrange(self.capacity)] = value
+        self._skip(self.count)
+
+    def extend(self, values: Sequence[float]) -> None:
+        """Add many values: the same sample as appending them one by one, with fewer steps."""
+        start = self.count
+        self.count += len(values)
+        self.total += math.fsum(values)
+        room = self.capacity - len(self.values)
+        if room > 0 and values:
+            self.values.extend(values[:room])
+            self._next = start + min(room, len(values)) + 1
+            if len(self.values) < self.capacity:
+                return
+            self._skip(start + room)
+        while self._next <= self.count:
+            self.values[self._rng.randrange(self.capacity)] = values[self._next - start - 1]
+            self._skip(self._next)
+
+    def _skip(self, count: int) -> None:
+        """Draw the count of the next value to keep after value ``count`` (algorithm L)."""
+        rng = self._rng
+        self._w *= math.exp(math.log(1.0 - rng.random()) / self.capacity)
+        step = math.log1p(-self._w)
+        skip = int(math.log(1.0 - rng.random()) / step) if step < 0.0 else 2**62
+        self._next = count + skip + 1
 
     def percentile(self, q: float) -> float:
         """Return the percentile ``q`` (0..100): exact up to ``capacity`` values, then sampled."""

@@ -449,6 +449,31 @@ class BagWriter:
         self.count += 1
         self.counts[topic] = self.counts.get(topic, 0) + 1
 
+    def raw_writer(self, topic: str, msgtype: str) -> Callable[[bytes, int], None]:
+        """
+        Return ``write(data, time_ns)``: :meth:`write_raw` on ``topic`` with ``msgtype``.
+
+        The same records, with less work per message; the connection is added by
+        the first message, as :meth:`write_raw` adds it.
+        """
+        topic = normalize_topic(topic)
+        conn = None
+        counts = self.counts
+
+        def write(data: bytes, time_ns: int) -> None:
+            nonlocal conn
+            if conn is None:
+                self.write_raw(topic, msgtype, data, time_ns)
+                conn = self._conns[topic]
+                return
+            if self._mcap is not None:
+                self._write_mcap(conn, int(time_ns), data)
+            else:
+                self._writer.write(conn, int(time_ns), data)
+            self.count += 1
+            counts[topic] += 1
+        return write
+
     def _write_mcap(self, conn: Any, ts: int, data: bytes) -> None:
         """
         Append one message record as rosbags' McapWriter.write does, byte for byte.

@@ -28,7 +28,7 @@ from typing import Any, Callable, ClassVar, Optional
 from robot_calib.core import frames, types as T
 from robot_calib.core.jsonable import jsonable
 from robot_calib.core.params import to_flat
-from robot_calib.pipelines.validation import RateGuard, sample_problem
+from robot_calib.pipelines.validation import RateGuard, sample_problem, UNCHECKED
 
 CLOCK_JUMP_SAMPLES = 5
 """Samples in a row continuing from a stamp far off the time line that mean the clock jumped."""
@@ -124,30 +124,45 @@ class Pipeline(abc.ABC):
         impossibly fast for their kind (``implausible_rate``). A clock jump is
         never integrated: see :meth:`_off_time_line` and :meth:`_clock_jumped`.
         """
+        return self.process_checked(key, sample, UNCHECKED)
+
+    def process_checked(self, key: str, sample: Any, problem: Any) -> list[Output]:
+        """
+        Do what :meth:`process` does, given ``problem = validation.sample_problem(sample)``.
+
+        Replay checks each decoded sample once for all the nodes reading it; the
+        counts, stamp order, rate and clock jumps are still every node's own.
+        With ``problem`` :data:`validation.UNCHECKED` the sample is checked here.
+        """
         if isinstance(sample, T.StaticTransform):
             self.static_transforms[(sample.parent, sample.child)] = sample
             self.on_static_transform(sample)
             return []
         counts = self.counts[key]
         counts['read'] += 1
-        problem = sample_problem(sample)
         if problem is not None:
-            return self.reject(key, problem)
-        shift = self._shift.get(key)
-        if shift is not None:
-            sample = replace(sample, t=sample.t + shift)
+            if problem is UNCHECKED:
+                problem = sample_problem(sample)
+            if problem is not None:
+                return self.reject(key, problem)
+        if self._shift:
+            shift = self._shift.get(key)
+            if shift is not None:
+                sample = replace(sample, t=sample.t + shift)
         last = self._last_t.get(key)
         if last is not None:
             step = sample.t - last
-            if step == 0.0:
-                return self.reject(key, 'duplicate_stamp')
-            if -self.max_gap <= step < 0.0:
-                return self.reject(key, 'out_of_order')
-            if step < 0.0 or step > self.clock_jump:
-                return self._off_time_line(key, sample, last)
-            self._pending.pop(key, None)  # the time line goes on: those were stray stamps
-            if step > self.max_gap:
-                counts['gaps'] += 1
+            if not (0.0 < step <= self.max_gap and step <= self.clock_jump):
+                if step == 0.0:
+                    return self.reject(key, 'duplicate_stamp')
+                if -self.max_gap <= step < 0.0:
+                    return self.reject(key, 'out_of_order')
+                if step < 0.0 or step > self.clock_jump:
+                    return self._off_time_line(key, sample, last)
+                if step > self.max_gap:
+                    counts['gaps'] += 1
+            if self._pending:
+                self._pending.pop(key, None)  # the time line goes on: those were stray stamps
         return self._accept(key, sample)
 
     def _accept(self, key: str, sample: Any) -> list[Output]:
@@ -155,13 +170,15 @@ class Pipeline(abc.ABC):
         guard = self._rate.get(key)
         if guard is None:
             guard = self._rate[key] = RateGuard(self._kinds.get(key, ''))
-        if not guard.allow(sample.t):
+        t = sample.t
+        if not guard.allow(t):
             return self.reject(key, 'implausible_rate')
-        self._last_t[key] = sample.t
+        self._last_t[key] = t
         outs = self.handle(key, sample)
         self.counts[key]['accepted'] += 1
+        n_outputs = self.n_outputs
         for out_key, _ in outs:
-            self.n_outputs[out_key] += 1
+            n_outputs[out_key] += 1
         return outs
 
     def _off_time_line(self, key: str, sample: Any, last: float) -> list[Output]:

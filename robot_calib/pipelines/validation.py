@@ -155,6 +155,10 @@ _CHECKS = {T.ImuSample: _imu_problem, T.OdomSample: _odom_problem,
            T.JointStateSample: _joint_problem}
 
 
+UNCHECKED: Any = object()
+"""A verdict not taken yet (see :meth:`Pipeline.process_checked`): the sample is checked there."""
+
+
 def sample_problem(sample: Any) -> Optional[str]:
     """
     Return why ``sample`` must not be used, or None when it is fine.

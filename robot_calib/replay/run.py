@@ -25,6 +25,7 @@ from robot_calib import codec
 from robot_calib.core import types as T
 from robot_calib.core.series import Thinned
 from robot_calib.io.bags import BagSet, BagWriter
+from robot_calib.pipelines.validation import sample_problem, UNCHECKED
 from robot_calib.replay.config import OUTPUT_BAG
 from robot_calib.replay.select import NodeRun, Plan
 
@@ -49,13 +50,27 @@ class RunStats:
     seconds: float = 0.0
 
 
-def _routes(plan: Plan) -> dict[str, list]:
-    """Return topic -> [(process, input key, run, add_time)] of the nodes reading it."""
+def _routes(plan: Plan, times: list) -> dict[str, list]:
+    """
+    Return topic -> [(process_checked, input key, run, add_time)] of the nodes reading it.
+
+    ``add_time`` collects a node's seconds per input into a list appended to
+    ``times`` as (run, list): :func:`_flush_times` moves them into ``run.times``.
+    """
     routes: dict[str, list] = defaultdict(list)
     for run in plan.runs:
+        pending: list[float] = []
+        times.append((run, pending))
         for key, topic in run.inputs.items():
-            routes[topic].append((run.pipeline.process, key, run, run.times.append))
+            routes[topic].append((run.pipeline.process_checked, key, run, pending.append))
     return routes
+
+
+def _flush_times(times: list) -> None:
+    """Move the seconds per input collected by the loop into each run's reservoir."""
+    for run, pending in times:
+        run.times.extend(pending)
+        pending.clear()
 
 
 def _deliver_static(bagset: BagSet, plan: Plan, stats: RunStats) -> None:
@@ -84,25 +99,38 @@ class _Emitter:
     def __init__(self, writer: BagWriter, stats: RunStats):
         self.writer = writer
         self.stats = stats
+        self._routes: dict[tuple[int, str], Optional[tuple]] = {}
+        """(id(run), output key) -> (topic, declared type, write), None when undeclared."""
+
+    def _route(self, run: NodeRun, out_key: str) -> Optional[tuple]:
+        spec = run.outputs.get(out_key)
+        route = None if spec is None else (spec[0], spec[1],
+                                           self.writer.raw_writer(spec[0], spec[1]))
+        self._routes[(id(run), out_key)] = route
+        return route
 
     def __call__(self, run: NodeRun, outs: list) -> None:
         """Write outputs ``(key, sample)`` of ``run``; a bad one is counted, never fatal."""
+        routes = self._routes
         for out_key, sample in outs:
-            spec = run.outputs.get(out_key)
+            route = routes.get((id(run), out_key), False)
+            if route is False:
+                route = self._route(run, out_key)
             try:
-                if spec is None:
+                if route is None:
                     raise KeyError(f'output {out_key!r} is not declared in outputs')
+                topic, declared, write = route
                 msgtype, data = codec.serialize(sample)
-                if msgtype != spec[1]:
-                    raise TypeError(f'output {out_key!r} is {msgtype}, declared {spec[1]}')
-                self.writer.write_raw(spec[0], msgtype, data, codec.sample_time_ns(
+                if msgtype != declared:
+                    raise TypeError(f'output {out_key!r} is {msgtype}, declared {declared}')
+                write(data, codec.sample_time_ns(
                     sample if not isinstance(sample, list) else sample[0]))
             except Exception as exc:  # noqa: B902 - counted, never fatal
                 run.error('output', exc)
                 continue
-            self.stats.out_counts[spec[0]] += 1
+            self.stats.out_counts[topic] += 1
             if isinstance(sample, T.OdomSample):
-                self.stats.out_traj[spec[0]].append((sample.t, sample.x, sample.y, sample.yaw))
+                self.stats.out_traj[topic].append((sample.t, sample.x, sample.y, sample.yaw))
 
 
 def _progress_bar(total: int, progress: Optional[bool]) -> Any:
@@ -115,7 +143,7 @@ def _progress_bar(total: int, progress: Optional[bool]) -> Any:
 
 
 def _loop(bagset: BagSet, streams: list, stream_info: dict, emit: _Emitter, stats: RunStats,
-          window: tuple[float, Optional[float]], bar: Any) -> None:
+          window: tuple[float, Optional[float]], bar: Any, times: list) -> None:
     """Feed every message of ``streams`` inside ``window`` (s from the start, length)."""
     perf = time.perf_counter
     t_lo = bagset.start_ns + int(round(window[0] * 1e9))
@@ -134,23 +162,33 @@ def _loop(bagset: BagSet, streams: list, stream_info: dict, emit: _Emitter, stat
         stats.n_msgs += 1
         stats.read[topic] += 1
         for sample in samples:
+            try:  # once for every node reading the sample (each counts its own rejections)
+                problem = (None if isinstance(sample, T.StaticTransform)
+                           else sample_problem(sample))
+            except Exception:  # noqa: B902 - each node fails on it below, as it would alone
+                problem = UNCHECKED
+            t0 = perf()
             for process, key, run, add_time in targets:
-                t0 = perf()
                 try:
-                    outs = process(key, sample)
+                    outs = process(key, sample, problem)
                 except Exception as exc:  # noqa: B902 - counted, never fatal
                     run.error('process', exc)
                     run.pipeline.reject(key, 'processing_error')
                     outs = None
-                add_time(perf() - t0)
+                t1 = perf()
+                add_time(t1 - t0)
                 if outs:
                     emit(run, outs)
+                    t1 = perf()  # a node's time leaves out writing its outputs
+                t0 = t1
             if traj is not None:
                 stats.trajectories[traj].append((sample.t, sample.x, sample.y, sample.yaw))
-        if bar is not None and not stats.n_msgs % 2000:
-            bar.update(2000)
+        if not stats.n_msgs % 2048:
+            _flush_times(times)
+            if bar is not None:
+                bar.update(2048)
     if bar is not None:
-        bar.update(stats.n_msgs % 2000)
+        bar.update(stats.n_msgs % 2048)
         bar.close()
 
 
@@ -186,7 +224,8 @@ def run(bagset: BagSet, plan: Plan, tmp: Path, progress: Optional[bool], storage
     """
     wall0 = time.perf_counter()
     stats = RunStats()
-    routes = _routes(plan)
+    times: list = []
+    routes = _routes(plan, times)
     traj_topics = {t for t in routes if plots and plan.bag_topics[t][0] == _ODOM_TYPE}
     if plots and plan.bag_topics.get(GROUND_TRUTH, ('',))[0] == _ODOM_TYPE:
         traj_topics.add(GROUND_TRUTH)
@@ -209,8 +248,9 @@ def run(bagset: BagSet, plan: Plan, tmp: Path, progress: Optional[bool], storage
         gc.freeze()
         gc.set_threshold(max(gc_threshold[0], 20000), *gc_threshold[1:])
         try:
-            _loop(bagset, streams, stream_info, emit, stats, window, bar)
+            _loop(bagset, streams, stream_info, emit, stats, window, bar, times)
         finally:
+            _flush_times(times)
             gc.set_threshold(*gc_threshold)
             gc.unfreeze()
         _finish(plan, emit, stats)
