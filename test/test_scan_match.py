@@ -2,6 +2,7 @@
 # SPDX-License-Identifier: Apache-2.0
 """Tests of the shared 2D scan registration (kiss-icp coarse + point-to-line refinement)."""
 
+import dataclasses
 import math
 
 import numpy as np
@@ -225,3 +226,56 @@ def test_tracking_leaves_the_registration_unchanged(monkeypatch, coarse):
     assert tracked.iterations == plain.iterations > 3
     for name in ('pose', 'covariance', 'hessian', 'min_eigenvalue', 'inliers', 'rmse'):
         np.testing.assert_array_equal(getattr(tracked, name), getattr(plain, name))
+
+
+def _room_pairs(count, offset_m, offset_rad, seed):
+    """Yield (source, prepared target, truth, guess) of scan pairs in the room, guesses off."""
+    segs = _segments_room()
+    rng = np.random.default_rng(seed)
+    for k in range(count):
+        pt = np.array([rng.uniform(1, 4), rng.uniform(0.8, 2.2), rng.uniform(-3, 3)])
+        ps = pt + np.array([rng.uniform(-0.4, 0.4), rng.uniform(-0.3, 0.3),
+                            rng.uniform(-0.3, 0.3)])
+        target = _raycast(segs, pt, noise=0.01, seed=k)
+        source = _raycast(segs, ps, noise=0.01, seed=k + 100)
+        truth = se2_between(pt, ps)
+        ang = rng.uniform(0, 2 * math.pi)
+        guess = truth + np.array([offset_m * math.cos(ang), offset_m * math.sin(ang),
+                                  offset_rad * rng.choice([-1, 1])])
+        yield source, sm.PreparedScan(target), truth, guess
+
+
+def test_wheel_first_match_refines_first_and_is_no_worse_than_kiss_icp_first():
+    """Wheel calibration's matcher: refinement from the guess, kiss-icp only when it fails."""
+    from robot_calib.methods.wheel_odometry_calibration.segmenter import default_matcher
+    right = {'kiss_icp_first': 0, 'matcher': 0}
+    wrong = {'kiss_icp_first': 0, 'matcher': 0}
+    for source, target, truth, guess in _room_pairs(16, 0.5, 0.2, seed=4):
+        full = sm.register(source, target, guess)
+        found = default_matcher(source, target, guess)
+        for name, pose in (('kiss_icp_first', full.pose if full.ok else None),
+                           ('matcher', None if found is None else found[0])):
+            if pose is not None:
+                t_err, r_err = _err(pose, truth)
+                (right if t_err < 0.03 and r_err < 0.01 else wrong)[name] += 1
+    assert right['matcher'] >= right['kiss_icp_first'] >= 10, right
+    assert wrong['matcher'] <= wrong['kiss_icp_first'], wrong
+
+
+def test_wheel_first_match_falls_back_to_kiss_icp(monkeypatch):
+    """A refinement the quality check refuses is registered again, kiss-icp first."""
+    from robot_calib.methods.wheel_odometry_calibration import segmenter
+    source, target, truth, guess = next(_room_pairs(1, 0.1, 0.05, seed=5))
+    real = sm.register
+    coarse_stages = []
+
+    def refine_fails(src, tgt, g, params=None):
+        coarse = (params or sm.ScanMatchParams()).coarse
+        coarse_stages.append(coarse)
+        res = real(src, tgt, g, params)
+        return res if coarse != 'none' else dataclasses.replace(res, reason='refused')
+
+    monkeypatch.setattr(sm, 'register', refine_fails)
+    found = segmenter.default_matcher(source, target, guess)
+    assert coarse_stages == ['none', 'kiss_icp']
+    assert found is not None and _err(found[0], truth)[0] < 0.03

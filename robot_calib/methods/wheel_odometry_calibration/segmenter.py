@@ -36,10 +36,19 @@ def default_matcher(source: np.ndarray, target: Any, guess: np.ndarray) -> Optio
     Register ``source`` points to a prepared ``target`` (robot_calib.core.scan_match).
 
     Returns ``(pose, info)`` (pose of the source frame in the target frame, m,
-    m, rad) or None when the match failed or is degenerate.
+    m, rad) or None when the match failed or is degenerate. The guess is the
+    nominal wheel odometry between key frames (centimetres and tenths of a
+    degree off on a calibration drive), inside the refinement's own annealed
+    gate (``refine_max_correspondence``, 0.8 m, against kiss-icp's 1.0 m), so
+    the refinement runs first; only a match it fails (its quality check
+    refuses it) is registered again with kiss-icp's coarse alignment before
+    the refinement.
     """
     from robot_calib.core import scan_match
-    return _motion(scan_match.register(source, target, guess))
+    res = scan_match.register(source, target, guess, scan_match.ScanMatchParams(coarse='none'))
+    if not res.ok:
+        res = scan_match.register(source, target, guess)
+    return _motion(res)
 
 
 def default_rematcher(source: np.ndarray, target: Any, guess: np.ndarray) -> Optional[tuple]:
