@@ -26,7 +26,28 @@ def butter2(tau: float, ts: float) -> tuple:
     return (b0, 2.0 * b0, b0, 2.0 * (c * c - 1.0) / d, (1.0 - math.sqrt(2.0) * c + c * c) / d)
 
 
-class LowPass:
+class _Butterworth2Bank:
+    """What both filter banks share: coefficients, the period and the running-mean start."""
+
+    __slots__ = ('n', 'tau', 'coef', 'count', 'init_n', 'ready')
+
+    def __init__(self, n: int, tau: float, ts: float):
+        """Create ``n`` channels with time constant ``tau`` (s) at sampling period ``ts`` (s)."""
+        self.n = n
+        self.tau = tau
+        self.coef = butter2(tau, ts)
+        self.count = 0
+        self.init_n = max(1, int(round(tau / ts)))
+        self.ready = False
+
+    def set_ts(self, ts: float) -> None:
+        """Recompute the coefficients for sampling period ``ts`` (s)."""
+        self.coef = butter2(self.tau, ts)
+        if not self.ready:
+            self.init_n = max(1, int(round(self.tau / ts)))
+
+
+class LowPass(_Butterworth2Bank):
     """
     A bank of 2nd-order Butterworth low-pass filters (direct form I).
 
@@ -36,22 +57,12 @@ class LowPass:
     of the inputs (a fast, unbiased start).
     """
 
-    __slots__ = ('n', 'tau', 'coef', 'x1', 'x2', 'y1', 'y2', 'count', 'sum', 'init_n', 'ready')
+    __slots__ = ('x1', 'x2', 'y1', 'y2', 'sum')
 
     def __init__(self, n: int, tau: float, ts: float):
-        self.n = n
-        self.tau = tau
-        self.coef = butter2(tau, ts)
-        self.count = 0
+        """Create ``n`` channels with time constant ``tau`` (s) at sampling period ``ts`` (s)."""
+        super().__init__(n, tau, ts)
         self.sum = [0.0] * n
-        self.init_n = max(1, int(round(tau / ts)))
-        self.ready = False
-
-    def set_ts(self, ts: float) -> None:
-        """Recompute the coefficients for sampling period ``ts`` (s)."""
-        self.coef = butter2(self.tau, ts)
-        if not self.ready:
-            self.init_n = max(1, int(round(self.tau / ts)))
 
     def fill(self, value: list) -> None:
         """Set the filter to the steady state of a constant input ``value``."""
@@ -87,7 +98,7 @@ class LowPass:
         return list(y)
 
 
-class LowPass3:
+class LowPass3(_Butterworth2Bank):
     """
     The 3-channel case of :class:`LowPass` on scalar state (it runs several times per sample).
 
@@ -95,27 +106,15 @@ class LowPass3:
     to the bit); :meth:`step` takes and returns three floats without lists.
     """
 
-    __slots__ = ('n', 'tau', 'coef', 'count', 's0', 's1', 's2', 'init_n', 'ready',
-                 'x10', 'x11', 'x12', 'x20', 'x21', 'x22',
+    __slots__ = ('s0', 's1', 's2', 'x10', 'x11', 'x12', 'x20', 'x21', 'x22',
                  'y10', 'y11', 'y12', 'y20', 'y21', 'y22')
 
     def __init__(self, n: int, tau: float, ts: float):
         """Create the bank (``n`` must be 3) with time constant ``tau`` (s), period ``ts`` (s)."""
         if n != 3:
             raise ValueError('LowPass3 filters exactly 3 channels')
-        self.n = 3
-        self.tau = tau
-        self.coef = butter2(tau, ts)
-        self.count = 0
+        super().__init__(3, tau, ts)
         self.s0 = self.s1 = self.s2 = 0.0
-        self.init_n = max(1, int(round(tau / ts)))
-        self.ready = False
-
-    def set_ts(self, ts: float) -> None:
-        """Recompute the coefficients for sampling period ``ts`` (s)."""
-        self.coef = butter2(self.tau, ts)
-        if not self.ready:
-            self.init_n = max(1, int(round(self.tau / ts)))
 
     def fill(self, value: list) -> None:
         """Set the filter to the steady state of a constant input ``value``."""
