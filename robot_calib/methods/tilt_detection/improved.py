@@ -260,7 +260,17 @@ class AttitudeEstimator:
                  [s02, s12, s22 + wm / p.bias_vertical_factor]]
         else:
             return
-        clip = p.bias_clip * deg
+        self._apply_bias_scale_update(xs, e, PHt, S)
+
+    def _apply_bias_scale_update(self, xs: list, e: list, PHt: list, S: list) -> None:
+        """
+        Apply a Kalman update to bias (rad/s) and scale: state ``xs``, innovation ``e``.
+
+        ``PHt`` is P H' (6 x 3) and ``S`` the innovation covariance H P H' + W (3 x 3).
+        """
+        p = self.p
+        P = self.P6
+        clip = p.bias_clip * self._deg
         e = [_clip(ei, clip) for ei in e]
         # K = P H' S^-1 (closed-form inverse of the 3x3 SPD S instead of an LU solve)
         Si = _inv3(S)
