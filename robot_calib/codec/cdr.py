@@ -251,8 +251,7 @@ def imu_to_cdr(s: T.ImuSample) -> bytes:
                      (s.orientation_cov, s.gyro_cov, s.accel_cov))
     if covs is None:
         return _imu_to_cdr_any(s)
-    ns = s.stamp_ns
-    sec, nsec = divmod(int(ns) if ns >= 0 else int(round(s.t * 1e9)), 1_000_000_000)
+    sec, nsec = divmod(T.stamp_of(s.t, s.stamp_ns), 1_000_000_000)
     try:
         pack, nf, fb = _IMU_LAYOUTS.get(s.frame_id) or _imu_layout(s.frame_id)
         g0, g1, g2 = g.tolist()
@@ -281,8 +280,7 @@ def odom_to_cdr(s: T.OdomSample) -> bytes:
         return _odom_to_cdr_any(s)
     if not math.isfinite(sum(covs)):  # non-finite values are written as 0 (_cov36)
         covs = [v if math.isfinite(v) else 0.0 for v in covs]
-    ns = s.stamp_ns
-    sec, nsec = divmod(int(ns) if ns >= 0 else int(round(s.t * 1e9)), 1_000_000_000)
+    sec, nsec = divmod(T.stamp_of(s.t, s.stamp_ns), 1_000_000_000)
     try:
         frames = (s.frame_id, s.child_frame_id)
         pack, nf, fb, nc, cb = _ODOM_LAYOUTS.get(frames) or _odom_layout(frames)

@@ -440,14 +440,7 @@ class BagWriter:
     def write_raw(self, topic: str, msgtype: str, data: bytes, time_ns: int) -> None:
         """Write CDR bytes of ``msgtype``."""
         topic = normalize_topic(topic)
-        conn = self._connection(topic, msgtype)
-        time_ns = int(time_ns)
-        if self._mcap is not None:
-            self._write_mcap(conn, time_ns, data)
-        else:
-            self._writer.write(conn, time_ns, data)
-        self.count += 1
-        self.counts[topic] = self.counts.get(topic, 0) + 1
+        self._put(self._connection(topic, msgtype), topic, int(time_ns), data)
 
     def raw_writer(self, topic: str, msgtype: str) -> Callable[[bytes, int], None]:
         """
@@ -458,21 +451,22 @@ class BagWriter:
         """
         topic = normalize_topic(topic)
         conn = None
-        counts = self.counts
 
         def write(data: bytes, time_ns: int) -> None:
             nonlocal conn
             if conn is None:
-                self.write_raw(topic, msgtype, data, time_ns)
-                conn = self._conns[topic]
-                return
-            if self._mcap is not None:
-                self._write_mcap(conn, int(time_ns), data)
-            else:
-                self._writer.write(conn, int(time_ns), data)
-            self.count += 1
-            counts[topic] += 1
+                conn = self._connection(topic, msgtype)
+            self._put(conn, topic, int(time_ns), data)
         return write
+
+    def _put(self, conn: Any, topic: str, time_ns: int, data: bytes) -> None:
+        """Append one message record on ``conn`` (``topic``) and count it."""
+        if self._mcap is not None:
+            self._write_mcap(conn, time_ns, data)
+        else:
+            self._writer.write(conn, time_ns, data)
+        self.count += 1
+        self.counts[topic] = self.counts.get(topic, 0) + 1
 
     def _write_mcap(self, conn: Any, ts: int, data: bytes) -> None:
         """
