@@ -4,6 +4,8 @@
 
 import os
 from pathlib import Path
+import subprocess
+import sys
 
 import pytest
 
@@ -37,3 +39,12 @@ def ros():
     rclpy.init()
     yield
     rclpy.try_shutdown()
+
+
+@pytest.fixture
+def fresh_python():
+    """Return ``run(code)``: the stripped stdout of ``code`` run in a new interpreter."""
+    def run(code: str) -> str:
+        return subprocess.run([sys.executable, '-c', code], capture_output=True, text=True,
+                              check=True).stdout.strip()
+    return run

@@ -3,8 +3,6 @@
 """Chi-square tails and quantiles without scipy, against scipy."""
 
 import math
-import subprocess
-import sys
 
 import numpy as np
 import pytest
@@ -39,12 +37,10 @@ def test_quantile_edges_and_bad_input():
             chi2.chi2_isf(p, dof)
 
 
-def test_fusion_starts_without_scipy():
+def test_fusion_starts_without_scipy(fresh_python):
     code = ('import sys\n'
             'from robot_calib.methods.odometry_fusion.variants import make_estimator\n'
             'from robot_calib.methods.odometry_fusion.params import FusionParams\n'
             'make_estimator(FusionParams())\n'
             'print(sorted(m for m in sys.modules if m.startswith("scipy")))\n')
-    out = subprocess.run([sys.executable, '-c', code], capture_output=True, text=True,
-                         check=True).stdout.strip()
-    assert out == '[]'
+    assert fresh_python(code) == '[]'

@@ -3,8 +3,6 @@
 """The codec's fast paths against rosbags' type store, and the stored type definitions."""
 
 import math
-import subprocess
-import sys
 
 import numpy as np
 import pytest
@@ -124,7 +122,7 @@ def test_stored_definitions_match_the_type_store():
     assert codec.definition('geometry_msgs/msg/PoseStamped')[1].startswith('RIHS01_')
 
 
-def test_replay_of_supported_types_needs_no_type_store(tmp_path):
+def test_replay_of_supported_types_needs_no_type_store(tmp_path, fresh_python):
     """Reading and writing every supported type goes without the Jazzy type store."""
     from robot_calib.io import bags
     from test_io_bags import _samples as every_type
@@ -141,8 +139,7 @@ def test_replay_of_supported_types_needs_no_type_store(tmp_path):
         '        for s in m.samples:\n'
         '            w.write(m.topic, s if not hasattr(s, "parent") else [s], m.time_ns)\n'
         'print(len(msgs), "rosbags.typesys.stores.ros2_jazzy" in sys.modules)\n')
-    out = subprocess.run([sys.executable, '-c', code], capture_output=True, text=True,
-                         check=True).stdout.split()
+    out = fresh_python(code).split()
     assert int(out[0]) == len(every_type()) and out[1] == 'False'
 
 
