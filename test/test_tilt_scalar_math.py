@@ -11,7 +11,6 @@ import pytest
 from robot_calib.methods.tilt_detection.improved import AttitudeEstimator
 from robot_calib.methods.tilt_detection.lowpass import LowPass, LowPass3
 from robot_calib.methods.tilt_detection.params import ImprovedFilterParams
-from robot_calib.methods.tilt_detection.quaternion import qmul, qmul_unit, qnorm
 
 
 def test_lowpass3_equals_the_general_bank_to_the_bit():
@@ -48,15 +47,6 @@ def test_lowpass_bank_is_direct_form_one():
         assert out == y
         out[0] = 1e9  # the caller's list is its own
         x1, x2, y1, y2 = list(x), x1, y, y1
-
-
-def test_qmul_unit_is_qnorm_of_qmul():
-    """qmul_unit(a, b) is exactly qnorm(qmul(a, b))."""
-    rng = np.random.default_rng(4)
-    for _ in range(200):
-        a = tuple(rng.normal(size=4).tolist())
-        b = tuple(rng.normal(size=4).tolist())
-        assert qmul_unit(a, b) == qnorm(qmul(a, b))
 
 
 def _reference_update(f, ex, ey, dt, g):

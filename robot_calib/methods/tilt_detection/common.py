@@ -267,13 +267,8 @@ class TiltEstimatorBase(abc.ABC):
             self._episodes.append((t, None))
         elif changed is False and self._episodes:
             self._episodes[-1] = (self._episodes[-1][0], t)
-        if self._mounted:
-            state = TiltState(t, q, tilt, self._detector.alert, changed is not None, roll,
-                              pitch, bias, rest, gap, *self._in_base_frame(sample))
-        else:
-            state = TiltState(t, q, tilt, self._detector.alert, changed is not None, roll,
-                              pitch, bias, rest, gap, sample.gyro, sample.accel,
-                              sample.frame_id, False)
+        state = TiltState(t, q, tilt, self._detector.alert, changed is not None, roll, pitch,
+                          bias, rest, gap, *self._in_base_frame(sample))
         self._last = state
         self._samples += 1
         return state

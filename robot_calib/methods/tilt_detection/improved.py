@@ -34,8 +34,8 @@ from typing import Optional
 from robot_calib.methods.tilt_detection.common import TiltEstimatorBase
 from robot_calib.methods.tilt_detection.lowpass import LowPass, LowPass3
 from robot_calib.methods.tilt_detection.params import ImprovedFilterParams
-from robot_calib.methods.tilt_detection.quaternion import (align_up, positive_w, qmul,
-                                                           qmul_unit, qrot)
+from robot_calib.methods.tilt_detection.quaternion import (align_up, positive_w, qmul, qnorm,
+                                                           qrot)
 
 
 class AttitudeEstimator:
@@ -128,7 +128,7 @@ class AttitudeEstimator:
             if wn > 1e-12:
                 half = 0.5 * wn * dt
                 s = math.sin(half) / wn
-                self.q_gyr = qmul_unit(self.q_gyr, (math.cos(half), s * wx, s * wy, s * wz))
+                self.q_gyr = qnorm(qmul(self.q_gyr, (math.cos(half), s * wx, s * wy, s * wz)))
         self._rest_detection(gx, gy, gz, ax, ay, az, dt)
 
         # Acceleration in the almost-inertial frame, low-pass filtered there.
@@ -142,7 +142,7 @@ class AttitudeEstimator:
         n = math.sqrt(ex * ex + ey * ey + ez * ez)
         if n > 1e-9:
             ex, ey, ez = ex / n, ey / n, ez / n
-            self.q_inc = qmul_unit(align_up(ex, ey, ez), self.q_inc)
+            self.q_inc = qnorm(qmul(align_up(ex, ey, ez), self.q_inc))
         if self._bias_on:
             # Average the corrections over bias_update_period, then one Kalman update.
             self._acc_x += ex

@@ -38,18 +38,6 @@ def qrot(q: tuple, x: float, y: float, z: float) -> tuple:
             z + w * tz + a * ty - b * tx)
 
 
-def qmul_unit(a: tuple, b: tuple) -> tuple:
-    """Return ``qnorm(qmul(a, b))`` in one step (the same operations, the same result)."""
-    w1, x1, y1, z1 = a
-    w2, x2, y2, z2 = b
-    w = w1 * w2 - x1 * x2 - y1 * y2 - z1 * z2
-    x = w1 * x2 + x1 * w2 + y1 * z2 - z1 * y2
-    y = w1 * y2 - x1 * z2 + y1 * w2 + z1 * x2
-    z = w1 * z2 + x1 * y2 - y1 * x2 + z1 * w2
-    n = math.sqrt(w * w + x * x + y * y + z * z)
-    return (w / n, x / n, y / n, z / n)
-
-
 def qnorm(q: tuple) -> tuple:
     """Return q scaled to unit length."""
     n = math.sqrt(q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3])
