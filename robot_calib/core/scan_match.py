@@ -238,24 +238,34 @@ def _matrix_pose(m: np.ndarray) -> np.ndarray:
 
 def _normals(points: np.ndarray, tree: Optional[cKDTree], k: int,
              max_spread: float) -> tuple[np.ndarray, np.ndarray]:
-    """Return unit line normals (N, 2) from a PCA of each point's k neighbours, and validity."""
+    """
+    Return unit line normals (N, 2) from a PCA of each point's k neighbours, and validity.
+
+    The 2x2 covariance of the neighbours has eigenvalues ``m -/+ d`` with ``m``
+    half its trace and ``d = hypot((a - c) / 2, b)``; the direction of least
+    spread is normal to the major axis at ``0.5 atan2(2 b, a - c)`` (closed
+    form, as ``numpy.linalg.eigh`` gives to rounding, up to the sign, which no
+    point-to-line term depends on).
+    """
     n = len(points)
     if n < 3 or tree is None:
         return np.zeros((n, 2)), np.zeros(n, dtype=bool)
     k = min(k, n)
     _, idx = tree.query(points, k=k)
     x, y = points[:, 0][idx], points[:, 1][idx]        # (N, k) neighbour coordinates (m)
-    cx = x - (x.sum(axis=1) / k)[:, None]
-    cy = y - (y.sum(axis=1) / k)[:, None]
-    cov = np.empty((n, 2, 2))
-    cov[:, 0, 0] = (cx * cx).sum(axis=1)
-    cov[:, 0, 1] = cov[:, 1, 0] = (cx * cy).sum(axis=1)
-    cov[:, 1, 1] = (cy * cy).sum(axis=1)
-    cov /= k
-    evals, evecs = np.linalg.eigh(cov)                 # ascending eigenvalues
-    normals = evecs[:, :, 0]                           # direction of least spread
-    spread = evals[:, 0] / np.maximum(evals[:, 1], 1e-12)
-    ok = (spread <= max_spread) & (evals[:, 1] > 0)
+    x -= (x.sum(axis=1) / k)[:, None]
+    y -= (y.sum(axis=1) / k)[:, None]
+    a = np.einsum('ij,ij->i', x, x) / k                # covariance [[a, b], [b, c]] (m^2)
+    b = np.einsum('ij,ij->i', x, y) / k
+    c = np.einsum('ij,ij->i', y, y) / k
+    half_diff = 0.5 * (a - c)
+    mean = 0.5 * (a + c)
+    dev = np.hypot(half_diff, b)
+    least, most = mean - dev, mean + dev               # eigenvalues, ascending (m^2)
+    axis = 0.5 * np.arctan2(b, half_diff)              # major axis direction (rad)
+    normals = np.column_stack((-np.sin(axis), np.cos(axis)))
+    spread = np.maximum(least, 0.0) / np.maximum(most, 1e-12)
+    ok = (spread <= max_spread) & (most > 0)
     return normals, ok
 
 
