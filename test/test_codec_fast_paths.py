@@ -103,6 +103,33 @@ def test_fast_joint_state_decoder_with_efforts_and_missing_values():
                     codec.from_msg('sensor_msgs/msg/JointState', msg))
 
 
+def test_joint_states_sharing_a_layout_decode_as_alone():
+    """The layout kept from the last JointState is used only where it holds."""
+    store = codec.typestore()
+    ty = store.types
+
+    def raw_of(sec, frame, names, pos, vel):
+        hdr = ty['std_msgs/msg/Header'](ty['builtin_interfaces/msg/Time'](sec, 7), frame)
+        msg = ty['sensor_msgs/msg/JointState'](hdr, list(names), np.array(pos, dtype=float),
+                                               np.array(vel, dtype=float), np.zeros(0))
+        return bytes(store.serialize_cdr(msg, 'sensor_msgs/msg/JointState')), msg
+    rng = np.random.default_rng(3)
+    cases = [(1, 'b', ('l', 'r'), rng.normal(size=2), rng.normal(size=2)),
+             (2, 'b', ('l', 'r'), rng.normal(size=2), rng.normal(size=2)),   # same layout
+             (3, 'b', ('l', 'r'), rng.normal(size=2), []),                   # velocities gone
+             (4, 'b', ('l', 'rr'), rng.normal(size=2), rng.normal(size=2)),  # a name longer
+             (5, 'bb', ('l', 'r'), rng.normal(size=2), rng.normal(size=2)),  # another frame
+             (6, 'bb', ('l', 'r'), rng.normal(size=3), rng.normal(size=2))]  # one more value
+    for case in cases + cases:
+        raw, msg = raw_of(*case)
+        assert_same(cdr_more.joint_state_from_cdr(raw),
+                    codec.from_msg('sensor_msgs/msg/JointState', msg))
+    raw, _ = raw_of(*cases[0])
+    cdr_more.joint_state_from_cdr(raw)
+    with pytest.raises(Exception):  # noqa: B017 - truncated: no layout may read past its end
+        cdr_more.joint_state_from_cdr(raw[:-9])
+
+
 def test_big_endian_messages_take_the_generic_path():
     store = codec.typestore()
     sample = _samples('scan', np.random.default_rng(1), 2)[1]

@@ -27,6 +27,30 @@ def test_thinned_is_a_plain_list_while_small():
     assert not Thinned()
 
 
+@pytest.mark.parametrize('n', [7, 100, 1001])
+def test_thinned_lazy_items_are_made_only_where_kept_and_match_eager(n):
+    eager, lazy, made = Thinned(capacity=16), Thinned(capacity=16), []
+
+    def make(i):
+        made.append(i)
+        return i
+    for i in range(n):
+        eager.append(i)
+        lazy.append_lazy(lambda i=i: make(i))
+    assert list(lazy) == list(eager) and lazy[-1] == eager[-1] == n - 1
+    assert len(lazy) == len(eager) and lazy.count == eager.count
+    assert set(eager) <= set(made) and len(made) == len(set(made))    # each made once
+    if n > 32:
+        assert len(made) < n / 2             # items thinned out as they came were not made
+
+
+def test_thinned_lazy_item_that_cannot_be_made_adds_nothing():
+    s = Thinned(capacity=16)
+    for i in range(5):
+        s.append_lazy(lambda i=i: None if i == 2 else i)
+    assert list(s) == [0, 1, 3, 4]
+
+
 def test_reservoir_keeps_exact_count_and_sum_and_close_percentiles():
     r = Reservoir(capacity=5000, seed=1)
     values = np.random.default_rng(2).exponential(1.0, 200000)

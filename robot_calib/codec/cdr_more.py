@@ -99,19 +99,77 @@ def scan_from_cdr(raw: bytes, time_ns: Optional[int] = None) -> list:
                          intens if intens.size else None, t_inc, scan_time, ns)]
 
 
+class _JointLayout:
+    """
+    Where the values of a JointState are, for the messages that share its frame and names.
+
+    ``prefix`` is the bytes from the frame id's length through the last name;
+    a message starting with the same bytes has the same names, so its position
+    and velocity sequences start at the same offsets when their lengths
+    (``counts``, read at ``count_at``) are the same too.
+    """
+
+    __slots__ = ('prefix', 'names', 'count_at', 'counts', 'value_at')
+
+    def __init__(self, raw: bytes, names: tuple, end: int, count_at: tuple[int, int],
+                 counts: tuple[int, int], value_at: tuple[int, int]):
+        """Record the layout of ``raw`` (its names end at offset ``end``)."""
+        self.prefix = bytes(raw[12:end])
+        self.names = names
+        self.count_at, self.counts, self.value_at = count_at, counts, value_at
+
+    def values(self, raw: bytes) -> Optional[tuple[np.ndarray, np.ndarray]]:
+        """Return (positions, velocities) of ``raw`` when it has this layout, else None."""
+        if (raw[12:12 + len(self.prefix)] != self.prefix
+                or _U32.unpack_from(raw, self.count_at[0])[0] != self.counts[0]
+                or _U32.unpack_from(raw, self.count_at[1])[0] != self.counts[1]):
+            return None
+        return tuple(np.frombuffer(raw, '<f8', n, at).astype(float) if n else np.zeros(0)
+                     for n, at in zip(self.counts, self.value_at))
+
+
+_joint_layout: list[Optional[_JointLayout]] = [None]
+"""The layout of the last JointState decoded (a recording repeats one)."""
+
+
 def joint_state_from_cdr(raw: bytes, time_ns: Optional[int] = None) -> list:
     """Decode a sensor_msgs/JointState; missing positions or velocities become NaN."""
-    r = _Reader(raw)
-    ns, _ = r.header()
-    names = tuple(r.string() for _ in range(r.u32()))
-    pos = r.sequence('<f8')
-    vel = r.sequence('<f8')
+    sec, nsec = _SEC_NSEC.unpack_from(raw, 4)
+    ns = sec * 1_000_000_000 + nsec
+    layout = _joint_layout[0]
+    values = None if layout is None else layout.values(raw)
+    if values is None:
+        layout = _read_joint_layout(raw)
+        _joint_layout[0] = layout
+        values = layout.values(raw)
+    pos, vel = values
+    names = layout.names
     n = len(names)
     if pos.size != n:
         pos = np.full(n, np.nan)
     if vel.size != n:
         vel = np.full(n, np.nan)
     return [T.JointStateSample(ns * 1e-9, names, pos, vel, ns)]
+
+
+def _read_joint_layout(raw: bytes) -> _JointLayout:
+    """Parse the header, names and sequence lengths of a JointState."""
+    r = _Reader(raw)
+    r.header()
+    names = tuple(r.string() for _ in range(r.u32()))
+    end = r.pos
+    count_at, counts, value_at = [], [], []
+    for _ in range(2):  # positions, velocities
+        r.align(4)
+        count_at.append(r.pos)
+        counts.append(r.u32())
+        if counts[-1]:
+            r.align(8)
+        value_at.append(r.pos)
+        r.pos += 8 * counts[-1]
+    if r.pos > len(raw):
+        raise ValueError('JointState shorter than its sequences')
+    return _JointLayout(raw, names, end, tuple(count_at), tuple(counts), tuple(value_at))
 
 
 def twist_from_cdr(raw: bytes, time_ns: Optional[int] = None) -> list:

@@ -17,7 +17,7 @@ from __future__ import annotations
 from array import array
 import math
 import random
-from typing import Any, Iterator, Optional, Sequence
+from typing import Any, Callable, Iterator, Optional, Sequence
 
 import numpy as np
 
@@ -33,9 +33,11 @@ class Thinned:
         self.count = 0
         """How many items were appended in all."""
         self._tail: Optional[Any] = None
+        self._make_tail: Optional[Callable[[], Any]] = None
 
     def append(self, item: Any) -> None:
         """Add ``item``: kept when its index is a multiple of the current stride."""
+        self._make_tail = None
         if self.count % self.stride == 0:
             self.items.append(item)
             self._tail = None
@@ -46,18 +48,41 @@ class Thinned:
             self._tail = item
         self.count += 1
 
+    def append_lazy(self, make: Callable[[], Any]) -> None:
+        """
+        Add the item ``make()`` returns, calling ``make`` only when the item is kept.
+
+        An item thinned out is made when read while it is still the latest one.
+        ``make`` returning None (e.g. it could not decode) adds nothing.
+        """
+        if self.count % self.stride == 0:
+            item = make()
+            if item is not None:
+                self.append(item)
+            return
+        self._tail, self._make_tail = None, make
+        self.count += 1
+
+    def _settle(self) -> None:
+        """Make the latest item when it was appended lazily."""
+        if self._make_tail is not None:
+            self._tail, self._make_tail = self._make_tail(), None
+
     def __len__(self) -> int:
         """Return the number of items kept."""
+        self._settle()
         return len(self.items) + (self._tail is not None)
 
     def __iter__(self) -> Iterator[Any]:
         """Iterate over the kept items in order, the latest last."""
+        self._settle()
         yield from self.items
         if self._tail is not None:
             yield self._tail
 
     def __getitem__(self, index: int) -> Any:
         """Return a kept item (``[-1]`` is always the latest appended)."""
+        self._settle()
         if self._tail is not None:
             if index == -1 or index == len(self.items):
                 return self._tail

@@ -24,7 +24,7 @@ from operator import itemgetter
 import os
 from pathlib import Path
 import shutil
-from typing import Any, Callable, Iterable, Iterator, Optional
+from typing import Any, Callable, Collection, Iterable, Iterator, Optional
 
 from robot_calib import codec
 from robot_calib.io import mcap
@@ -92,6 +92,10 @@ def open_reader(paths: Iterable[os.PathLike | str]) -> Any:
 # ---------------------------------------------------------------------------------------
 # reading
 # ---------------------------------------------------------------------------------------
+UNDECODED = ('undecoded',)
+"""The samples :meth:`BagSet.decoded` yields for a message of a lazy stream (not decoded)."""
+
+
 class Stream:
     """
     One topic of one bag: its normalized name, ROS 2 type, count and decoders.
@@ -260,32 +264,36 @@ class BagSet:
             return iters[0]
         return heapq.merge(*iters, key=itemgetter(1))
 
-    def decoded(self, streams: Optional[Iterable[Stream]] = None, block: int = 512
-                ) -> Iterator[tuple[Stream, int, bytes, Optional[list]]]:
+    def decoded(self, streams: Optional[Iterable[Stream]] = None, block: int = 512,
+                lazy: Collection[Stream] = ()
+                ) -> Iterator[tuple[Stream, int, bytes, Any]]:
         """
         Yield ``(stream, time_ns, raw, samples)`` like :meth:`messages`, decoded.
 
         ``samples`` is the list :meth:`Stream.decode` returns, or None when the
-        message cannot be decoded. Messages are read ``block`` at a time so that
-        streams with a batch decoder decode them together (same samples, faster;
-        the samples of one batch share one array, so keeping one sample keeps at
-        most ``block`` x 296 bytes alive).
+        message cannot be decoded, or :data:`UNDECODED` for the ``lazy`` streams
+        (the caller decodes what it needs). Messages are read ``block`` at a time
+        so that streams with a batch decoder decode them together (same samples,
+        faster; the samples of one batch share one array, so keeping one sample
+        keeps at most ``block`` x 296 bytes alive).
         """
         it = self.messages(streams)
+        skip = {id(s) for s in lazy}
         while True:
             batch = list(islice(it, block))
             if not batch:
                 return
             first = batch[0][0]
             if all(b[0] is first for b in batch):  # one topic only: the common case
-                groups = [list(range(len(batch)))] if first.decode_batch is not None else []
+                groups = ([list(range(len(batch)))]
+                          if first.decode_batch is not None and id(first) not in skip else [])
             else:
                 by_stream: dict[int, list[int]] = {}
                 for i, b in enumerate(batch):
-                    if b[0].decode_batch is not None:
+                    if b[0].decode_batch is not None and id(b[0]) not in skip:
                         by_stream.setdefault(id(b[0]), []).append(i)
                 groups = list(by_stream.values())
-            results: list = [None] * len(batch)
+            results: list = [UNDECODED if id(b[0]) in skip else None for b in batch]
             for idx in groups:
                 stream = batch[idx[0]][0]
                 try:

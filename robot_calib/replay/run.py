@@ -13,6 +13,7 @@ from __future__ import annotations
 
 from collections import defaultdict
 from dataclasses import dataclass, field
+from functools import partial
 import gc
 import os
 from pathlib import Path
@@ -24,7 +25,7 @@ from typing import Any, Optional
 from robot_calib import codec
 from robot_calib.core import types as T
 from robot_calib.core.series import Thinned
-from robot_calib.io.bags import BagSet, BagWriter
+from robot_calib.io.bags import BagSet, BagWriter, UNDECODED
 from robot_calib.pipelines.validation import sample_problem, UNCHECKED
 from robot_calib.replay.config import OUTPUT_BAG
 from robot_calib.replay.select import NodeRun, Plan
@@ -149,14 +150,21 @@ def _loop(bagset: BagSet, streams: list, stream_info: dict, emit: _Emitter, stat
     t_lo = bagset.start_ns + int(round(window[0] * 1e9))
     t_hi = None if window[1] is None else t_lo + int(round(window[1] * 1e9))
     clip = window[0] > 0 or t_hi is not None
-    for stream, time_ns, _, samples in bagset.decoded(streams) if streams else ():
+    # a topic read for its trajectory alone is decoded where the plot keeps a point
+    lazy = [s for s in streams if not stream_info[id(s)][1]]
+    for stream, time_ns, raw, samples in (bagset.decoded(streams, lazy=lazy) if streams
+                                          else ()):
         if clip:
             if time_ns < t_lo:
                 continue
             if t_hi is not None and time_ns > t_hi:
                 break
         topic, targets, traj = stream_info[id(stream)]
-        if samples is None:  # undecodable: counted, never fatal
+        if samples is UNDECODED:
+            samples = ()
+            stats.trajectories[traj].append_lazy(
+                partial(_pose, stream, raw, time_ns, stats.undecodable, topic))
+        elif samples is None:  # undecodable: counted, never fatal
             stats.undecodable[topic] += 1
             continue
         stats.n_msgs += 1
@@ -190,6 +198,17 @@ def _loop(bagset: BagSet, streams: list, stream_info: dict, emit: _Emitter, stat
     if bar is not None:
         bar.update(stats.n_msgs % 2048)
         bar.close()
+
+
+def _pose(stream: Any, raw: bytes, time_ns: int, undecodable: dict[str, int],
+          topic: str) -> Optional[tuple[float, float, float, float]]:
+    """Return (t, x, y, yaw) of an odometry message; None (counted) when undecodable."""
+    try:
+        sample = stream.decode(raw, time_ns)[0]
+    except Exception:  # noqa: B902 - counted, never fatal
+        undecodable[topic] += 1
+        return None
+    return sample.t, sample.x, sample.y, sample.yaw
 
 
 def _finish(plan: Plan, emit: _Emitter, stats: RunStats) -> None:
