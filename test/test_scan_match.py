@@ -279,3 +279,18 @@ def test_wheel_first_match_falls_back_to_kiss_icp(monkeypatch):
     found = segmenter.default_matcher(source, target, guess)
     assert coarse_stages == ['none', 'kiss_icp']
     assert found is not None and _err(found[0], truth)[0] < 0.03
+
+
+def test_line_normals_are_the_least_spread_eigenvectors():
+    """The closed-form normals agree with a numerical eigen-decomposition, up to the sign."""
+    from scipy.spatial import cKDTree
+    pts = _raycast(_segments_room(), (3.0, 1.5, 0.3), noise=0.01, seed=4)
+    pts = np.vstack((pts, np.random.default_rng(5).normal(size=(40, 2))))  # blobs: not lines
+    tree = cKDTree(pts)
+    normals, ok = sm._normals(pts, tree, 5, 0.3)
+    _, idx = tree.query(pts, k=5)
+    nb = pts[idx] - pts[idx].mean(axis=1, keepdims=True)
+    evals, evecs = np.linalg.eigh(np.einsum('nki,nkj->nij', nb, nb) / 5)
+    cross = normals[:, 0] * evecs[:, 1, 0] - normals[:, 1] * evecs[:, 0, 0]
+    assert np.allclose(np.hypot(*normals.T), 1.0) and np.max(np.abs(cross)) < 1e-9
+    assert np.array_equal(ok, evals[:, 0] / evals[:, 1] <= 0.3) and 0 < ok.sum() < len(pts)
