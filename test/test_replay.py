@@ -485,3 +485,56 @@ def test_output_chunks_are_zstd_compressed(bag, tmp_path):
         with AnyReader([folder]) as reader:
             return [(c.topic, t, bytes(raw)) for c, t, raw in reader.messages()]
     assert messages(tmp_path / 'z') == messages(tmp_path / 'plain') != []
+
+
+class GatedPipeline(EchoPipeline):
+    """Echo odometry, but turn it away unread while 1000 to 1999 IMU samples were seen."""
+
+    name = 'gated'
+    refusable = ('odom',)
+
+    def refusal(self, key):
+        """Refuse odometry in the middle of the bag."""
+        return 'gated' if 1000 <= self.imu_seen < 2000 else ''
+
+
+def test_refused_inputs_count_and_resume_as_in_a_live_node(tmp_path):
+    """Replay skips decoding refused odometry, yet counts, outputs and plots stay the same."""
+    path = tmp_path / 'in'
+    samples = []
+    with bags.BagWriter(path) as w:
+        for i in range(3000):                      # 100 Hz IMU, 50 Hz odometry: 4500 messages
+            ns = 10**9 + i * 10**7
+            samples.append(('imu', _imu(ns)))
+            w.write('/imu', samples[-1][1], ns)
+            if i % 2:
+                samples.append(('odom', T.OdomSample(ns * 1e-9, 0.01 * i, 0.0, 0.0,
+                                                     stamp_ns=ns + 1)))
+                w.write('/odom', samples[-1][1], ns + 1)
+    live = GatedPipeline()
+    outputs = [out for key, sample in samples for out in live.process(key, sample)]
+    s = replay(path, tmp_path / 'o', nodes=f'{__name__}:GatedPipeline', progress=False)
+    odom = s['nodes']['gated']['inputs']['odom']
+    assert odom == dict(live.counts['odom'])
+    assert odom['read'] == 1500 and odom['rejected_gated'] == 500 and odom['accepted'] == 1000
+    assert 'gaps' not in odom                      # its time line started again after
+    echoed = list(bags.read_messages([tmp_path / 'o'], topics=['/echo/odom']))
+    assert [m.samples[0].x for m in echoed] == [o[1].x for o in outputs if o[0] == 'odom']
+    assert s['nodes']['gated']['timing']['input_messages'] == 4500
+
+
+def test_wheel_calibration_refuses_odometry_while_joint_states_drive_it(repo_root, tmp_path,
+                                                                        monkeypatch):
+    from robot_calib.methods.wheel_odometry_calibration.pipeline import (
+        WheelCalibrationPipeline)
+    node = 'wheel_odometry_calibration'
+    bag = repo_root / 'bags' / 'sim_drive'
+    refused = replay(bag, tmp_path / 'a', nodes=node, progress=False)
+    monkeypatch.setattr(WheelCalibrationPipeline, 'refusable', ())
+    handled = replay(bag, tmp_path / 'b', nodes=node, progress=False)
+    a, b = refused['nodes'][node], handled['nodes'][node]
+    assert a['inputs']['odom'] == {'read': b['inputs']['odom']['read'],
+                                   'rejected': b['inputs']['odom']['read'],
+                                   'rejected_joint_states_preferred': b['inputs']['odom']['read']}
+    assert a['result'] == b['result'] and a['result']['verdict'] == 'converged'
+    assert a['timing']['input_messages'] == b['timing']['input_messages']

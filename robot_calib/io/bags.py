@@ -24,7 +24,7 @@ from operator import itemgetter
 import os
 from pathlib import Path
 import shutil
-from typing import Any, Callable, Collection, Iterable, Iterator, Optional
+from typing import AbstractSet, Any, Callable, Iterable, Iterator, Optional
 
 from robot_calib import codec
 from robot_calib.io import mcap
@@ -265,20 +265,21 @@ class BagSet:
         return heapq.merge(*iters, key=itemgetter(1))
 
     def decoded(self, streams: Optional[Iterable[Stream]] = None, block: int = 512,
-                lazy: Collection[Stream] = ()
+                lazy: AbstractSet[int] = frozenset()
                 ) -> Iterator[tuple[Stream, int, bytes, Any]]:
         """
         Yield ``(stream, time_ns, raw, samples)`` like :meth:`messages`, decoded.
 
         ``samples`` is the list :meth:`Stream.decode` returns, or None when the
-        message cannot be decoded, or :data:`UNDECODED` for the ``lazy`` streams
-        (the caller decodes what it needs). Messages are read ``block`` at a time
-        so that streams with a batch decoder decode them together (same samples,
-        faster; the samples of one batch share one array, so keeping one sample
-        keeps at most ``block`` x 296 bytes alive).
+        message cannot be decoded, or :data:`UNDECODED` for the streams whose
+        ``id`` is in ``lazy`` (the caller decodes what it needs; the set is read
+        for each block, so the caller may change it). Messages are read
+        ``block`` at a time so that streams with a batch decoder decode them
+        together (same samples, faster; the samples of one batch share one array,
+        so keeping one sample keeps at most ``block`` x 296 bytes alive).
         """
         it = self.messages(streams)
-        skip = {id(s) for s in lazy}
+        skip = lazy
         while True:
             batch = list(islice(it, block))
             if not batch:

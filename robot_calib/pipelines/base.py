@@ -85,6 +85,8 @@ class Pipeline(abc.ABC):
     """A step ahead between samples of one input longer than this is a clock jump (s)."""
     live_params: ClassVar[tuple[str, ...]] = ()
     """Parameters :meth:`apply_params` takes while running; a node makes the others read-only."""
+    refusable: ClassVar[tuple[str, ...]] = ()
+    """Inputs :meth:`refusal` may turn away unread (a replay then need not decode them)."""
 
     def __init__(self, params: Any = None, log: Optional[Callable[[str, str], None]] = None):
         """Create the pipeline with a params instance (defaults when None) and a logger."""
@@ -114,6 +116,22 @@ class Pipeline(abc.ABC):
         self.counts[key]['rejected_' + reason] += 1
         return []
 
+    def refusal(self, key: str) -> str:
+        """Return why input ``key`` (one of :attr:`refusable`) is not used now; '' when it is."""
+        return ''
+
+    def refuse(self, key: str, reason: str) -> list:
+        """
+        Count one sample of input ``key`` turned away unread (unchecked) for ``reason``.
+
+        The input's time line starts again when it is used again (no gap or
+        clock jump counted against the samples before).
+        """
+        self.counts[key]['read'] += 1
+        self._last_t.pop(key, None)
+        self._pending.pop(key, None)
+        return self.reject(key, reason)
+
     def process(self, key: str, sample: Any) -> list[Output]:
         """
         Validate one sample of input ``key`` and hand it to :meth:`handle`.
@@ -138,6 +156,10 @@ class Pipeline(abc.ABC):
             self.static_transforms[(sample.parent, sample.child)] = sample
             self.on_static_transform(sample)
             return []
+        if key in self.refusable:
+            reason = self.refusal(key)
+            if reason:
+                return self.refuse(key, reason)
         counts = self.counts[key]
         counts['read'] += 1
         if problem is not None:

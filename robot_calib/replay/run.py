@@ -150,8 +150,9 @@ def _loop(bagset: BagSet, streams: list, stream_info: dict, emit: _Emitter, stat
     t_lo = bagset.start_ns + int(round(window[0] * 1e9))
     t_hi = None if window[1] is None else t_lo + int(round(window[1] * 1e9))
     clip = window[0] > 0 or t_hi is not None
-    # a topic read for its trajectory alone is decoded where the plot keeps a point
-    lazy = [s for s in streams if not stream_info[id(s)][1]]
+    # not decoded: a topic read for its trajectory alone (decoded where the plot keeps a
+    # point), and a topic every node reading it turns away unread (Pipeline.refusal)
+    lazy = {id(s) for s in streams if not stream_info[id(s)][1]}
     for stream, time_ns, raw, samples in (bagset.decoded(streams, lazy=lazy) if streams
                                           else ()):
         if clip:
@@ -159,22 +160,35 @@ def _loop(bagset: BagSet, streams: list, stream_info: dict, emit: _Emitter, stat
                 continue
             if t_hi is not None and time_ns > t_hi:
                 break
-        topic, targets, traj = stream_info[id(stream)]
-        if samples is UNDECODED:
-            samples = ()
-            stats.trajectories[traj].append_lazy(
-                partial(_pose, stream, raw, time_ns, stats.undecodable, topic))
-        elif samples is None:  # undecodable: counted, never fatal
+        topic, targets, traj, refusable = stream_info[id(stream)]
+        if samples is None:  # undecodable: counted, never fatal
             stats.undecodable[topic] += 1
             continue
+        if refusable:
+            if _refused(targets):
+                lazy.add(id(stream))
+                targets = ()
+            else:
+                lazy.discard(id(stream))
+        if samples is UNDECODED:
+            if targets:
+                samples = _decode(stream, raw, time_ns, stats.undecodable, topic)
+                if samples is None:
+                    continue
+            else:
+                samples = ()
+                if traj is not None:
+                    stats.trajectories[traj].append_lazy(
+                        partial(_pose, stream, raw, time_ns, stats.undecodable, topic))
         stats.n_msgs += 1
         stats.read[topic] += 1
         for sample in samples:
-            try:  # once for every node reading the sample (each counts its own rejections)
-                problem = (None if isinstance(sample, T.StaticTransform)
-                           else sample_problem(sample))
-            except Exception:  # noqa: B902 - each node fails on it below, as it would alone
-                problem = UNCHECKED
+            if targets:
+                try:  # once for every node reading the sample (each counts its own rejections)
+                    problem = (None if isinstance(sample, T.StaticTransform)
+                               else sample_problem(sample))
+                except Exception:  # noqa: B902 - each node fails on it below, as alone
+                    problem = UNCHECKED
             t0 = perf()
             for process, key, run, add_time in targets:
                 try:
@@ -200,15 +214,41 @@ def _loop(bagset: BagSet, streams: list, stream_info: dict, emit: _Emitter, stat
         bar.close()
 
 
-def _pose(stream: Any, raw: bytes, time_ns: int, undecodable: dict[str, int],
-          topic: str) -> Optional[tuple[float, float, float, float]]:
-    """Return (t, x, y, yaw) of an odometry message; None (counted) when undecodable."""
+def _refusable(stream: Any, targets: list) -> bool:
+    """Return whether every node reading ``stream`` may refuse it (one sample a message)."""
+    return (bool(targets) and stream.msgtype != codec.KINDS['tf_static'].msgtype
+            and all(key in run.pipeline.refusable for _, key, run, _ in targets))
+
+
+def _refused(targets: tuple) -> bool:
+    """Count a message refused by every node reading it (:meth:`Pipeline.refuse`); say if so."""
+    reasons = [run.pipeline.refusal(key) for _, key, run, _ in targets]
+    if not all(reasons):
+        return False
+    for (_, key, run, add_time), reason in zip(targets, reasons):
+        t0 = time.perf_counter()
+        run.pipeline.refuse(key, reason)
+        add_time(time.perf_counter() - t0)
+    return True
+
+
+def _decode(stream: Any, raw: bytes, time_ns: int, undecodable: dict[str, int],
+            topic: str) -> Optional[list]:
+    """Return the samples of a message; None (counted) when it cannot be decoded."""
     try:
-        sample = stream.decode(raw, time_ns)[0]
+        return stream.decode(raw, time_ns)
     except Exception:  # noqa: B902 - counted, never fatal
         undecodable[topic] += 1
         return None
-    return sample.t, sample.x, sample.y, sample.yaw
+
+
+def _pose(stream: Any, raw: bytes, time_ns: int, undecodable: dict[str, int],
+          topic: str) -> Optional[tuple[float, float, float, float]]:
+    """Return (t, x, y, yaw) of an odometry message; None (counted) when undecodable."""
+    samples = _decode(stream, raw, time_ns, undecodable, topic)
+    if samples is None:
+        return None
+    return samples[0].t, samples[0].x, samples[0].y, samples[0].yaw
 
 
 def _finish(plan: Plan, emit: _Emitter, stats: RunStats) -> None:
@@ -252,9 +292,10 @@ def run(bagset: BagSet, plan: Plan, tmp: Path, progress: Optional[bool], storage
     streams = [s for s in bagset.streams
                if topic_of[id(s)] in routes or topic_of[id(s)] in traj_topics]
     _deliver_static(bagset, plan, stats)
-    # id(stream) -> (topic, routes, trajectory topic or None)
+    # id(stream) -> (topic, routes, trajectory topic or None, whether every node may refuse it)
     stream_info = {id(s): (topic_of[id(s)], routes.get(topic_of[id(s)], ()),
-                           topic_of[id(s)] if topic_of[id(s)] in traj_topics else None)
+                           topic_of[id(s)] if topic_of[id(s)] in traj_topics else None,
+                           _refusable(s, routes.get(topic_of[id(s)], ())))
                    for s in streams}
     bar = _progress_bar(sum(s.count for s in streams), progress)
     bag_dir = tmp / Path(OUTPUT_BAG).stem  # a ROS 2 bag folder, flattened below

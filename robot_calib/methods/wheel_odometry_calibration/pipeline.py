@@ -43,6 +43,7 @@ class WheelCalibrationPipeline(Pipeline):
                OutputSpec('diagnostics', '/diagnostics', 'diagnostics'))
     max_gap = 1.0
     artifact_names = ('wheel_calibration.yaml',)
+    refusable = ('odom',)
 
     def __init__(self, params: Optional[WheelCalibParams] = None, log: Any = None,
                  matcher: Any = None, prepare: Any = None):
@@ -56,6 +57,10 @@ class WheelCalibrationPipeline(Pipeline):
     def on_static_transform(self, transform: T.StaticTransform) -> None:
         """Forward a static transform (base_frame -> scan frame: the nominal lidar pose)."""
         self.estimator.set_mounting(transform)
+
+    def refusal(self, key: str) -> str:
+        """Turn odometry away unread while joint states drive the wheel odometry."""
+        return self.estimator.odometry_refusal() if key == 'odom' else ''
 
     def handle(self, key: str, sample: Any) -> list[Output]:
         """Feed wheel data and scans; publish the status the estimator returns."""

@@ -213,6 +213,11 @@ class DriveSegmenter:
         return True
 
     @property
+    def uses_joints(self) -> bool:
+        """Return True while joint states drive the odometry (odometry input is then unused)."""
+        return self._use_joints
+
+    @property
     def drive_joints(self) -> tuple[str, ...]:
         """Return the two joints in use: (left, right) or (traction, steering); () for none."""
         return self._joints or ()

@@ -31,6 +31,8 @@ from robot_calib.methods.wheel_odometry_calibration.segmenter import DriveSegmen
 from robot_calib.methods.wheel_odometry_calibration.stages import SeedSteeredCalibrator
 
 
+ODOM_UNUSED = 'joint_states_preferred'
+"""Why odometry samples are turned away while joint states drive the odometry."""
 RESOLVE_GROWTH = 1.25
 """A streaming estimate is re-solved when the segments grew by this factor (or by 10)."""
 
@@ -95,7 +97,7 @@ class StreamingCalibrator(abc.ABC):
         if isinstance(sample, T.JointStateSample):
             rejected = self._joint_state(sample)
         elif isinstance(sample, T.OdomSample):
-            rejected = '' if self.front.add_odom(sample) else 'joint_states_preferred'
+            rejected = '' if self.front.add_odom(sample) else ODOM_UNUSED
         elif isinstance(sample, T.ScanSample):
             if self._sensor_frame is None:
                 self._sensor_frame = sample.frame_id
@@ -111,6 +113,10 @@ class StreamingCalibrator(abc.ABC):
             return None
         notes, self._notes = tuple(self._notes), []
         return WheelUpdate(rejected, notes, status)
+
+    def odometry_refusal(self) -> str:
+        """Return why odometry input is unused now (joint states drive the odometry), or ''."""
+        return ODOM_UNUSED if self.front.uses_joints else ''
 
     def result(self) -> WheelCalibResult:
         """Return the result of all the data so far (the open stage closed, final solve)."""
