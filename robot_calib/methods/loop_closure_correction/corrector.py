@@ -73,7 +73,8 @@ from robot_calib.methods.loop_closure_correction.common import (Candidate, Closu
                                                                 frozen_counts, Keyframe,
                                                                 LoopClosureResult,
                                                                 score_candidate, voxel_thin)
-from robot_calib.methods.loop_closure_correction.keyframe_map import KeyframeMap, similarity
+from robot_calib.methods.loop_closure_correction.keyframe_map import (KeyframeMap,
+                                                                      similarities)
 from robot_calib.methods.loop_closure_correction.params import LoopClosureParams
 
 
@@ -137,6 +138,8 @@ class LoopClosureBase(abc.ABC):
         self._last_check_t = -math.inf
         self._failed_checks = 0
         self._doubt_since: Optional[float] = None
+        self._current: Optional[PreparedScan] = None
+        self._current_cost = (0.0, 0.0)
 
     # -- Estimator protocol -----------------------------------------------------------------
     def set_mounting(self, transform: StaticTransform) -> None:
@@ -301,6 +304,7 @@ class LoopClosureBase(abc.ABC):
             self.counts['scans_rejected_few_beams'] += 1
             return
         self.counts['scans_used'] += 1
+        self._current = None            # this scan's registration target: not prepared yet
         pose = self.pose
         due = self._last_kf_pose is None
         if not due:
@@ -316,6 +320,20 @@ class LoopClosureBase(abc.ABC):
             return
         self._attempt_closure(t, pts)
         self._add_keyframe(t, pts)
+
+    def _prepared(self, pts: np.ndarray) -> PreparedScan:
+        """
+        Return the current scan ``pts`` prepared as registration target (once per scan).
+
+        The local check and the closure attempt register against the same scan
+        with the same settings; the time taken (s, wall and CPU) is kept in
+        ``_current_cost`` so that an attempt's latency still counts it.
+        """
+        if self._current is None:
+            start, cpu_start = time.perf_counter(), time.thread_time()
+            self._current = PreparedScan(pts, self.match_params)
+            self._current_cost = (time.perf_counter() - start, time.thread_time() - cpu_start)
+        return self._current
 
     def _local_check(self, t: float, pts: np.ndarray) -> str:
         """
@@ -335,7 +353,7 @@ class LoopClosureBase(abc.ABC):
         if kf is None:
             return 'ok'
         guess = se2_between(self.raw, kf.raw)             # keyframe frame in current frame
-        res = register(kf.points.astype(float), pts, guess, self.match_params)
+        res = register(kf.points.astype(float), self._prepared(pts), guess, self.match_params)
         off = res.pose - guess
         lim_xy = m.kidnap_max_offset + 0.3 * math.hypot(guess[0], guess[1])
         lim_yaw = m.kidnap_max_yaw_offset + 0.3 * abs(guess[2])
@@ -417,13 +435,15 @@ class LoopClosureBase(abc.ABC):
             return
         start = time.perf_counter()
         cpu_start = time.thread_time()
-        current = PreparedScan(pts, self.match_params)
-        sims = []
-        for kid in ids:
-            kf = self.map.keyframes[kid]
-            guess = se2_between(pose, kf.pose)
-            sim, off = similarity(kf, guess, current.tree, dp, self.sigma_yaw)
-            sims.append((sim, kid, off))
+        if self._current is not None:
+            # prepared by the local check: the attempt's latency counts it all the same
+            start -= self._current_cost[0]
+            cpu_start -= self._current_cost[1]
+        current = self._prepared(pts)
+        kfs = [self.map.keyframes[kid] for kid in ids]
+        found = similarities(kfs, [se2_between(pose, kf.pose) for kf in kfs], current.tree,
+                             dp, self.sigma_yaw)
+        sims = [(sim, kid, off) for kid, (sim, off) in zip(ids, found)]
         sims.sort(key=lambda s: -s[0])
         chosen = [s for s in sims if s[0] >= dp.min_similarity][:dp.candidates]
         fields = {'t': t, 'pose_before': pose.copy(), 'pose_after': pose.copy(),

@@ -14,7 +14,7 @@ from __future__ import annotations
 
 from collections import defaultdict
 import math
-from typing import Optional, TYPE_CHECKING
+from typing import Optional, Sequence, TYPE_CHECKING
 
 import numpy as np
 from robot_calib.core.geometry import se2_apply
@@ -123,23 +123,49 @@ def similarity(kf: Keyframe, guess: np.ndarray, tree: cKDTree, detection: Detect
 
     ``guess`` is the keyframe frame seen from the current frame (m, m, rad),
     ``tree`` the KD-tree of the current scan; the yaw grid spans +- 3
-    ``sigma_yaw`` (rad), at most 30 deg.
+    ``sigma_yaw`` (rad), at most 30 deg. One keyframe of :func:`similarities`.
+    """
+    return similarities([kf], [guess], tree, detection, sigma_yaw)[0]
+
+
+def similarities(kfs: Sequence[Keyframe], guesses: Sequence[np.ndarray], tree: cKDTree,
+                 detection: DetectionParams, sigma_yaw: float) -> list[tuple[float, float]]:
+    """
+    Return :func:`similarity` of each keyframe of ``kfs`` seen at its ``guesses`` entry.
+
+    Every keyframe's points under every yaw hypothesis go to the KD-tree in one
+    query; each point's answer is the same as alone, so are the fractions.
     """
     dp = detection
-    pts = kf.points.astype(float)
-    if len(pts) > 120:
-        pts = pts[::max(1, len(pts) // 120)]
     n = dp.similarity_yaw_steps
     span = min(math.radians(30.0), 3.0 * sigma_yaw)
     offsets = np.linspace(-span, span, n) if n > 1 else np.zeros(1)
-    # All yaw hypotheses in one query: rotate the predicted keyframe points about
-    # the current origin by each offset.
-    base = se2_apply(guess, pts)
+    if not kfs:
+        return []
+    # All yaw hypotheses of all keyframes in one query: rotate each keyframe's predicted
+    # points about the current origin by each offset.
+    bases = [se2_apply(guess, _similarity_points(kf)) for kf, guess in zip(kfs, guesses)]
+    sizes = [len(b) for b in bases]
+    base = np.concatenate(bases) if len(bases) > 1 else bases[0]
     c, s = np.cos(offsets), np.sin(offsets)
     xs = c[:, None] * base[None, :, 0] - s[:, None] * base[None, :, 1]
     ys = s[:, None] * base[None, :, 0] + c[:, None] * base[None, :, 1]
     dist, _ = tree.query(np.column_stack((xs.ravel(), ys.ravel())),
                          distance_upper_bound=dp.similarity_gate)
-    frac = np.isfinite(dist).reshape(len(offsets), -1).mean(axis=1)
-    k = int(np.argmax(frac))
-    return float(frac[k]), float(offsets[k])
+    near = np.isfinite(dist).reshape(len(offsets), -1)
+    out = []
+    end = 0
+    for size in sizes:
+        start, end = end, end + size
+        frac = near[:, start:end].mean(axis=1)
+        k = int(np.argmax(frac))
+        out.append((float(frac[k]), float(offsets[k])))
+    return out
+
+
+def _similarity_points(kf: Keyframe) -> np.ndarray:
+    """Return the keyframe points the similarity check uses: about 120 of them (m)."""
+    pts = kf.points.astype(float)
+    if len(pts) > 120:
+        pts = pts[::max(1, len(pts) // 120)]
+    return pts
