@@ -60,7 +60,7 @@ import abc
 from collections import defaultdict
 import math
 import time
-from typing import Any, ClassVar, Optional
+from typing import Any, ClassVar, Optional, Sequence
 
 import numpy as np
 from robot_calib.core.frames import constant_motion, planar_pose, rotation_matrix, scan_points
@@ -72,7 +72,8 @@ from robot_calib.core.types import ImuSample, OdomSample, ScanSample, StaticTran
 from robot_calib.methods.loop_closure_correction.common import (Candidate, ClosureReport,
                                                                 frozen_counts, Keyframe,
                                                                 LoopClosureResult,
-                                                                score_candidate, voxel_thin)
+                                                                score_candidate, surely_within,
+                                                                voxel_thin)
 from robot_calib.methods.loop_closure_correction.keyframe_map import (KeyframeMap,
                                                                       similarities)
 from robot_calib.methods.loop_closure_correction.params import LoopClosureParams
@@ -102,6 +103,8 @@ class LoopClosureBase(abc.ABC):
         self._mounts: dict[tuple[str, str], StaticTransform] = {}
         # rotation sensor -> base of each IMU frame seen (None: no mounting), per frame id
         self._imu_rotations: dict[str, Optional[np.ndarray]] = {}
+        # planar pose in the base frame of each laser frame seen (None: no mounting), per frame id
+        self._sensor_poses: dict[str, Optional[tuple[float, float, float]]] = {}
         self.reset()
 
     def reset(self) -> None:
@@ -146,6 +149,7 @@ class LoopClosureBase(abc.ABC):
         """Take a static transform base_frame -> sensor frame (the imu's or the laser's)."""
         self._mounts[(transform.parent, transform.child)] = transform
         self._imu_rotations.clear()
+        self._sensor_poses.clear()
 
     def update(self, sample: Any) -> Optional[ClosureReport]:
         """
@@ -278,8 +282,9 @@ class LoopClosureBase(abc.ABC):
     # -- scans --------------------------------------------------------------------------------
     def _update_scan(self, scan: ScanSample) -> Optional[ClosureReport]:
         """Turn the scan into points in the base frame (de-skewed) and process them."""
-        mount = self._mount(scan.frame_id)
-        sensor = planar_pose(mount) if mount is not None else None
+        sensor = self._sensor_pose(scan.frame_id)
+        if not self._scan_needed(scan.t) and self._count_unneeded(scan, sensor):
+            return None
         pts, _ = scan_points(scan, sensor, motion=constant_motion(self.speed, self.rate))
         if len(pts) < self.params.min_valid_beams:
             self.scans_refused_few_beams += 1
@@ -287,6 +292,49 @@ class LoopClosureBase(abc.ABC):
         reports = len(self.reports)
         self._process_points(scan.t, pts)
         return self.reports[-1] if len(self.reports) > reports else None
+
+    def _sensor_pose(self, frame: str) -> Optional[tuple[float, float, float]]:
+        """Return the planar pose (m, m, rad) of the laser frame ``frame``, or None."""
+        try:
+            return self._sensor_poses[frame]
+        except KeyError:
+            mount = self._mount(frame)
+            pose = planar_pose(mount) if mount is not None else None
+            self._sensor_poses[frame] = pose
+            return pose
+
+    def _scan_needed(self, t: float) -> bool:
+        """Return True when a scan at ``t`` (s) is checked or makes a keyframe (not only counted)."""
+        return self._keyframe_due() or (
+            self._last_kf_id is not None
+            and t - self._last_check_t >= self.params.motion.kidnap_check_interval)
+
+    def _keyframe_due(self) -> bool:
+        """Return True when the pose has moved a keyframe step from the last keyframe's."""
+        if self._last_kf_pose is None:
+            return True
+        kp = self.params.keyframes
+        d = se2_between(self._last_kf_pose, self.pose)
+        return math.hypot(d[0], d[1]) >= kp.distance or abs(d[2]) >= kp.angle
+
+    def _count_unneeded(self, scan: ScanSample, sensor: Optional[Sequence[float]]) -> bool:
+        """
+        Count a scan that is neither checked nor made a keyframe without computing its points.
+
+        Its only effect is a count: refused (few valid beams) or used (as many
+        points within ``keyframes.max_range``, when :func:`surely_within` proves
+        that every point is); returns False, counting nothing, when that needs
+        the points.
+        """
+        idx, r, _ = scan.beams()
+        if len(idx) < self.params.min_valid_beams:
+            self.scans_refused_few_beams += 1
+            return True
+        if not surely_within(scan, r, sensor, self.speed, self.rate,
+                             self.params.keyframes.max_range):
+            return False
+        self.counts['scans_used'] += 1
+        return True
 
     def _process_points(self, t: float, points: np.ndarray) -> None:
         """
@@ -305,12 +353,7 @@ class LoopClosureBase(abc.ABC):
             return
         self.counts['scans_used'] += 1
         self._current = None            # this scan's registration target: not prepared yet
-        pose = self.pose
-        due = self._last_kf_pose is None
-        if not due:
-            d = se2_between(self._last_kf_pose, pose)
-            due = (math.hypot(d[0], d[1]) >= p.keyframes.distance
-                   or abs(d[2]) >= p.keyframes.angle)
+        due = self._keyframe_due()
         if self._last_kf_id is not None and (
                 due or t - self._last_check_t >= p.motion.kidnap_check_interval):
             self._last_check_t = t
