@@ -75,6 +75,7 @@ from robot_calib.methods.loop_closure_correction.common import (Candidate, Closu
                                                                 score_candidate, surely_within,
                                                                 voxel_thin)
 from robot_calib.methods.loop_closure_correction.keyframe_map import (KeyframeMap,
+                                                                      OverlapGrid,
                                                                       similarities)
 from robot_calib.methods.loop_closure_correction.params import LoopClosureParams
 
@@ -304,7 +305,7 @@ class LoopClosureBase(abc.ABC):
             return pose
 
     def _scan_needed(self, t: float) -> bool:
-        """Return True when a scan at ``t`` (s) is checked or makes a keyframe (not only counted)."""
+        """Return True when a scan at ``t`` (s) is checked or made a keyframe, not only counted."""
         return self._keyframe_due() or (
             self._last_kf_id is not None
             and t - self._last_check_t >= self.params.motion.kidnap_check_interval)
@@ -484,8 +485,9 @@ class LoopClosureBase(abc.ABC):
             cpu_start -= self._current_cost[1]
         current = self._prepared(pts)
         kfs = [self.map.keyframes[kid] for kid in ids]
-        found = similarities(kfs, [se2_between(pose, kf.pose) for kf in kfs], current.tree,
-                             dp, self.sigma_yaw)
+        grid = OverlapGrid(current.points, current.tree, dp.similarity_gate)
+        found = similarities(kfs, [se2_between(pose, kf.pose) for kf in kfs], grid, dp,
+                             self.sigma_yaw)
         sims = [(sim, kid, off) for kid, (sim, off) in zip(ids, found)]
         sims.sort(key=lambda s: -s[0])
         chosen = [s for s in sims if s[0] >= dp.min_similarity][:dp.candidates]

@@ -116,6 +116,68 @@ class KeyframeMap:
         return self._stats
 
 
+class OverlapGrid:
+    """
+    Which query points have a point of the current scan within ``gate`` (m): the KD-tree's answer.
+
+    Most are settled by a grid of cells a little smaller than ``gate / sqrt 2``:
+    a query point in an occupied cell has a scan point closer than the cell
+    diagonal, under the gate; one with no occupied cell within ``reach`` cells
+    (``reach`` cells span the gate) has none within it. Only the rest go to
+    the KD-tree. Both margins are 1e-6 of the gate, far above rounding, so the
+    answer is the KD-tree's own. A grid that would be too large (more than
+    ``MAX_CELLS``), or non-finite points, leave every query to the KD-tree.
+    """
+
+    MAX_CELLS = 1 << 20
+
+    def __init__(self, points: np.ndarray, tree: cKDTree, gate: float):
+        """Index ``points`` (N, 2) (m), whose KD-tree is ``tree``, for the gate ``gate`` (m)."""
+        self.tree = tree
+        self.gate = gate
+        self.occupied: Optional[np.ndarray] = None
+        if len(points) == 0 or gate <= 0.0 or not np.all(np.isfinite(points)):
+            return
+        self.cell = gate / math.sqrt(2.0) * (1.0 - 1e-6)
+        self.reach = int(math.ceil(gate * (1.0 + 1e-6) / self.cell))
+        ij = np.floor(points / self.cell).astype(np.int64)
+        self.lo = ij.min(axis=0) - self.reach - 1
+        self.shape = ij.max(axis=0) - self.lo + self.reach + 2
+        if (self.shape[0] * self.shape[1] > self.MAX_CELLS
+                or float(np.max(np.abs(points))) * 1e-9 > 1e-6 * gate):
+            return
+        occupied = np.zeros(self.shape, dtype=bool)
+        occupied[ij[:, 0] - self.lo[0], ij[:, 1] - self.lo[1]] = True
+        near = occupied.copy()
+        for axis in (0, 1):                       # square (Chebyshev) dilation by reach cells
+            grown = near.copy()
+            for d in range(1, self.reach + 1):
+                if axis == 0:
+                    grown[d:, :] |= near[:-d, :]
+                    grown[:-d, :] |= near[d:, :]
+                else:
+                    grown[:, d:] |= near[:, :-d]
+                    grown[:, :-d] |= near[:, d:]
+            near = grown
+        self.occupied, self.near = occupied, near
+
+    def within(self, queries: np.ndarray) -> np.ndarray:
+        """Return for each query point (M, 2) (m) whether a scan point is within the gate."""
+        if self.occupied is None or not np.all(np.isfinite(queries)):
+            dist, _ = self.tree.query(queries, distance_upper_bound=self.gate)
+            return np.isfinite(dist)
+        ij = np.floor(queries / self.cell).astype(np.int64) - self.lo
+        inside = np.flatnonzero((ij >= 0).all(axis=1) & (ij < self.shape).all(axis=1))
+        found = np.zeros(len(queries), dtype=bool)
+        cells = (ij[inside, 0], ij[inside, 1])
+        found[inside] = self.occupied[cells]
+        unsure = inside[self.near[cells] & ~found[inside]]
+        if len(unsure):
+            dist, _ = self.tree.query(queries[unsure], distance_upper_bound=self.gate)
+            found[unsure] = np.isfinite(dist)
+        return found
+
+
 def similarity(kf: Keyframe, guess: np.ndarray, tree: cKDTree, detection: DetectionParams,
                sigma_yaw: float) -> tuple[float, float]:
     """
@@ -125,16 +187,19 @@ def similarity(kf: Keyframe, guess: np.ndarray, tree: cKDTree, detection: Detect
     ``tree`` the KD-tree of the current scan; the yaw grid spans +- 3
     ``sigma_yaw`` (rad), at most 30 deg. One keyframe of :func:`similarities`.
     """
-    return similarities([kf], [guess], tree, detection, sigma_yaw)[0]
+    grid = OverlapGrid(tree.data, tree, detection.similarity_gate)
+    return similarities([kf], [guess], grid, detection, sigma_yaw)[0]
 
 
-def similarities(kfs: Sequence[Keyframe], guesses: Sequence[np.ndarray], tree: cKDTree,
+def similarities(kfs: Sequence[Keyframe], guesses: Sequence[np.ndarray], grid: OverlapGrid,
                  detection: DetectionParams, sigma_yaw: float) -> list[tuple[float, float]]:
     """
     Return :func:`similarity` of each keyframe of ``kfs`` seen at its ``guesses`` entry.
 
-    Every keyframe's points under every yaw hypothesis go to the KD-tree in one
-    query; each point's answer is the same as alone, so are the fractions.
+    ``grid`` is the :class:`OverlapGrid` of the current scan at the
+    ``similarity_gate``. Every keyframe's points under every yaw hypothesis
+    are tested at once; each point's answer is the same as alone, so are the
+    fractions.
     """
     dp = detection
     n = dp.similarity_yaw_steps
@@ -142,17 +207,15 @@ def similarities(kfs: Sequence[Keyframe], guesses: Sequence[np.ndarray], tree: c
     offsets = np.linspace(-span, span, n) if n > 1 else np.zeros(1)
     if not kfs:
         return []
-    # All yaw hypotheses of all keyframes in one query: rotate each keyframe's predicted
-    # points about the current origin by each offset.
+    # All yaw hypotheses of all keyframes at once: rotate each keyframe's predicted points
+    # about the current origin by each offset.
     bases = [se2_apply(guess, _similarity_points(kf)) for kf, guess in zip(kfs, guesses)]
     sizes = [len(b) for b in bases]
     base = np.concatenate(bases) if len(bases) > 1 else bases[0]
     c, s = np.cos(offsets), np.sin(offsets)
     xs = c[:, None] * base[None, :, 0] - s[:, None] * base[None, :, 1]
     ys = s[:, None] * base[None, :, 0] + c[:, None] * base[None, :, 1]
-    dist, _ = tree.query(np.column_stack((xs.ravel(), ys.ravel())),
-                         distance_upper_bound=dp.similarity_gate)
-    near = np.isfinite(dist).reshape(len(offsets), -1)
+    near = grid.within(np.column_stack((xs.ravel(), ys.ravel()))).reshape(len(offsets), -1)
     out = []
     end = 0
     for size in sizes:
