@@ -178,28 +178,16 @@ class OverlapGrid:
         return found
 
 
-def similarity(kf: Keyframe, guess: np.ndarray, tree: cKDTree, detection: DetectionParams,
-               sigma_yaw: float) -> tuple[float, float]:
-    """
-    Return the best overlap fraction of ``kf`` with the current scan, and its yaw offset (rad).
-
-    ``guess`` is the keyframe frame seen from the current frame (m, m, rad),
-    ``tree`` the KD-tree of the current scan; the yaw grid spans +- 3
-    ``sigma_yaw`` (rad), at most 30 deg. One keyframe of :func:`similarities`.
-    """
-    grid = OverlapGrid(tree.data, tree, detection.similarity_gate)
-    return similarities([kf], [guess], grid, detection, sigma_yaw)[0]
-
-
 def similarities(kfs: Sequence[Keyframe], guesses: Sequence[np.ndarray], grid: OverlapGrid,
                  detection: DetectionParams, sigma_yaw: float) -> list[tuple[float, float]]:
     """
-    Return :func:`similarity` of each keyframe of ``kfs`` seen at its ``guesses`` entry.
+    Return each keyframe's best overlap fraction with the current scan, and its yaw offset (rad).
 
-    ``grid`` is the :class:`OverlapGrid` of the current scan at the
-    ``similarity_gate``. Every keyframe's points under every yaw hypothesis
-    are tested at once; each point's answer is the same as alone, so are the
-    fractions.
+    ``guesses`` are the keyframe frames seen from the current frame (m, m,
+    rad), ``grid`` the :class:`OverlapGrid` of the current scan at the
+    ``similarity_gate``; the yaw grid spans +- 3 ``sigma_yaw`` (rad), at most
+    30 deg. All keyframes' points under every yaw hypothesis are tested at
+    once; each point's answer is the same as alone, so are the fractions.
     """
     dp = detection
     n = dp.similarity_yaw_steps
