@@ -51,6 +51,13 @@ each keyframe and every ``kidnap_check_interval`` s when standing): then the
 map is dropped and a new one started, so no later closure is made against a
 place the robot can no longer locate itself in.
 
+Cost: most scans are neither checked nor made keyframes; they are only
+counted, without computing their points when a bound shows that all lie
+within ``keyframes.max_range``. A checked scan is prepared as registration
+target once, for the local check and the closure attempt; the similarity
+check settles most points with a grid (:class:`.keyframe_map.OverlapGrid`).
+Each gives the answer of the work it skips.
+
 Units: time s, lengths m, angles rad, rates rad/s.
 """
 
