@@ -152,3 +152,19 @@ def test_counted_scans_give_the_counts_of_processed_ones():
     assert fast.scans_refused_few_beams == slow.scans_refused_few_beams > 0
     assert dict(fast.counts) == dict(slow.counts)
     assert fast.counts['scans_used'] > 0 and fast.counts['scans_rejected_few_beams'] > 0
+
+
+def test_level_imu_gyro_is_the_rotated_gyro_bit_for_bit():
+    est = make_estimator(lc.LoopClosureParams())
+    est.set_mounting(T.StaticTransform('base_link', 'imu_link', np.zeros(3),
+                                       np.array([1.0, 0.0, 0.0, 0.0])))
+    eye = np.eye(3)
+    rng = np.random.default_rng(2)
+    values = [0.0, -0.0, 1e-300, -2.5, math.inf, -math.inf, math.nan]
+    gyros = [np.array([a, b, c]) for a in values for b in values for c in values]
+    gyros += list(rng.normal(0.0, 0.5, (200, 3)))
+    with np.errstate(invalid='ignore'):             # inf * 0 in the rotation
+        for g in gyros:
+            z = est._gyro_z(T.ImuSample(0.0, g, np.zeros(3), frame_id='imu_link'))
+            assert np.float64(z).tobytes() == (eye @ g)[2].tobytes()
+    assert est._imu_rotation('imu_link') is not None

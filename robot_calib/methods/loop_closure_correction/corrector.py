@@ -87,6 +87,11 @@ from robot_calib.methods.loop_closure_correction.keyframe_map import (KeyframeMa
 from robot_calib.methods.loop_closure_correction.params import LoopClosureParams
 
 
+_LEVEL = np.eye(3)
+_LEVEL.flags.writeable = False
+"""The rotation of an IMU mounted level and aligned with the base frame."""
+
+
 class LoopClosureBase(abc.ABC):
     """
     Streaming loop-closure heading and pose correction (seed 001), shared by both variants.
@@ -167,11 +172,7 @@ class LoopClosureBase(abc.ABC):
         scan produced, else None.
         """
         if isinstance(sample, ImuSample):
-            gyro = np.asarray(sample.gyro, dtype=float)
-            rotation = self._imu_rotation(sample.frame_id)
-            if rotation is not None:
-                gyro = rotation @ gyro
-            self._integrate_gyro(sample.t, float(gyro[2]))
+            self._integrate_gyro(sample.t, self._gyro_z(sample))
         elif isinstance(sample, OdomSample):
             self._advance_odom(sample.t, sample.x, sample.y, sample.yaw)
             self.speed = float(sample.vx)
@@ -196,13 +197,31 @@ class LoopClosureBase(abc.ABC):
         """Return the corrected pose: x, y, yaw (m, m, rad)."""
         return se2_compose(self.correction, self.raw)
 
+    def _gyro_z(self, sample: ImuSample) -> float:
+        """Return the yaw rate (rad/s) of an IMU sample, rotated into the base frame."""
+        gyro = np.asarray(sample.gyro, dtype=float)
+        rotation = self._imu_rotation(sample.frame_id)
+        if rotation is None:
+            return float(gyro[2])
+        z = float(gyro[2])
+        if (rotation is _LEVEL and z != 0.0 and math.isfinite(z)
+                and math.isfinite(gyro[0]) and math.isfinite(gyro[1])):
+            return z    # (I gyro)[2] exactly: the zero products add nothing to a non-zero z
+        return float((rotation @ gyro)[2])
+
     def _imu_rotation(self, frame: str) -> Optional[np.ndarray]:
-        """Return the rotation sensor -> base of the IMU frame ``frame``, or None if unmounted."""
+        """
+        Return the rotation sensor -> base of the IMU frame ``frame``, or None if unmounted.
+
+        An identity rotation is returned as :data:`_LEVEL` (an IMU mounted level).
+        """
         try:
             return self._imu_rotations[frame]
         except KeyError:
             mount = self._mount(frame)
             rotation = rotation_matrix(mount) if mount is not None else None
+            if rotation is not None and np.array_equal(rotation, _LEVEL):
+                rotation = _LEVEL
             self._imu_rotations[frame] = rotation
             return rotation
 
