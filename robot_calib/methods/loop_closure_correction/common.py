@@ -12,11 +12,13 @@ from __future__ import annotations
 
 from collections import Counter
 from dataclasses import dataclass, field
-from typing import Mapping, TYPE_CHECKING
+import math
+from typing import Mapping, Optional, Sequence, TYPE_CHECKING
 
 import numpy as np
 from robot_calib.core.geometry import se2_apply
 from robot_calib.core.scan_match import MatchResult
+from robot_calib.core.types import ScanSample
 
 if TYPE_CHECKING:  # the KD-tree is built in core.scan_match
     from scipy.spatial import cKDTree
@@ -161,6 +163,31 @@ def voxel_thin(points: np.ndarray, voxel: float) -> np.ndarray:
     keys = np.floor(points / voxel).astype(np.int64)
     _, first = np.unique(keys, axis=0, return_index=True)
     return points[np.sort(first)]
+
+
+def surely_within(scan: ScanSample, ranges: np.ndarray, sensor: Optional[Sequence[float]],
+                  speed: float, rate: float, max_range: float) -> bool:
+    """
+    Return True when every point of ``scan`` is finite and within ``max_range`` (m) of base_link.
+
+    The points are those :func:`robot_calib.core.frames.scan_points` makes of
+    the valid beams (``ranges``, m) with the mounting ``sensor`` (x m, y m,
+    yaw rad; None: none) and the de-skew at ``speed`` (m/s) and ``rate``
+    (rad/s). A rotation keeps a point's distance, so a point lies within
+    ``range + |sensor offset| + |speed| * (time since the stamp)``; False
+    when that bound, with a margin for rounding, does not prove it.
+    """
+    if len(ranges) == 0:
+        return True
+    offset = math.hypot(sensor[0], sensor[1]) if sensor is not None else 0.0
+    reach = 0.0
+    ti = scan.time_increment
+    if ti != 0.0 and math.isfinite(ti):
+        reach = abs(speed) * abs(ti) * np.size(scan.ranges)  # beam i is at i * ti s
+    bound = float(np.max(ranges)) + offset + reach
+    finite = all(math.isfinite(v) for v in (offset, reach, speed, rate)) and (
+        sensor is None or math.isfinite(sensor[2]))
+    return finite and bound + 1e-6 * (1.0 + bound) < max_range
 
 
 def score_candidate(kf_points: np.ndarray, relative: np.ndarray, tree: cKDTree,

@@ -51,6 +51,13 @@ each keyframe and every ``kidnap_check_interval`` s when standing): then the
 map is dropped and a new one started, so no later closure is made against a
 place the robot can no longer locate itself in.
 
+Cost: most scans are neither checked nor made keyframes; they are only
+counted, without computing their points when a bound shows that all lie
+within ``keyframes.max_range``. A checked scan is prepared as registration
+target once, for the local check and the closure attempt; the similarity
+check settles most points with a grid (:class:`.keyframe_map.OverlapGrid`).
+Each gives the answer of the work it skips.
+
 Units: time s, lengths m, angles rad, rates rad/s.
 """
 
@@ -60,7 +67,7 @@ import abc
 from collections import defaultdict
 import math
 import time
-from typing import Any, ClassVar, Optional
+from typing import Any, ClassVar, Optional, Sequence
 
 import numpy as np
 from robot_calib.core.frames import constant_motion, planar_pose, rotation_matrix, scan_points
@@ -72,9 +79,17 @@ from robot_calib.core.types import ImuSample, OdomSample, ScanSample, StaticTran
 from robot_calib.methods.loop_closure_correction.common import (Candidate, ClosureReport,
                                                                 frozen_counts, Keyframe,
                                                                 LoopClosureResult,
-                                                                score_candidate, voxel_thin)
-from robot_calib.methods.loop_closure_correction.keyframe_map import KeyframeMap, similarity
+                                                                score_candidate, surely_within,
+                                                                voxel_thin)
+from robot_calib.methods.loop_closure_correction.keyframe_map import (KeyframeMap,
+                                                                      OverlapGrid,
+                                                                      similarities)
 from robot_calib.methods.loop_closure_correction.params import LoopClosureParams
+
+
+_LEVEL = np.eye(3)
+_LEVEL.flags.writeable = False
+"""The rotation of an IMU mounted level and aligned with the base frame."""
 
 
 class LoopClosureBase(abc.ABC):
@@ -101,6 +116,8 @@ class LoopClosureBase(abc.ABC):
         self._mounts: dict[tuple[str, str], StaticTransform] = {}
         # rotation sensor -> base of each IMU frame seen (None: no mounting), per frame id
         self._imu_rotations: dict[str, Optional[np.ndarray]] = {}
+        # planar pose in the base frame of each laser frame seen (None: no mounting), per frame id
+        self._sensor_poses: dict[str, Optional[tuple[float, float, float]]] = {}
         self.reset()
 
     def reset(self) -> None:
@@ -137,12 +154,15 @@ class LoopClosureBase(abc.ABC):
         self._last_check_t = -math.inf
         self._failed_checks = 0
         self._doubt_since: Optional[float] = None
+        self._current: Optional[PreparedScan] = None
+        self._current_cost = (0.0, 0.0)
 
     # -- Estimator protocol -----------------------------------------------------------------
     def set_mounting(self, transform: StaticTransform) -> None:
         """Take a static transform base_frame -> sensor frame (the imu's or the laser's)."""
         self._mounts[(transform.parent, transform.child)] = transform
         self._imu_rotations.clear()
+        self._sensor_poses.clear()
 
     def update(self, sample: Any) -> Optional[ClosureReport]:
         """
@@ -152,11 +172,7 @@ class LoopClosureBase(abc.ABC):
         scan produced, else None.
         """
         if isinstance(sample, ImuSample):
-            gyro = np.asarray(sample.gyro, dtype=float)
-            rotation = self._imu_rotation(sample.frame_id)
-            if rotation is not None:
-                gyro = rotation @ gyro
-            self._integrate_gyro(sample.t, float(gyro[2]))
+            self._integrate_gyro(sample.t, self._gyro_z(sample))
         elif isinstance(sample, OdomSample):
             self._advance_odom(sample.t, sample.x, sample.y, sample.yaw)
             self.speed = float(sample.vx)
@@ -181,13 +197,31 @@ class LoopClosureBase(abc.ABC):
         """Return the corrected pose: x, y, yaw (m, m, rad)."""
         return se2_compose(self.correction, self.raw)
 
+    def _gyro_z(self, sample: ImuSample) -> float:
+        """Return the yaw rate (rad/s) of an IMU sample, rotated into the base frame."""
+        gyro = np.asarray(sample.gyro, dtype=float)
+        rotation = self._imu_rotation(sample.frame_id)
+        if rotation is None:
+            return float(gyro[2])
+        z = float(gyro[2])
+        if (rotation is _LEVEL and z != 0.0 and math.isfinite(z)
+                and math.isfinite(gyro[0]) and math.isfinite(gyro[1])):
+            return z    # (I gyro)[2] exactly: the zero products add nothing to a non-zero z
+        return float((rotation @ gyro)[2])
+
     def _imu_rotation(self, frame: str) -> Optional[np.ndarray]:
-        """Return the rotation sensor -> base of the IMU frame ``frame``, or None if unmounted."""
+        """
+        Return the rotation sensor -> base of the IMU frame ``frame``, or None if unmounted.
+
+        An identity rotation is returned as :data:`_LEVEL` (an IMU mounted level).
+        """
         try:
             return self._imu_rotations[frame]
         except KeyError:
             mount = self._mount(frame)
             rotation = rotation_matrix(mount) if mount is not None else None
+            if rotation is not None and np.array_equal(rotation, _LEVEL):
+                rotation = _LEVEL
             self._imu_rotations[frame] = rotation
             return rotation
 
@@ -275,8 +309,9 @@ class LoopClosureBase(abc.ABC):
     # -- scans --------------------------------------------------------------------------------
     def _update_scan(self, scan: ScanSample) -> Optional[ClosureReport]:
         """Turn the scan into points in the base frame (de-skewed) and process them."""
-        mount = self._mount(scan.frame_id)
-        sensor = planar_pose(mount) if mount is not None else None
+        sensor = self._sensor_pose(scan.frame_id)
+        if not self._scan_needed(scan.t) and self._count_unneeded(scan, sensor):
+            return None
         pts, _ = scan_points(scan, sensor, motion=constant_motion(self.speed, self.rate))
         if len(pts) < self.params.min_valid_beams:
             self.scans_refused_few_beams += 1
@@ -284,6 +319,49 @@ class LoopClosureBase(abc.ABC):
         reports = len(self.reports)
         self._process_points(scan.t, pts)
         return self.reports[-1] if len(self.reports) > reports else None
+
+    def _sensor_pose(self, frame: str) -> Optional[tuple[float, float, float]]:
+        """Return the planar pose (m, m, rad) of the laser frame ``frame``, or None."""
+        try:
+            return self._sensor_poses[frame]
+        except KeyError:
+            mount = self._mount(frame)
+            pose = planar_pose(mount) if mount is not None else None
+            self._sensor_poses[frame] = pose
+            return pose
+
+    def _scan_needed(self, t: float) -> bool:
+        """Return True when a scan at ``t`` (s) is checked or made a keyframe, not only counted."""
+        return self._keyframe_due() or (
+            self._last_kf_id is not None
+            and t - self._last_check_t >= self.params.motion.kidnap_check_interval)
+
+    def _keyframe_due(self) -> bool:
+        """Return True when the pose has moved a keyframe step from the last keyframe's."""
+        if self._last_kf_pose is None:
+            return True
+        kp = self.params.keyframes
+        d = se2_between(self._last_kf_pose, self.pose)
+        return math.hypot(d[0], d[1]) >= kp.distance or abs(d[2]) >= kp.angle
+
+    def _count_unneeded(self, scan: ScanSample, sensor: Optional[Sequence[float]]) -> bool:
+        """
+        Count a scan that is neither checked nor made a keyframe without computing its points.
+
+        Its only effect is a count: refused (few valid beams) or used (as many
+        points within ``keyframes.max_range``, when :func:`surely_within` proves
+        that every point is); returns False, counting nothing, when that needs
+        the points.
+        """
+        idx, r, _ = scan.beams()
+        if len(idx) < self.params.min_valid_beams:
+            self.scans_refused_few_beams += 1
+            return True
+        if not surely_within(scan, r, sensor, self.speed, self.rate,
+                             self.params.keyframes.max_range):
+            return False
+        self.counts['scans_used'] += 1
+        return True
 
     def _process_points(self, t: float, points: np.ndarray) -> None:
         """
@@ -301,12 +379,8 @@ class LoopClosureBase(abc.ABC):
             self.counts['scans_rejected_few_beams'] += 1
             return
         self.counts['scans_used'] += 1
-        pose = self.pose
-        due = self._last_kf_pose is None
-        if not due:
-            d = se2_between(self._last_kf_pose, pose)
-            due = (math.hypot(d[0], d[1]) >= p.keyframes.distance
-                   or abs(d[2]) >= p.keyframes.angle)
+        self._current = None            # this scan's registration target: not prepared yet
+        due = self._keyframe_due()
         if self._last_kf_id is not None and (
                 due or t - self._last_check_t >= p.motion.kidnap_check_interval):
             self._last_check_t = t
@@ -316,6 +390,20 @@ class LoopClosureBase(abc.ABC):
             return
         self._attempt_closure(t, pts)
         self._add_keyframe(t, pts)
+
+    def _prepared(self, pts: np.ndarray) -> PreparedScan:
+        """
+        Return the current scan ``pts`` prepared as registration target (once per scan).
+
+        The local check and the closure attempt register against the same scan
+        with the same settings; the time taken (s, wall and CPU) is kept in
+        ``_current_cost`` so that an attempt's latency still counts it.
+        """
+        if self._current is None:
+            start, cpu_start = time.perf_counter(), time.thread_time()
+            self._current = PreparedScan(pts, self.match_params)
+            self._current_cost = (time.perf_counter() - start, time.thread_time() - cpu_start)
+        return self._current
 
     def _local_check(self, t: float, pts: np.ndarray) -> str:
         """
@@ -335,7 +423,7 @@ class LoopClosureBase(abc.ABC):
         if kf is None:
             return 'ok'
         guess = se2_between(self.raw, kf.raw)             # keyframe frame in current frame
-        res = register(kf.points.astype(float), pts, guess, self.match_params)
+        res = register(kf.points.astype(float), self._prepared(pts), guess, self.match_params)
         off = res.pose - guess
         lim_xy = m.kidnap_max_offset + 0.3 * math.hypot(guess[0], guess[1])
         lim_yaw = m.kidnap_max_yaw_offset + 0.3 * abs(guess[2])
@@ -417,13 +505,16 @@ class LoopClosureBase(abc.ABC):
             return
         start = time.perf_counter()
         cpu_start = time.thread_time()
-        current = PreparedScan(pts, self.match_params)
-        sims = []
-        for kid in ids:
-            kf = self.map.keyframes[kid]
-            guess = se2_between(pose, kf.pose)
-            sim, off = similarity(kf, guess, current.tree, dp, self.sigma_yaw)
-            sims.append((sim, kid, off))
+        if self._current is not None:
+            # prepared by the local check: the attempt's latency counts it all the same
+            start -= self._current_cost[0]
+            cpu_start -= self._current_cost[1]
+        current = self._prepared(pts)
+        kfs = [self.map.keyframes[kid] for kid in ids]
+        grid = OverlapGrid(current.points, current.tree, dp.similarity_gate)
+        found = similarities(kfs, [se2_between(pose, kf.pose) for kf in kfs], grid, dp,
+                             self.sigma_yaw)
+        sims = [(sim, kid, off) for kid, (sim, off) in zip(ids, found)]
         sims.sort(key=lambda s: -s[0])
         chosen = [s for s in sims if s[0] >= dp.min_similarity][:dp.candidates]
         fields = {'t': t, 'pose_before': pose.copy(), 'pose_after': pose.copy(),

@@ -14,7 +14,7 @@ from __future__ import annotations
 
 from collections import defaultdict
 import math
-from typing import Optional, TYPE_CHECKING
+from typing import Optional, Sequence, TYPE_CHECKING
 
 import numpy as np
 from robot_calib.core.geometry import se2_apply
@@ -116,30 +116,107 @@ class KeyframeMap:
         return self._stats
 
 
-def similarity(kf: Keyframe, guess: np.ndarray, tree: cKDTree, detection: DetectionParams,
-               sigma_yaw: float) -> tuple[float, float]:
+class OverlapGrid:
     """
-    Return the best overlap fraction of ``kf`` with the current scan, and its yaw offset (rad).
+    Which query points have a point of the current scan within ``gate`` (m): the KD-tree's answer.
 
-    ``guess`` is the keyframe frame seen from the current frame (m, m, rad),
-    ``tree`` the KD-tree of the current scan; the yaw grid spans +- 3
-    ``sigma_yaw`` (rad), at most 30 deg.
+    Most are settled by a grid of cells a little smaller than ``gate / sqrt 2``:
+    a query point in an occupied cell has a scan point closer than the cell
+    diagonal, under the gate; one with no occupied cell within ``reach`` cells
+    (``reach`` cells span the gate) has none within it. Only the rest go to
+    the KD-tree. Both margins are 1e-6 of the gate, far above rounding, so the
+    answer is the KD-tree's own. A grid that would be too large (more than
+    ``MAX_CELLS``), or non-finite points, leave every query to the KD-tree.
+    """
+
+    MAX_CELLS = 1 << 20
+
+    def __init__(self, points: np.ndarray, tree: cKDTree, gate: float):
+        """Index ``points`` (N, 2) (m), whose KD-tree is ``tree``, for the gate ``gate`` (m)."""
+        self.tree = tree
+        self.gate = gate
+        self.occupied: Optional[np.ndarray] = None
+        if len(points) == 0 or gate <= 0.0 or not np.all(np.isfinite(points)):
+            return
+        self.cell = gate / math.sqrt(2.0) * (1.0 - 1e-6)
+        self.reach = int(math.ceil(gate * (1.0 + 1e-6) / self.cell))
+        ij = np.floor(points / self.cell).astype(np.int64)
+        self.lo = ij.min(axis=0) - self.reach - 1
+        self.shape = ij.max(axis=0) - self.lo + self.reach + 2
+        if (self.shape[0] * self.shape[1] > self.MAX_CELLS
+                or float(np.max(np.abs(points))) * 1e-9 > 1e-6 * gate):
+            return
+        occupied = np.zeros(self.shape, dtype=bool)
+        occupied[ij[:, 0] - self.lo[0], ij[:, 1] - self.lo[1]] = True
+        near = occupied.copy()
+        for axis in (0, 1):                       # square (Chebyshev) dilation by reach cells
+            grown = near.copy()
+            for d in range(1, self.reach + 1):
+                if axis == 0:
+                    grown[d:, :] |= near[:-d, :]
+                    grown[:-d, :] |= near[d:, :]
+                else:
+                    grown[:, d:] |= near[:, :-d]
+                    grown[:, :-d] |= near[:, d:]
+            near = grown
+        self.occupied, self.near = occupied, near
+
+    def within(self, queries: np.ndarray) -> np.ndarray:
+        """Return for each query point (M, 2) (m) whether a scan point is within the gate."""
+        if self.occupied is None or not np.all(np.isfinite(queries)):
+            dist, _ = self.tree.query(queries, distance_upper_bound=self.gate)
+            return np.isfinite(dist)
+        ij = np.floor(queries / self.cell).astype(np.int64) - self.lo
+        inside = np.flatnonzero((ij >= 0).all(axis=1) & (ij < self.shape).all(axis=1))
+        found = np.zeros(len(queries), dtype=bool)
+        cells = (ij[inside, 0], ij[inside, 1])
+        found[inside] = self.occupied[cells]
+        unsure = inside[self.near[cells] & ~found[inside]]
+        if len(unsure):
+            dist, _ = self.tree.query(queries[unsure], distance_upper_bound=self.gate)
+            found[unsure] = np.isfinite(dist)
+        return found
+
+
+def similarities(kfs: Sequence[Keyframe], guesses: Sequence[np.ndarray], grid: OverlapGrid,
+                 detection: DetectionParams, sigma_yaw: float) -> list[tuple[float, float]]:
+    """
+    Return each keyframe's best overlap fraction with the current scan, and its yaw offset (rad).
+
+    ``guesses`` are the keyframe frames seen from the current frame (m, m,
+    rad), ``grid`` the :class:`OverlapGrid` of the current scan at the
+    ``similarity_gate``; the yaw grid spans +- 3 ``sigma_yaw`` (rad), at most
+    30 deg. All keyframes' points under every yaw hypothesis are tested at
+    once; each point's answer is the same as alone, so are the fractions.
     """
     dp = detection
-    pts = kf.points.astype(float)
-    if len(pts) > 120:
-        pts = pts[::max(1, len(pts) // 120)]
     n = dp.similarity_yaw_steps
     span = min(math.radians(30.0), 3.0 * sigma_yaw)
     offsets = np.linspace(-span, span, n) if n > 1 else np.zeros(1)
-    # All yaw hypotheses in one query: rotate the predicted keyframe points about
-    # the current origin by each offset.
-    base = se2_apply(guess, pts)
+    if not kfs:
+        return []
+    # All yaw hypotheses of all keyframes at once: rotate each keyframe's predicted points
+    # about the current origin by each offset.
+    bases = [se2_apply(guess, _similarity_points(kf)) for kf, guess in zip(kfs, guesses)]
+    sizes = [len(b) for b in bases]
+    base = np.concatenate(bases) if len(bases) > 1 else bases[0]
     c, s = np.cos(offsets), np.sin(offsets)
     xs = c[:, None] * base[None, :, 0] - s[:, None] * base[None, :, 1]
     ys = s[:, None] * base[None, :, 0] + c[:, None] * base[None, :, 1]
-    dist, _ = tree.query(np.column_stack((xs.ravel(), ys.ravel())),
-                         distance_upper_bound=dp.similarity_gate)
-    frac = np.isfinite(dist).reshape(len(offsets), -1).mean(axis=1)
-    k = int(np.argmax(frac))
-    return float(frac[k]), float(offsets[k])
+    near = grid.within(np.column_stack((xs.ravel(), ys.ravel()))).reshape(len(offsets), -1)
+    out = []
+    end = 0
+    for size in sizes:
+        start, end = end, end + size
+        frac = near[:, start:end].mean(axis=1)
+        k = int(np.argmax(frac))
+        out.append((float(frac[k]), float(offsets[k])))
+    return out
+
+
+def _similarity_points(kf: Keyframe) -> np.ndarray:
+    """Return the keyframe points the similarity check uses: about 120 of them (m)."""
+    pts = kf.points.astype(float)
+    if len(pts) > 120:
+        pts = pts[::max(1, len(pts) // 120)]
+    return pts
