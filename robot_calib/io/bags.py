@@ -279,7 +279,6 @@ class BagSet:
         so keeping one sample keeps at most ``block`` x 296 bytes alive).
         """
         it = self.messages(streams)
-        skip = lazy
         while True:
             batch = list(islice(it, block))
             if not batch:
@@ -287,14 +286,14 @@ class BagSet:
             first = batch[0][0]
             if all(b[0] is first for b in batch):  # one topic only: the common case
                 groups = ([list(range(len(batch)))]
-                          if first.decode_batch is not None and id(first) not in skip else [])
+                          if first.decode_batch is not None and id(first) not in lazy else [])
             else:
                 by_stream: dict[int, list[int]] = {}
                 for i, b in enumerate(batch):
-                    if b[0].decode_batch is not None and id(b[0]) not in skip:
+                    if b[0].decode_batch is not None and id(b[0]) not in lazy:
                         by_stream.setdefault(id(b[0]), []).append(i)
                 groups = list(by_stream.values())
-            results: list = [UNDECODED if id(b[0]) in skip else None for b in batch]
+            results: list = [UNDECODED if id(b[0]) in lazy else None for b in batch]
             for idx in groups:
                 stream = batch[idx[0]][0]
                 try:
