@@ -40,6 +40,10 @@ from robot_calib.methods.gyro_line_calibration.improved_gate import (
     gate, gate_state, line_jacobian, line_model, line_noise, line_noise_diag, overlaps, prefilter,
     ref_arrays)
 
+_I2 = np.eye(2)
+_I5 = np.eye(5)
+_I2.flags.writeable = _I5.flags.writeable = False  # shared identities: read only
+
 
 class ImprovedGyroLine(GyroLineBase):
     """
@@ -166,7 +170,7 @@ class ImprovedGyroLine(GyroLineBase):
         c_z = Ainv @ c_obs @ Ainv.T
         K = ref.cov @ np.linalg.inv(ref.cov + c_z)
         dz = K @ z
-        ref.cov = (np.eye(2) - K) @ ref.cov
+        ref.cov = (_I2 - K) @ ref.cov
         mid = ref.line.midpoint
         half = 0.5 * ref.line.length
         ang = ref.line.angle + float(dz[0])
@@ -296,7 +300,7 @@ class ImprovedGyroLine(GyroLineBase):
             S = H @ self.P @ H.T + R
             K = self.P @ H.T @ np.linalg.inv(S)
             self.x = self.x + K @ y
-            I_KH = np.eye(5) - K @ H
+            I_KH = _I5 - K @ H
             self.P = I_KH @ self.P @ I_KH.T + K @ R @ K.T  # Joseph form
             ref.matches += 1
             self._extend(ref, line)
