@@ -353,9 +353,18 @@ def condition1(pts: np.ndarray, params: LineParams, t: float = 0.0) -> Optional[
     """
     pts = np.asarray(pts, dtype=float)
     fewest = max(params.min_cells, 2)
+    total = params.fit_method != 'ordinary'
     while pts.shape[0] >= fewest:
-        c, u, d = _fit(pts, params.fit_method)
-        ux, uy = u.tolist()
+        if total:  # _fit written out: the direction's cosine and sine are needed as floats
+            c = np.add.reduce(pts, axis=0) / pts.shape[0]
+            d = pts - c
+            (sxx, sxy), (_, syy) = (d.T @ d).tolist()
+            phi = 0.5 * math.atan2(2.0 * sxy, sxx - syy)
+            ux, uy = math.cos(phi), math.sin(phi)
+            u = np.array([ux, uy])
+        else:
+            c, u, d = _fit(pts, params.fit_method)
+            ux, uy = u.tolist()
         along = d @ u
         dist = d @ np.array([-uy, ux])
         lo, hi = float(np.minimum.reduce(along)), float(np.maximum.reduce(along))
@@ -388,7 +397,8 @@ def _split(pts: np.ndarray, params: LineParams) -> tuple[list[tuple[int, int]], 
     min_cells = params.min_cells
     if pts.shape[0] < min_cells:
         return [], np.zeros(0)
-    steps = np.linalg.norm(np.diff(pts, axis=0), axis=1)
+    step = pts[1:] - pts[:-1]
+    steps = np.sqrt(np.add.reduce(step * step, axis=1))  # = np.linalg.norm(axis=1), op for op
     bounds = [0] + ((steps > params.max_gap).nonzero()[0] + 1).tolist() + [pts.shape[0]]
     out = []
     stack = [(i, j) for i, j in zip(bounds[:-1], bounds[1:]) if j - i >= min_cells]
@@ -404,7 +414,9 @@ def _split(pts: np.ndarray, params: LineParams) -> tuple[list[tuple[int, int]], 
         if norm < 1e-9:
             d = np.linalg.norm(seg - a, axis=1)
         else:
-            d = np.abs((seg - a) @ np.array([-cy, cx]) / norm)
+            d = (seg - a) @ np.array([-cy, cx])
+            d /= norm
+            np.abs(d, out=d)
         k = int(d.argmax())
         n = j - i
         if d[k] > split and 0 < k < n - 1:
