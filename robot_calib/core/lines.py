@@ -248,8 +248,7 @@ class ObstacleGrid:
             missing = (sl < 0).nonzero()[0].tolist()
             self._new_slots(ukeys, slots, missing)
             sl[missing] = [slots[i] for i in missing]
-        first = dict.fromkeys(slots)  # the distinct slots in the order first hit
-        unique = len(first) == len(slots)
+        unique = len(set(slots)) == len(slots)
         if unique:  # the usual case: each cell once, a plain (same-valued) sum
             self._sum[sl] += sums
             self._n[sl] += counts
@@ -265,6 +264,7 @@ class ObstacleGrid:
             self._sum[o] *= f[:, None]
             self._n[o] = cap
         if not unique:
+            first = dict.fromkeys(slots)  # the distinct slots in the order first hit
             sl = np.fromiter(first, dtype=np.int64, count=len(first))
         return self._sum[sl] / self._n[sl, None]
 

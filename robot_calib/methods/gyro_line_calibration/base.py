@@ -241,26 +241,30 @@ class GyroLineBase(abc.ABC):
 
     def _update_imu(self, s: T.ImuSample) -> None:
         """Integrate one IMU sample (gyro rad/s in the IMU frame)."""
-        self._start(s.t)
+        t = s.t
+        if self._t0 is None:
+            self._t0 = t
         rate = self._gyro_z(s.gyro)
         prev = self._imu_t
         prev_rate = self._last_imu_rate
-        self._imu_t = s.t
+        self._imu_t = t
         self._last_imu_rate = rate
-        self._check_phase_time(s.t)
-        if not self._use_gyro(s.t) or prev is None:
+        if self.params.seed.phase_switch_time > 0.0:
+            self._check_phase_time(t)
+        if prev is None or not self._use_gyro(t):
             return
-        dt = s.t - prev
+        dt = t - prev
         if dt <= 0.0:
             return
-        if dt > self.params.max_dt:
+        p = self.params
+        if dt > p.max_dt:
             self.count('imu_time_jumps')
-            self.P[2, 2] += (self.params.max_turn_rate * min(dt, 10.0)) ** 2 * 0.01
-            self.distrust(s.t, 'time_jump')
+            self.P[2, 2] += (p.max_turn_rate * min(dt, 10.0)) ** 2 * 0.01
+            self.distrust(t, 'time_jump')
             return
         self._integrate_rate(0.5 * (rate + prev_rate), dt,  # trapezoidal rule
-                             self.params.improved.gyro_noise)
-        self._carried_check(s.t)
+                             p.improved.gyro_noise)
+        self._carried_check(t)
 
     def _gyro_z(self, gyro: np.ndarray) -> float:
         """Return the yaw rate (rad/s) in base_link of a gyro vector (rad/s, IMU frame)."""
@@ -278,7 +282,8 @@ class GyroLineBase(abc.ABC):
 
     def _integrate_rate(self, rate: float, dt: float, noise: float) -> None:
         # heading = integral of (1 - s) * rate - b; noise: angle random walk (rad/sqrt(s))
-        self.x[2] += (rate * (1.0 - self.x[4]) - self.x[3]) * dt
+        x = self.x
+        x[2] += (rate * (1.0 - x[4]) - x[3]) * dt
         self._acc_dt += dt
         self._acc_wdt += rate * dt
         self._acc_q += noise ** 2 * dt
