@@ -385,26 +385,31 @@ def condition1(pts: np.ndarray, params: LineParams, t: float = 0.0) -> Optional[
 def split_segments(pts: np.ndarray, params: LineParams) -> list[np.ndarray]:
     """Split ordered cells (N, 2) (m) into candidate wall segments (gaps, then end-point fit)."""
     pts = np.asarray(pts, dtype=float).reshape(-1, 2)
-    return [pts[i:j] for i, j in _split(pts, params)[0]]
+    return [pts[i:j] for i, j in _split(pts, params)]
 
 
-def _split(pts: np.ndarray, params: LineParams) -> tuple[list[tuple[int, int]], np.ndarray]:
+def _split(pts: np.ndarray, params: LineParams,
+           shortest: Optional[float] = None) -> list[tuple[int, int]]:
     """
-    Return :func:`split_segments` as index ranges ``[i, j)`` of ``pts``, and the step lengths.
+    Return :func:`split_segments` as index ranges ``[i, j)`` of ``pts``.
 
-    The steps (m) are the distances between consecutive cells (N - 1 of them).
+    With ``shortest`` (m), a piece whose length along its cells is below it is
+    dropped unsplit, with every segment it would have been split into.
     """
     min_cells = params.min_cells
     if pts.shape[0] < min_cells:
-        return [], np.zeros(0)
+        return []
     step = pts[1:] - pts[:-1]
     steps = np.sqrt(np.add.reduce(step * step, axis=1))  # = np.linalg.norm(axis=1), op for op
     bounds = [0] + ((steps > params.max_gap).nonzero()[0] + 1).tolist() + [pts.shape[0]]
+    path = None if shortest is None else np.concatenate(((0.0,), np.cumsum(steps))).tolist()
     out = []
     stack = [(i, j) for i, j in zip(bounds[:-1], bounds[1:]) if j - i >= min_cells]
     split = params.split_distance
     while stack:
         i, j = stack.pop()
+        if path is not None and path[j - 1] - path[i] < shortest:
+            continue
         seg = pts[i:j]
         a = seg[0]
         ax, ay = a.tolist()
@@ -426,23 +431,17 @@ def _split(pts: np.ndarray, params: LineParams) -> tuple[list[tuple[int, int]], 
                 stack.append((i + k, j))
             continue
         out.append((i, j))
-    return out, steps
+    return out
 
 
 def extract_lines(pts: np.ndarray, params: LineParams, t: float = 0.0) -> list[Line]:
     """Return every line passing condition 1 among the segments of ordered cells (N, 2) (m)."""
     pts = np.asarray(pts, dtype=float).reshape(-1, 2)
-    spans, steps = _split(pts, params)
-    if not spans:
-        return []
     # a segment's extent along any direction is at most its length along the cells, so one
-    # shorter than min_length (with a margin far above rounding) fails S11 at its first fit
-    path = np.concatenate(((0.0,), np.cumsum(steps))).tolist()
-    shortest = params.min_length - 1e-9
+    # shorter than min_length (by a margin far above rounding) fails S11 at its first fit;
+    # so do the pieces it would be split into, which are shorter still
     lines = []
-    for i, j in spans:
-        if path[j - 1] - path[i] < shortest:
-            continue
+    for i, j in _split(pts, params, params.min_length - 1e-9):
         line = condition1(pts[i:j], params, t)
         if line is not None:
             lines.append(line)
