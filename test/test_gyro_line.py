@@ -341,3 +341,58 @@ def test_scan_points_mounting_and_motion_equal_a_per_beam_deskew():
     ref = motion.apply(frames.deskew(np.column_stack((r * np.cos(ang), r * np.sin(ang))),
                                      np.tile(pose, (r.size, 1))), s.beam_times(idx2))
     assert np.array_equal(pts, ref)   # the same operations, to the bit
+
+
+def test_condition2_near_is_condition2_many_on_the_candidates():
+    from robot_calib.methods.gyro_line_calibration.seed import condition2_near
+    m = MatchParams()
+    rng = np.random.default_rng(3)
+    refs = [_line(*rng.uniform(-3.0, 3.0, 2), rng.uniform(-90.0, 90.0), rng.uniform(0.6, 3.0))
+            for _ in range(300)]
+    arr = np.array([[*r.p1, *r.p2, r.angle, r.length] for r in refs])
+    mids = np.array([r.midpoint for r in refs]).T
+    found = 0
+    for r in refs[:100]:  # the references themselves, moved a little: most match something
+        new = _line(*(r.midpoint + rng.normal(0.0, 0.2, 2)), math.degrees(r.angle)
+                    + rng.normal(0.0, 3.0), r.length + rng.normal(0.0, 0.3))
+        full = condition2_many(arr, new, m)
+        idx, errs = condition2_near(arr, mids, new, m)
+        assert np.array_equal(full[idx], errs, equal_nan=True)  # same values, bit for bit
+        rest = np.setdiff1d(np.arange(len(refs)), idx)
+        assert np.all(np.isnan(full[rest]))  # nothing that passes is left out
+        found += int(np.isfinite(errs).sum())
+    assert found > 50
+
+
+def test_covariance_steps_on_lists_equal_the_numpy_rows_and_columns():
+    est = ImprovedGyroLine(GyroLineParams())
+    rng = np.random.default_rng(5)
+    for _ in range(50):
+        M = rng.normal(size=(5, 5))
+        P0 = M @ M.T
+        a, w, q = rng.uniform(0.0, 0.1), rng.normal(), rng.uniform(0.0, 1e-6)
+        want = P0.copy()  # F P F^T, F = I - a e2 e3^T - w e2 e4^T, then the process noise
+        want[2, :] -= a * want[3, :] + w * want[4, :]
+        want[:, 2] -= a * want[:, 3] + w * want[:, 4]
+        want[2, 2] += q
+        want[3, 3] += est.params.improved.bias_walk ** 2 * a
+        est.P = P0.copy()
+        est._acc_dt, est._acc_wdt, est._acc_q = a, w, q
+        assert np.array_equal(est._flushed_covariance(), want)
+        est._flush_gyro()
+        assert np.array_equal(est.P, want) and est._acc_dt == 0.0
+        # an odometry step: F = I - dy e0 e2^T + dx e1 e2^T, then position noise
+        d, dist = (rng.normal(), rng.normal(), 0.0), rng.uniform(0.0, 0.1)
+        x0 = est.x.copy()
+        th = x0[2]
+        dx = math.cos(th) * d[0] - math.sin(th) * d[1]
+        dy = math.sin(th) * d[0] + math.cos(th) * d[1]
+        f = np.array([-dy, dx])
+        want[:2, :] += np.multiply.outer(f, want[2, :])
+        want[:, :2] += np.multiply.outer(want[:, 2], f)
+        want[0, 0] += est.params.improved.odom_noise ** 2 * dist
+        want[1, 1] += est.params.improved.odom_noise ** 2 * dist
+        rows = est.P.tolist()
+        est._move(d, dist, rows)
+        assert np.array_equal(np.array(rows), want)
+        assert est.x[0] == x0[0] + dx and est.x[1] == x0[1] + dy

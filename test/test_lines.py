@@ -151,3 +151,30 @@ def test_grid_matches_a_per_hit_reference_exactly():
         got = g.add_points(pts, 0.0)
         assert got.shape == ref.shape
         assert np.array_equal(got, ref)
+
+
+def test_extract_lines_is_condition1_of_every_segment():
+    # extract_lines skips segments shorter along their cells than min_length: each of them
+    # would fail condition 1 at its first fit, so the lines are exactly those of every segment
+    p = LineParams()
+    rng = np.random.default_rng(7)
+    skipped = 0
+    for k in range(40):
+        pieces = []
+        for _ in range(6):  # walls of 0.2 to 1.5 m in random places, some of them clutter
+            a = rng.uniform(-math.pi, math.pi)
+            c = rng.uniform(-4.0, 4.0, 2)
+            half = 0.5 * rng.uniform(0.2, 1.5) * np.array([math.cos(a), math.sin(a)])
+            n = max(int(2 * np.linalg.norm(half) / 0.05), 2)
+            pieces.append(_segment(c - half, c + half, n, noise=0.003 * (k % 3), seed=k))
+        pts = np.concatenate(pieces)
+        want = [line for line in (condition1(s, p, 1.0) for s in split_segments(pts, p))
+                if line is not None]
+        got = extract_lines(pts, p, 1.0)
+        key = [(ln.p1.tolist(), ln.p2.tolist(), ln.angle, ln.length, ln.variance, ln.n_cells)
+               for ln in want]
+        assert key == [(ln.p1.tolist(), ln.p2.tolist(), ln.angle, ln.length, ln.variance,
+                        ln.n_cells) for ln in got]  # bit for bit
+        skipped += sum(float(np.linalg.norm(np.diff(s, axis=0), axis=1).sum()) < p.min_length
+                       for s in split_segments(pts, p))
+    assert skipped > 20  # the short-segment rule was exercised

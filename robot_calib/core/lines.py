@@ -234,18 +234,21 @@ class ObstacleGrid:
         if pts.shape[0] == 0:
             return np.zeros((0, 2))
         keys = self._keys(pts)
-        change = np.ones(keys.size, dtype=bool)
-        change[1:] = keys[1:] != keys[:-1]
-        starts = change.nonzero()[0]
+        edge = np.empty(keys.size + 1, dtype=bool)  # where a run of one cell starts, and the end
+        edge[0] = edge[-1] = True
+        np.not_equal(keys[1:], keys[:-1], out=edge[1:-1])
+        bounds = edge.nonzero()[0]
+        starts = bounds[:-1]
         sums = np.add.reduceat(pts, starts, axis=0)
-        counts = np.diff(np.append(starts, keys.size)).astype(float)
+        counts = (bounds[1:] - starts).astype(float)
         ukeys = keys[starts].tolist()
         slots = list(map(self._index.get, ukeys, itertools.repeat(-1, len(ukeys))))
-        if -1 in slots:
-            self._new_slots(ukeys, slots)
         sl = np.asarray(slots, dtype=np.int64)
-        first = dict.fromkeys(slots)  # the distinct slots in the order first hit
-        unique = len(first) == len(slots)
+        if -1 in slots:
+            missing = (sl < 0).nonzero()[0].tolist()
+            self._new_slots(ukeys, slots, missing)
+            sl[missing] = [slots[i] for i in missing]
+        unique = len(set(slots)) == len(slots)
         if unique:  # the usual case: each cell once, a plain (same-valued) sum
             self._sum[sl] += sums
             self._n[sl] += counts
@@ -261,23 +264,36 @@ class ObstacleGrid:
             self._sum[o] *= f[:, None]
             self._n[o] = cap
         if not unique:
+            first = dict.fromkeys(slots)  # the distinct slots in the order first hit
             sl = np.fromiter(first, dtype=np.int64, count=len(first))
         return self._sum[sl] / self._n[sl, None]
 
-    def _new_slots(self, ukeys: list, slots: list) -> None:
-        """Give the cells of ``ukeys`` not in the grid (slot -1 in ``slots``) a free slot."""
+    def _new_slots(self, ukeys: list, slots: list, missing: list) -> None:
+        """Give the cells ``ukeys[i]`` not in the grid (``i`` in ``missing``) a free slot."""
         index = self._index
-        for i, sl in enumerate(slots):
-            if sl < 0:
-                sl = index.get(ukeys[i], -1)  # a cell new in this scan, hit twice
+        if len(missing) <= len(self._free):  # no eviction: mark the new slots at once
+            new, new_keys = [], []
+            for i in missing:
+                k = ukeys[i]
+                sl = index.get(k, -1)  # >= 0: a cell new in this scan, hit twice
                 if sl < 0:
-                    if not self._free:
-                        self._evict()
-                    sl = self._free.pop()
-                    index[ukeys[i]] = sl
-                    self._key[sl] = ukeys[i]
-                    self._used[sl] = True
+                    sl = index[k] = self._free.pop()
+                    new.append(sl)
+                    new_keys.append(k)
                 slots[i] = sl
+            self._key[new] = new_keys
+            self._used[new] = True
+            return
+        for i in missing:
+            sl = index.get(ukeys[i], -1)
+            if sl < 0:
+                if not self._free:
+                    self._evict()
+                sl = self._free.pop()
+                index[ukeys[i]] = sl
+                self._key[sl] = ukeys[i]
+                self._used[sl] = True
+            slots[i] = sl
 
     def prune(self, t: float) -> None:
         """Clear cells not hit for ``cell_lifetime`` seconds (at most once per 0.5 s)."""
@@ -337,9 +353,18 @@ def condition1(pts: np.ndarray, params: LineParams, t: float = 0.0) -> Optional[
     """
     pts = np.asarray(pts, dtype=float)
     fewest = max(params.min_cells, 2)
+    total = params.fit_method != 'ordinary'
     while pts.shape[0] >= fewest:
-        c, u, d = _fit(pts, params.fit_method)
-        ux, uy = u.tolist()
+        if total:  # _fit written out: the direction's cosine and sine are needed as floats
+            c = np.add.reduce(pts, axis=0) / pts.shape[0]
+            d = pts - c
+            (sxx, sxy), (_, syy) = (d.T @ d).tolist()
+            phi = 0.5 * math.atan2(2.0 * sxy, sxx - syy)
+            ux, uy = math.cos(phi), math.sin(phi)
+            u = np.array([ux, uy])
+        else:
+            c, u, d = _fit(pts, params.fit_method)
+            ux, uy = u.tolist()
         along = d @ u
         dist = d @ np.array([-uy, ux])
         lo, hi = float(np.minimum.reduce(along)), float(np.maximum.reduce(along))
@@ -360,16 +385,32 @@ def condition1(pts: np.ndarray, params: LineParams, t: float = 0.0) -> Optional[
 def split_segments(pts: np.ndarray, params: LineParams) -> list[np.ndarray]:
     """Split ordered cells (N, 2) (m) into candidate wall segments (gaps, then end-point fit)."""
     pts = np.asarray(pts, dtype=float).reshape(-1, 2)
+    return [pts[i:j] for i, j in _split(pts, params)]
+
+
+def _split(pts: np.ndarray, params: LineParams,
+           shortest: Optional[float] = None) -> list[tuple[int, int]]:
+    """
+    Return :func:`split_segments` as index ranges ``[i, j)`` of ``pts``.
+
+    With ``shortest`` (m), a piece whose length along its cells is below it is
+    dropped unsplit, with every segment it would have been split into.
+    """
     min_cells = params.min_cells
     if pts.shape[0] < min_cells:
         return []
-    steps = np.linalg.norm(np.diff(pts, axis=0), axis=1)
+    step = pts[1:] - pts[:-1]
+    steps = np.sqrt(np.add.reduce(step * step, axis=1))  # = np.linalg.norm(axis=1), op for op
     bounds = [0] + ((steps > params.max_gap).nonzero()[0] + 1).tolist() + [pts.shape[0]]
+    path = None if shortest is None else np.concatenate(((0.0,), np.cumsum(steps))).tolist()
     out = []
-    stack = [pts[i:j] for i, j in zip(bounds[:-1], bounds[1:]) if j - i >= min_cells]
+    stack = [(i, j) for i, j in zip(bounds[:-1], bounds[1:]) if j - i >= min_cells]
     split = params.split_distance
     while stack:
-        seg = stack.pop()
+        i, j = stack.pop()
+        if path is not None and path[j - 1] - path[i] < shortest:
+            continue
+        seg = pts[i:j]
         a = seg[0]
         ax, ay = a.tolist()
         bx, by = seg[-1].tolist()
@@ -378,24 +419,30 @@ def split_segments(pts: np.ndarray, params: LineParams) -> list[np.ndarray]:
         if norm < 1e-9:
             d = np.linalg.norm(seg - a, axis=1)
         else:
-            d = np.abs((seg - a) @ np.array([-cy, cx]) / norm)
+            d = (seg - a) @ np.array([-cy, cx])
+            d /= norm
+            np.abs(d, out=d)
         k = int(d.argmax())
-        n = seg.shape[0]
+        n = j - i
         if d[k] > split and 0 < k < n - 1:
             if k + 1 >= min_cells:
-                stack.append(seg[:k + 1])
+                stack.append((i, i + k + 1))
             if n - k >= min_cells:
-                stack.append(seg[k:])
+                stack.append((i + k, j))
             continue
-        out.append(seg)
+        out.append((i, j))
     return out
 
 
 def extract_lines(pts: np.ndarray, params: LineParams, t: float = 0.0) -> list[Line]:
     """Return every line passing condition 1 among the segments of ordered cells (N, 2) (m)."""
+    pts = np.asarray(pts, dtype=float).reshape(-1, 2)
+    # a segment's extent along any direction is at most its length along the cells, so one
+    # shorter than min_length (by a margin far above rounding) fails S11 at its first fit;
+    # so do the pieces it would be split into, which are shorter still
     lines = []
-    for seg in split_segments(pts, params):
-        line = condition1(seg, params, t)
+    for i, j in _split(pts, params, params.min_length - 1e-9):
+        line = condition1(pts[i:j], params, t)
         if line is not None:
             lines.append(line)
     return lines

@@ -241,26 +241,30 @@ class GyroLineBase(abc.ABC):
 
     def _update_imu(self, s: T.ImuSample) -> None:
         """Integrate one IMU sample (gyro rad/s in the IMU frame)."""
-        self._start(s.t)
+        t = s.t
+        if self._t0 is None:
+            self._t0 = t
         rate = self._gyro_z(s.gyro)
         prev = self._imu_t
         prev_rate = self._last_imu_rate
-        self._imu_t = s.t
+        self._imu_t = t
         self._last_imu_rate = rate
-        self._check_phase_time(s.t)
-        if not self._use_gyro(s.t) or prev is None:
+        if self.params.seed.phase_switch_time > 0.0:
+            self._check_phase_time(t)
+        if prev is None or not self._use_gyro(t):
             return
-        dt = s.t - prev
+        dt = t - prev
         if dt <= 0.0:
             return
-        if dt > self.params.max_dt:
+        p = self.params
+        if dt > p.max_dt:
             self.count('imu_time_jumps')
-            self.P[2, 2] += (self.params.max_turn_rate * min(dt, 10.0)) ** 2 * 0.01
-            self.distrust(s.t, 'time_jump')
+            self.P[2, 2] += (p.max_turn_rate * min(dt, 10.0)) ** 2 * 0.01
+            self.distrust(t, 'time_jump')
             return
         self._integrate_rate(0.5 * (rate + prev_rate), dt,  # trapezoidal rule
-                             self.params.improved.gyro_noise)
-        self._carried_check(s.t)
+                             p.improved.gyro_noise)
+        self._carried_check(t)
 
     def _gyro_z(self, gyro: np.ndarray) -> float:
         """Return the yaw rate (rad/s) in base_link of a gyro vector (rad/s, IMU frame)."""
@@ -278,35 +282,50 @@ class GyroLineBase(abc.ABC):
 
     def _integrate_rate(self, rate: float, dt: float, noise: float) -> None:
         # heading = integral of (1 - s) * rate - b; noise: angle random walk (rad/sqrt(s))
-        self.x[2] += (rate * (1.0 - self.x[4]) - self.x[3]) * dt
+        x = self.x
+        x[2] += (rate * (1.0 - x[4]) - x[3]) * dt
         self._acc_dt += dt
         self._acc_wdt += rate * dt
         self._acc_q += noise ** 2 * dt
 
-    def _propagate_gyro(self, P: np.ndarray) -> None:
-        """Propagate covariance ``P`` (in place) over the gyro samples not yet flushed."""
+    def _propagate_gyro(self, P: list) -> None:
+        """Propagate covariance ``P`` (rows as lists, in place) over the unflushed gyro samples."""
         a, w = self._acc_dt, self._acc_wdt
-        # P = F P F^T with F = I - a e2 e3^T - w e2 e4^T (rows, then columns)
-        P[2, :] -= a * P[3, :] + w * P[4, :]
-        P[:, 2] -= a * P[:, 3] + w * P[:, 4]
-        P[2, 2] += self._acc_q
-        P[3, 3] += self.params.improved.bias_walk ** 2 * self._acc_dt
+        # P = F P F^T with F = I - a e2 e3^T - w e2 e4^T (rows, then columns), element by element
+        r2, r3, r4 = P[2], P[3], P[4]
+        for j in range(5):
+            r2[j] -= a * r3[j] + w * r4[j]
+        for row in P:
+            row[2] -= a * row[3] + w * row[4]
+        r2[2] += self._acc_q
+        r3[3] += self.params.improved.bias_walk ** 2 * self._acc_dt
 
-    def _flush_gyro(self) -> None:
-        """Propagate the covariance over the gyro samples integrated since the last flush."""
+    def _flush_gyro(self, P: Optional[list] = None) -> None:
+        """
+        Propagate the covariance over the gyro samples integrated since the last flush.
+
+        With ``P`` (``self.P`` as rows of lists) that is propagated, and the
+        caller writes it back; else ``self.P`` is.
+        """
         if self._acc_dt <= 0.0:
             return
-        self._propagate_gyro(self.P)
+        if P is None:
+            rows = self.P.tolist()
+            self._propagate_gyro(rows)
+            self.P[:] = rows
+        else:
+            self._propagate_gyro(P)
         self._acc_dt = 0.0
         self._acc_wdt = 0.0
         self._acc_q = 0.0
 
     def _flushed_covariance(self) -> np.ndarray:
         """Return a copy of the covariance with the pending gyro samples propagated."""
-        P = self.P.copy()
-        if self._acc_dt > 0.0:
-            self._propagate_gyro(P)
-        return P
+        if self._acc_dt <= 0.0:
+            return self.P.copy()
+        rows = self.P.tolist()
+        self._propagate_gyro(rows)
+        return np.array(rows)
 
     def _update_odom(self, s: T.OdomSample) -> None:
         """Apply one odometry sample (pose in the odometry frame, m and rad)."""
@@ -341,27 +360,38 @@ class GyroLineBase(abc.ABC):
         self._odom_rate = d[2] / dt
         if not self._use_gyro(s.t):
             self._integrate_rate(d[2] / dt, dt, self.params.improved.odom_yaw_noise)
-        self._flush_gyro()
-        self._move(d, dist)
+        rows = self.P.tolist()  # 5 x 5: scalar arithmetic is cheaper than numpy's, and the same
+        self._flush_gyro(rows)
+        self._move(d, dist, rows)
+        self.P[:] = rows
         self._carried_check(s.t)
 
-    def _move(self, d: tuple, dist: float) -> None:
-        """Move the pose by an odometry step ``d`` (dx, dy m in the robot frame) of ``dist`` m."""
+    def _move(self, d: tuple, dist: float, P: list) -> None:
+        """
+        Move the pose by an odometry step ``d`` (dx, dy m in the robot frame) of ``dist`` m.
+
+        ``P`` is the covariance as rows of lists, propagated in place.
+        """
         th = self.x[2]
         c, sn = math.cos(th), math.sin(th)
         dx = c * d[0] - sn * d[1]
         dy = sn * d[0] + c * d[1]
         self.x[0] += dx
         self.x[1] += dy
-        P = self.P
-        # P = F P F^T with F = I - dy e0 e2^T + dx e1 e2^T (rows, then columns);
-        # p + (-dy) q is p - dy q exactly (IEEE), so rows 0, 1 go in one outer product
-        f = np.array([-dy, dx])
-        P[:2, :] += np.multiply.outer(f, P[2, :])
-        P[:, :2] += np.multiply.outer(P[:, 2], f)
+        # P = F P F^T with F = I - dy e0 e2^T + dx e1 e2^T (rows, then columns), element by
+        # element; p + (-dy) q is p - dy q exactly (IEEE)
+        f0, f1 = -dy, dx
+        r0, r1, r2 = P[0], P[1], P[2]
+        for j in range(5):
+            r0[j] += f0 * r2[j]
+            r1[j] += f1 * r2[j]
+        for row in P:
+            p2 = row[2]
+            row[0] += p2 * f0
+            row[1] += p2 * f1
         q = self.params.improved.odom_noise ** 2 * dist
-        P[0, 0] += q
-        P[1, 1] += q
+        r0[0] += q
+        r1[1] += q
 
     def _inflate_position(self, sigma: float) -> None:
         self.P[0, 0] += sigma ** 2

@@ -37,7 +37,12 @@ from robot_calib.core.lines import Line, line_from_endpoints
 from robot_calib.methods.gyro_line_calibration.base import GyroLineBase
 from robot_calib.methods.gyro_line_calibration.common import Correction, Reference
 from robot_calib.methods.gyro_line_calibration.improved_gate import (
-    gate, line_jacobian, line_model, line_noise, overlaps, prefilter, ref_arrays)
+    gate, gate_state, line_jacobian, line_model, line_noise, line_noise_diag, overlaps, prefilter,
+    ref_arrays)
+
+_I2 = np.eye(2)
+_I5 = np.eye(5)
+_I2.flags.writeable = _I5.flags.writeable = False  # shared identities: read only
 
 
 class ImprovedGyroLine(GyroLineBase):
@@ -76,10 +81,12 @@ class ImprovedGyroLine(GyroLineBase):
         return H @ self.P @ H.T + self._line_noise(line)
 
     def _gate(self, refs: list, line: Line, margin: float, chi2: float,
-              pre: Optional[tuple] = None) -> list[tuple]:
-        if not refs or (pre is not None and not pre[2].any()):
+              pre: Optional[tuple] = None, state: Optional[tuple] = None) -> list[tuple]:
+        """Return :func:`gate` of ``line`` (``state``: :func:`gate_state`, made when None)."""
+        if not refs or (pre is not None and not any(pre[2])):
             return []  # nothing to gate: no need for the line's noise
-        return gate(refs, line, margin, chi2, self.x, self.P, self._line_noise(line),
+        return gate(refs, line, margin, chi2, state or gate_state(self.x, self.P),
+                    line_noise_diag(line, self.params.improved),
                     self.params.match.angle_tolerance, pre)
 
     def _ref_arrays(self) -> tuple:
@@ -99,10 +106,11 @@ class ImprovedGyroLine(GyroLineBase):
         matches = []
         pre = prefilter(self.references, lines, margin, self.params.match.angle_tolerance,
                         self._ref_arrays()) if self.references else None
+        state = gate_state(self.x, self.P)  # neither changes before the filter update
         for k, line in enumerate(lines):
             gated = self._gate(self.references, line, margin, 4.0 * ip.gate_chi2,
                                None if pre is None else
-                               (pre[0][k], pre[1][k], pre[2][k], pre[3], pre[4]))
+                               (pre[0][k], pre[1][k], pre[2][k], pre[3], pre[4]), state)
             close = [g for g in gated if g[0] <= ip.gate_chi2]
             if gated:
                 if not close:
@@ -162,7 +170,7 @@ class ImprovedGyroLine(GyroLineBase):
         c_z = Ainv @ c_obs @ Ainv.T
         K = ref.cov @ np.linalg.inv(ref.cov + c_z)
         dz = K @ z
-        ref.cov = (np.eye(2) - K) @ ref.cov
+        ref.cov = (_I2 - K) @ ref.cov
         mid = ref.line.midpoint
         half = 0.5 * ref.line.length
         ang = ref.line.angle + float(dz[0])
@@ -236,7 +244,7 @@ class ImprovedGyroLine(GyroLineBase):
         """Return the matches that agree on the heading error; mark (or retire) the others."""
         ip = self.params.improved
         errs = [float(m[2][0]) for m in matches]
-        sig = [math.sqrt(m[4][0, 0]) for m in matches]
+        sig = [math.sqrt(m[4][0][0]) for m in matches]
         med = statistics.median(errs)
         med_sig = statistics.median(sig)
         keep = []
@@ -257,14 +265,14 @@ class ImprovedGyroLine(GyroLineBase):
         ip = self.params.improved
         for line, ref, y, H, R in keep:
             self._support.append((t, ref.id, y[0] + self._cum_correction,
-                                  math.sqrt(R[0, 0])))
+                                  math.sqrt(R[0][0])))
         while self._support and self._support[0][0] < t - ip.support_window:
             self._support.popleft()
         ids_now = {m[1].id for m in keep}
         support = len(ids_now)
         if support < ip.min_support:
             a_now = float(np.mean([m[2][0] for m in keep])) + self._cum_correction
-            s_now = float(np.mean([math.sqrt(m[4][0, 0]) for m in keep]))
+            s_now = float(np.mean([math.sqrt(m[4][0][0]) for m in keep]))
             agreeing = {(tt, rid) for tt, rid, a, sg in self._support
                         if tt < t and abs(a - a_now) <= ip.consistency_sigma
                         * math.hypot(sg, s_now)}
@@ -292,7 +300,7 @@ class ImprovedGyroLine(GyroLineBase):
             S = H @ self.P @ H.T + R
             K = self.P @ H.T @ np.linalg.inv(S)
             self.x = self.x + K @ y
-            I_KH = np.eye(5) - K @ H
+            I_KH = _I5 - K @ H
             self.P = I_KH @ self.P @ I_KH.T + K @ R @ K.T  # Joseph form
             ref.matches += 1
             self._extend(ref, line)

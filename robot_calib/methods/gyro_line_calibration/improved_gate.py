@@ -24,10 +24,16 @@ from robot_calib.core.lines import Line
 from robot_calib.methods.gyro_line_calibration.params import ImprovedParams
 
 
-def line_noise(line: Line, ip: ImprovedParams) -> np.ndarray:
-    """Return the covariance (angle rad^2, distance m^2) of a fitted line."""
+def line_noise_diag(line: Line, ip: ImprovedParams) -> tuple[float, float]:
+    """Return the variances (angle rad^2, distance m^2) of a fitted line (independent)."""
     sa = line.angle_sigma() ** 2 + ip.line_angle_sigma ** 2
     sr = line.variance / max(line.n_cells, 1) + ip.line_sigma ** 2
+    return sa, sr
+
+
+def line_noise(line: Line, ip: ImprovedParams) -> np.ndarray:
+    """Return the covariance (angle rad^2, distance m^2) of a fitted line."""
+    sa, sr = line_noise_diag(line, ip)
     return np.array([[sa, 0.0], [0.0, sr]])
 
 
@@ -87,8 +93,9 @@ def prefilter(refs: list, lines: list[Line], margin: float, angle_tolerance: flo
     """
     Vectorised (lines x references) pre-filter: angle, overlap, distance (loose).
 
-    Returns the angle errors (rad), distances (m), the candidate mask and the
-    references' directions and normals.
+    Returns the angle errors (rad), distances (m), the candidate mask (each a
+    list of rows, one per line, one entry per reference) and the references'
+    directions and normals (lists of pairs), as Python lists for :func:`gate`.
     """
     ang, u, nrm, o, r2, rho = arrays if arrays is not None else ref_arrays(refs)
     la = np.array([ln.angle for ln in lines])
@@ -101,18 +108,27 @@ def prefilter(refs: list, lines: list[Line], margin: float, angle_tolerance: flo
     dist = rho[None, :] - (0.5 * (lp1 + lp2)) @ nrm.T
     ok = (np.abs(err) <= angle_tolerance) & (hi >= -margin) & (lo <= r2[None, :] + margin) \
         & (np.abs(dist) < margin + 1.0)
-    return err, dist, ok, u, nrm
+    return err.tolist(), dist.tolist(), ok.tolist(), u.tolist(), nrm.tolist()
 
 
-def gate(refs: list, line: Line, margin: float, chi2: float, x: np.ndarray, P: np.ndarray,
-         R_line: np.ndarray, angle_tolerance: float, pre: Optional[tuple] = None) -> list[tuple]:
+def gate_state(x: np.ndarray, P: np.ndarray) -> tuple:
+    """Return what :func:`gate` reads of the state ``x`` and covariance ``P``, as floats."""
+    (p00, p01, p02), (_, p11, p12), (_, _, p22) = P[:3, :3].tolist()
+    x0, x1 = x[:2].tolist()
+    return p00, p01, p02, p11, p12, p22, x0, x1
+
+
+def gate(refs: list, line: Line, margin: float, chi2: float, state: tuple,
+         noise: tuple[float, float], angle_tolerance: float,
+         pre: Optional[tuple] = None) -> list[tuple]:
     """
     Return the references whose innovation with ``line`` passes the chi-square gate ``chi2``.
 
-    ``x``, ``P`` are the state and its covariance, ``R_line`` the line's noise
-    (:func:`line_noise`), ``pre`` this line's row of :func:`prefilter` (computed
-    when None). Each entry is ``(nis, reference, y, None, R)`` with ``R`` the
-    covariance of ``y`` without the pose part.
+    ``state`` is :func:`gate_state` of the state and its covariance, ``noise``
+    the line's :func:`line_noise_diag`, ``pre`` this line's row of
+    :func:`prefilter` (computed when None). Each entry is ``(nis, reference,
+    y, None, R)`` with ``y`` the innovation (angle rad, distance m) and ``R``
+    its covariance without the pose part (rows of a 2 x 2 matrix), as tuples.
     """
     if not refs:
         return []
@@ -121,17 +137,18 @@ def gate(refs: list, line: Line, margin: float, chi2: float, x: np.ndarray, P: n
         pre = (err[0], dist[0], ok[0], u, nrm)
     err, dist, ok, u, nrm = pre
     out = []
-    idx = ok.nonzero()[0]
-    if idx.size == 0:
+    if not any(ok):
         return out
-    (p00, p01, p02), (_, p11, p12), (_, _, p22) = P[:3, :3].tolist()
+    p00, p01, p02, p11, p12, p22, x0, x1 = state
     mx, my = line.midpoint.tolist()
-    x0, x1 = x[:2].tolist()
     lx, ly = mx - x0, my - x1
-    rl0, rl1 = float(R_line[0, 0]), float(R_line[1, 1])
-    for i, (nx, ny), (ux, uy), y0, y1 in zip(idx.tolist(), nrm[idx].tolist(), u[idx].tolist(),
-                                             err[idx].tolist(), dist[idx].tolist()):
-        ref = refs[i]  # y0: angle error (rad), y1: rho_ref - n . midpoint (m)
+    rl0, rl1 = noise
+    for i, cand in enumerate(ok):
+        if not cand:
+            continue
+        ref = refs[i]
+        (nx, ny), (ux, uy) = nrm[i], u[i]
+        y0, y1 = err[i], dist[i]  # angle error (rad), rho_ref - n . midpoint (m)
         h12 = nx * -ly + ny * lx
         rmx, rmy = ref.line.midpoint.tolist()
         sl = ux * (mx - rmx) + uy * (my - rmy)
@@ -148,7 +165,6 @@ def gate(refs: list, line: Line, margin: float, chi2: float, x: np.ndarray, P: n
         nis = (s11 * y0 * y0 - 2.0 * s01 * y0 * y1 + s00 * y1 * y1) / det
         if nis <= chi2:
             r01 = sl * c00 + c01
-            R = np.array([[c00 + rl0, r01],
-                          [r01, sl * sl * c00 + 2 * sl * c01 + c11 + rl1]])
-            out.append((nis, ref, np.array([y0, y1]), None, R))
+            R = ((c00 + rl0, r01), (r01, sl * sl * c00 + 2 * sl * c01 + c11 + rl1))
+            out.append((nis, ref, (y0, y1), None, R))
     return out

@@ -81,6 +81,28 @@ def condition2_many(refs: np.ndarray, new: Line, match: MatchParams) -> np.ndarr
     return np.where(ok, err, np.nan)
 
 
+def condition2_near(refs: np.ndarray, mids: np.ndarray, new: Line,
+                    match: MatchParams) -> tuple[np.ndarray, np.ndarray]:
+    """
+    Return :func:`condition2_many` on the references that can pass, and their indices.
+
+    ``mids`` (2, N) are the references' midpoints (m), x then y. Both endpoints within
+    ``endpoint_tolerance`` of the new line's (S32) put the midpoints within it
+    too (the mean of the two offsets), so only references whose midpoint is
+    that close (each coordinate, plus a rounding slack) are tested; the angle
+    errors (rad, NaN where condition 2 fails) are those of :func:`condition2_many`,
+    element by element, in index order.
+    """
+    if refs.shape[0] == 0:
+        return np.zeros(0, dtype=np.int64), np.zeros(0)
+    mx, my = new.midpoint.tolist()
+    lim = match.endpoint_tolerance + 1e-6
+    near = np.abs(mids[0] - mx) <= lim
+    near &= np.abs(mids[1] - my) <= lim
+    idx = near.nonzero()[0]
+    return idx, condition2_many(refs[idx], new, match)
+
+
 def seed_calibrated_angle(ref_angle: float, line_angle: float, w1: float) -> float:
     """Return ``w1 * ref + w2 * line`` (rad), line unwrapped next to ref (seed 000, S3)."""
     line_near = ref_angle - wrap_half_pi(ref_angle - line_angle)
@@ -111,6 +133,7 @@ class SeedGyroLine(GyroLineBase):
         self._seed_t_cal = -math.inf
         self._seed_first_len = math.inf
         self._seed_refs = np.zeros((self.params.seed.max_references, 6))
+        self._seed_mids = np.zeros((2, self.params.seed.max_references))  # midpoints x, y (m)
 
     def _phase_started(self) -> None:
         self._seed_state = 'first'
@@ -120,7 +143,8 @@ class SeedGyroLine(GyroLineBase):
 
     def _seed_step(self, lines: list[Line], t: float) -> list[Correction]:
         """Store references (work phase) or calibrate (edge following) with one scan's lines."""
-        refs = self._seed_refs[:len(self.references)]
+        n = len(self.references)
+        refs, mids = self._seed_refs[:n], self._seed_mids[:, :n]
         if not self.edge_following:  # S1: store references
             self._store_references(lines, t)
             return []
@@ -135,12 +159,12 @@ class SeedGyroLine(GyroLineBase):
                 kind = 'length'
             else:
                 continue
-            errs = condition2_many(refs, line, p.match)
+            idx, errs = condition2_near(refs, mids, line, p.match)
             if not np.any(np.isfinite(errs)):
                 self.count('seed_unmatched_lines')
                 continue
-            i = int(np.nanargmin(np.abs(errs)))  # S3: smallest angle error
-            best, best_err = self.references[i], float(errs[i])
+            i = int(np.nanargmin(np.abs(errs)))  # S3: smallest angle error (first of equals)
+            best, best_err = self.references[int(idx[i])], float(errs[i])
             if self._seed_state == 'first' or kind == 'length':
                 self._seed_first_len = line.length
             self._seed_state = 'calibrated'
@@ -163,8 +187,10 @@ class SeedGyroLine(GyroLineBase):
         """S1: store each line as a reference unless it is a stored wall again (condition 2)."""
         p = self.params
         for line in lines:
-            refs = self._seed_refs[:len(self.references)]
-            if np.any(np.isfinite(condition2_many(refs, line, p.match))):
+            n = len(self.references)
+            _, errs = condition2_near(self._seed_refs[:n], self._seed_mids[:, :n], line,
+                                      p.match)
+            if np.any(np.isfinite(errs)):
                 continue  # the same wall as a stored reference: keep the earliest copy
             if len(self.references) >= p.seed.max_references:
                 self.count('references_full')
@@ -173,5 +199,6 @@ class SeedGyroLine(GyroLineBase):
             ref.confirmed = True
             self._seed_refs[len(self.references)] = [*line.p1, *line.p2, line.angle,
                                                      line.length]
+            self._seed_mids[:, len(self.references)] = line.midpoint
             self._log_reference(ref)
             self.references.append(ref)
