@@ -58,7 +58,7 @@ def test_consider_update_keeps_the_leading_states(n):
 
 @pytest.mark.parametrize('n', [None, 3, 6])
 def test_in_place_update_equals_the_full_expanded_form(n):
-    """The in-place (block) update gives the full form's P and x, bit for bit."""
+    """The in-place update gives the out-of-place full form's P and x, bit for bit."""
     f = _filter_after_a_drive()
     P0, x0 = f.P.copy(), list(f.x)
     h = np.zeros(8)

@@ -244,25 +244,22 @@ class ImprovedFusion(FusionFilter):
         the gain and the outer product) before P changes.
         """
         P = self.P
-        x = self.x
+        k = Ph / s
         if consider is None:
-            k = Ph / s
             # P = (I - k h') P = P - k Ph': symmetric by construction
             P -= _outer(k, Ph)
-            for i, ki in enumerate((k * resid).tolist()):
-                x[i] += ki
         else:
-            # Joseph form for a gain k that is 0 on the first n = consider states, expanded:
-            # (I - k h') P (I - k h')' + r k k' = P - k Ph' - Ph k' + s k k'; only the rows
-            # and columns >= n change (entry by entry the full form's arithmetic)
-            n = consider
-            k = Ph[n:] / s
+            k[:consider] = 0.0
+            # Joseph form for any gain, expanded: (I - k h') P (I - k h')' + r k k'
+            #   = P - k Ph' - Ph k' + s k k' (whole 8x8 arrays: fewer numpy calls than
+            # updating only the rows and columns >= consider, and on this size calls cost)
             kPh = _outer(k, Ph)
-            P[n:, :] -= kPh
-            P[:, n:] -= kPh.T
-            P[n:, n:] += s * _outer(k, k)
-            for i, ki in enumerate((k * resid).tolist(), n):
-                x[i] += ki
+            P -= kPh
+            P -= kPh.T
+            P += s * _outer(k, k)
+        x = self.x
+        for i, ki in enumerate(k.tolist()):
+            x[i] += ki * resid  # the products of k * resid, without an array call
         return s, resid * resid / s
 
     def _wheel_step(self, t: float, v: float, w: float) -> Optional[str]:
