@@ -54,3 +54,47 @@ def test_consider_update_keeps_the_leading_states(n):
     assert f.x[:n] == x0[:n]
     assert f.x[6:] != x0[6:]
     assert np.allclose(f.P, f.P.T, rtol=0.0, atol=1e-15)
+
+
+@pytest.mark.parametrize('n', [None, 3, 6])
+def test_in_place_update_equals_the_full_expanded_form(n):
+    """The in-place update gives the out-of-place full form's P and x, bit for bit."""
+    f = _filter_after_a_drive()
+    P0, x0 = f.P.copy(), list(f.x)
+    h = np.zeros(8)
+    h[IBG], h[6], h[7] = -1.02, 0.3, 0.8
+    Ph = P0 @ h
+    s = float(h @ Ph) + 1e-3
+    k = Ph / s
+    if n is None:
+        P_ref = P0 - np.multiply.outer(k, Ph)
+    else:
+        k[:n] = 0.0
+        kPh = np.multiply.outer(k, Ph)
+        P_ref = P0 - kPh
+        P_ref -= kPh.T
+        P_ref += s * np.multiply.outer(k, k)
+    x_ref = [a + b for a, b in zip(x0, (k * 0.05).tolist())]
+    f._gain_update(Ph, s, 0.05, n)
+    assert np.array_equal(f.P, P_ref)
+    assert f.x == x_ref
+    assert not np.array_equal(f.P, P0)
+
+
+def test_yaw_rate_update_innovation_variance_is_h_P_h():
+    """The sparse h' P h of the yaw-rate update equals the dense product to rounding."""
+    a = _filter_after_a_drive()
+    b = copy.deepcopy(a)
+    t, v, w, gz = a.t + 0.02, 0.8, 0.1, 0.12
+    x = b.x
+    h = np.zeros(8)
+    h[IBG], h[6], h[7] = -x[6], gz - x[IBG], v
+    s_dense = float(h @ b.P @ h)
+    seen = {}
+    scale = a.noise.scales[1]  # before the update adapts it
+    a._gain_update = lambda Ph, s, resid, consider: seen.update(s=s, Ph=Ph.copy())
+    a._yaw_rate_update(t, v, w, 1e-4, gz, False)
+    r_gyro = x[6] ** 2 * a.p.gyro_noise ** 2 / (t - a._last_upd_t) * scale
+    r_eff = 1e-4 * scale + r_gyro
+    assert seen['s'] - r_eff == pytest.approx(s_dense, rel=1e-12)
+    assert np.array_equal(seen['Ph'], b.P @ h)

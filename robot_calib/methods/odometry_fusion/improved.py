@@ -50,6 +50,7 @@ _CONSIDER_W = 6
 _CONSIDER_POSE = 3
 """States a standstill update leaves alone with ``continuous_pose``: the first 3 (pose)."""
 _outer = np.multiply.outer
+_add_reduce = np.add.reduce
 
 
 class ImprovedFusion(FusionFilter):
@@ -145,7 +146,8 @@ class ImprovedFusion(FusionFilter):
         dx, dy = v * c * dt, v * s * dt
         x[IX] += dx
         x[IY] += dy
-        x[IYAW] = wrap_scalar(yaw + w_in * dt)
+        yaw += w_in * dt
+        x[IYAW] = yaw if -math.pi < yaw <= math.pi else wrap_scalar(yaw)
         v += a_in * dt
         x[IV] = v if abs(v) <= p.max_speed else math.copysign(p.max_speed, v)
         acc = self._cov_acc
@@ -235,24 +237,29 @@ class ImprovedFusion(FusionFilter):
 
     def _gain_update(self, Ph: np.ndarray, s: float, resid: float,
                      consider: Optional[int]) -> tuple[float, float]:
-        """Apply the update of gain ``Ph / s`` to the innovation ``resid``; (s, NIS)."""
-        k = Ph / s
+        """
+        Apply the update of gain ``Ph / s`` to the innovation ``resid``; (s, NIS).
+
+        P is updated in place; ``Ph`` may be a view of P: it is read in full (into
+        the gain and the outer product) before P changes.
+        """
         P = self.P
+        k = Ph / s
         if consider is None:
             # P = (I - k h') P = P - k Ph': symmetric by construction
-            self.P = P - _outer(k, Ph)
+            P -= _outer(k, Ph)
         else:
             k[:consider] = 0.0
             # Joseph form for any gain, expanded: (I - k h') P (I - k h')' + r k k'
-            #   = P - k Ph' - Ph k' + s k k'
+            #   = P - k Ph' - Ph k' + s k k' (whole 8x8 arrays: fewer numpy calls than
+            # updating only the rows and columns >= consider, and on this size calls cost)
             kPh = _outer(k, Ph)
-            P = P - kPh
+            P -= kPh
             P -= kPh.T
             P += s * _outer(k, k)
-            self.P = P
         x = self.x
-        for i, ki in enumerate((k * resid).tolist()):
-            x[i] += ki
+        for i, ki in enumerate(k.tolist()):
+            x[i] += ki * resid  # the products of k * resid, without an array call
         return s, resid * resid / s
 
     def _wheel_step(self, t: float, v: float, w: float) -> Optional[str]:
@@ -340,16 +347,18 @@ class ImprovedFusion(FusionFilter):
         """
         p = self.p
         x = self.x
+        kw = x[IKW]
         w_imu = gz_avg - x[IBG]
-        h = np.zeros(8)
-        h[IBG] = -x[IKW]
-        h[IKW] = w_imu
-        h[IKV] = v
-        res_w = w - x[IKW] * w_imu - x[IKV] * v
+        # h = (0, 0, 0, 0, -k_w, 0, w_imu, v): P h is one matrix-vector product and
+        # h' P h = sum of its 3 non-zero terms (the same value up to rounding)
+        h4, h6, h7 = -kw, w_imu, v
+        Ph = self.P @ np.array((0.0, 0.0, 0.0, 0.0, h4, 0.0, h6, h7))
+        _, _, _, _, Ph4, _, Ph6, Ph7 = Ph.tolist()
+        res_w = w - kw * w_imu - x[IKV] * v
         # variance of the gyro averaged over the odometry interval: sigma^2 / T
         interval = t - self._last_upd_t if self._last_upd_t is not None else 0.1
-        r_gyro = (x[IKW] ** 2) * (p.gyro_noise ** 2) / max(interval, 1e-3)
-        s_pred = float(h @ self.P @ h)
+        r_gyro = (kw ** 2) * (p.gyro_noise ** 2) / max(interval, 1e-3)
+        s_pred = h4 * Ph4 + h6 * Ph6 + h7 * Ph7
         if p.adaptation == 'nis':
             r_gyro *= self.noise.scales[1]
         r_eff = r_w * self.noise.scales[1] + r_gyro
@@ -357,7 +366,7 @@ class ImprovedFusion(FusionFilter):
         nis_w = res_w * res_w / s_w
         used = not (nis_w > self._gate and not still)
         if used:
-            self._scalar_update(h, res_w, r_eff, None if p.bias_from_wheels else _CONSIDER_W)
+            self._gain_update(Ph, s_w, res_w, None if p.bias_from_wheels else _CONSIDER_W)
         self.noise.adapt(1, res_w, s_pred + r_gyro, r_w, s_w, t)
         if still:
             # zero-velocity update: the gyro must read its bias
@@ -385,6 +394,10 @@ class ImprovedFusion(FusionFilter):
 
     def _persistent_rejection(self, t: float, v: float, rejected: list, r_v: float) -> None:
         """Re-initialise a channel whose measurements were all rejected for reinit_after (s)."""
+        since_any = self._rej_since
+        if not rejected and since_any['slip_speed'] is None and \
+                since_any['slip_yaw_rate'] is None:
+            return  # nothing rejected now or pending: the loop below would change nothing
         p = self.p
         for channel in ('slip_speed', 'slip_yaw_rate'):
             if channel not in rejected:
@@ -423,7 +436,7 @@ class ImprovedFusion(FusionFilter):
         x = self.x
         # the sum of the 8 states in numpy's (pairwise) order: only its finiteness counts
         xsum = ((x[0] + x[1]) + (x[2] + x[3])) + ((x[4] + x[5]) + (x[6] + x[7]))
-        bad = not math.isfinite(xsum + float(P.sum()))
+        bad = not math.isfinite(xsum + float(_add_reduce(P, None)))  # P.sum(), less overhead
         if not bad:
             d = P.diagonal().tolist()
             bad = min(d) < 0 or d[IBG] > 1.0 or abs(x[IBG]) > 1.0 or \
@@ -449,11 +462,10 @@ class ImprovedFusion(FusionFilter):
         x, P = self.x, self.P
         w = (self.gz - x[IBG]) if not self.imu_stale else self._w_fallback
         pose_cov = P[:3, :3].copy()
-        var_w = (self.p.gyro_noise ** 2) * 30.0 + P[IBG, IBG] if not self.imu_stale else \
-            self.p.odom_yaw_rate_noise ** 2
+        var_w = (self.p.gyro_noise ** 2) * 30.0 + float(P[IBG, IBG]) if not self.imu_stale \
+            else self.p.odom_yaw_rate_noise ** 2
         lat = (self.p.lateral_slip * abs(x[IV])) ** 2 + 1e-6
-        twist_cov = np.zeros((3, 3))
-        twist_cov[0, 0], twist_cov[1, 1], twist_cov[2, 2] = P[IV, IV], lat, var_w
+        twist_cov = np.array(((float(P[IV, IV]), 0.0, 0.0), (0.0, lat, 0.0), (0.0, 0.0, var_w)))
         return FusionOutput(self.t, float(x[IX]), float(x[IY]), float(x[IYAW]), float(x[IV]),
                             float(w), pose_cov, twist_cov)
 

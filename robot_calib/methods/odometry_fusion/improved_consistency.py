@@ -34,7 +34,6 @@ from __future__ import annotations
 import math
 from typing import Optional
 
-import numpy as np
 from robot_calib.core.chi2 import chi2_ppf
 from robot_calib.core.series import Thinned
 from robot_calib.methods.odometry_fusion.common import NisStats
@@ -120,13 +119,14 @@ class NoiseAdapter:
         """Adapt as ``params`` say; ``gate`` (chi-square, 1 dof) clips outliers (iae)."""
         self.p = params
         self._gate = gate
-        self.scales = np.ones(2)
+        self.scales = [1.0, 1.0]
+        """The two scales as Python floats (cheaper per use than an array; same arithmetic)."""
         self._c2: Optional[list] = None
         self._c2_t: list = [None, None]
 
     def reset(self) -> None:
         """Return to the nominal noise (scales 1) and forget the innovation averages."""
-        self.scales[:] = 1.0
+        self.scales[0] = self.scales[1] = 1.0
         self._c2 = None
 
     def adapt(self, i: int, resid: float, s_pred: float, r_nom: float, s_tot: float,
