@@ -100,14 +100,14 @@ class _Emitter:
     def __init__(self, writer: BagWriter, stats: RunStats):
         self.writer = writer
         self.stats = stats
-        self._routes: dict[tuple[int, str], Optional[tuple]] = {}
-        """(id(run), output key) -> (topic, declared type, write, encoders), None: undeclared."""
+        self._routes: dict[int, dict[str, Optional[tuple]]] = {}
+        """id(run) -> output key -> (topic, declared type, write, encoders), None: undeclared."""
 
     def _route(self, run: NodeRun, out_key: str) -> Optional[tuple]:
         spec = run.outputs.get(out_key)
         route = None if spec is None else (spec[0], spec[1],
                                            self.writer.raw_writer(spec[0], spec[1]), {})
-        self._routes[(id(run), out_key)] = route
+        self._routes[id(run)][out_key] = route
         return route
 
     @staticmethod
@@ -126,10 +126,12 @@ class _Emitter:
 
     def __call__(self, run: NodeRun, outs: list) -> None:
         """Write outputs ``(key, sample)`` of ``run``; a bad one is counted, never fatal."""
-        routes, rid = self._routes, id(run)
+        routes = self._routes.get(id(run))
+        if routes is None:
+            routes = self._routes[id(run)] = {}
         out_counts = self.stats.out_counts
         for out_key, sample in outs:
-            route = routes.get((rid, out_key), False)
+            route = routes.get(out_key, False)
             if route is False:
                 route = self._route(run, out_key)
             try:
