@@ -38,8 +38,8 @@ def _outputs():
               (float('nan'), -1)]
     batches = []
     for i in range(400):
-        t, ns = stamps[i % len(stamps)] if i % 3 == 0 else (10.0 + i * 0.01, -1 if i % 2
-                                                             else 10**10 + i * 10**7)
+        t, ns = (stamps[i % len(stamps)] if i % 3 == 0
+                 else (10.0 + i * 0.01, -1 if i % 2 else 10**10 + i * 10**7))
         cov = [rng.normal(size=(3, 3)), np.full((3, 3), np.nan), None][i % 3]
         imu = T.ImuSample(t, rng.normal(size=3), rng.normal(size=3), 'imu_link',
                           None if i % 2 else rng.normal(size=4), cov, cov, cov, ns)
