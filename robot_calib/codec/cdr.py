@@ -224,7 +224,7 @@ def _odom_layout(frames: tuple[str, str]) -> tuple:
 
 def _is_cov(cov: object) -> bool:
     """Return whether ``cov`` is a float64 array of 9 values (a 3x3 covariance)."""
-    return type(cov) is np.ndarray and cov.dtype is _F8 and cov.size == 9
+    return type(cov) is np.ndarray and (cov.dtype is _F8 or cov.dtype == _F8) and cov.size == 9
 
 
 _Q_UNKNOWN = (*_ORIENTATION_UNKNOWN[1:4], _ORIENTATION_UNKNOWN[0], *_ORIENTATION_UNKNOWN[4:])

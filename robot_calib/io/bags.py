@@ -421,6 +421,8 @@ class BagWriter:
             self._writer.open()
             mcap.write_chunk_crcs(self._writer)
             self._mcap = mcap.fast_storage(self._writer) if self.fast_mcap else None
+            if self._mcap is not None:
+                mcap.fast_close_chunk(self._mcap)
         except OSError as exc:
             shutil.rmtree(self._tmpdir, ignore_errors=True)
             raise BagError(f'cannot write bag {self.path}: {_one_line(exc)}') from None
