@@ -222,71 +222,74 @@ def _odom_layout(frames: tuple[str, str]) -> tuple:
     return layout
 
 
-def _covs(covs: tuple) -> Optional[list]:
-    """Return the values of 3x3 float64 covariances in a row; None when one is not one."""
-    out: list = []
-    for cov in covs:
-        if type(cov) is not np.ndarray or cov.dtype != _F8 or cov.size != 9:
-            return None
-        out += cov.ravel().tolist()
-    return out
+def _is_cov(cov: object) -> bool:
+    """Return whether ``cov`` is a float64 array of 9 values (a 3x3 covariance)."""
+    return type(cov) is np.ndarray and (cov.dtype is _F8 or cov.dtype == _F8) and cov.size == 9
 
 
-def _imu_covs(covs: tuple) -> Optional[list]:
-    """Return the values of 3x3 covariances as _cov9 writes them; None when not float64 3x3."""
-    out = _covs(covs)
-    # a sum is finite only when every term is (an overflow just takes the slower check)
-    if out is None or math.isfinite(sum(out)):
-        return out
-    return [v for cov in covs for v in _cov9(cov, 0.0)]
+_Q_UNKNOWN = (*_ORIENTATION_UNKNOWN[1:4], _ORIENTATION_UNKNOWN[0], *_ORIENTATION_UNKNOWN[4:])
+"""The same, in message order: x, y, z, w, then the covariance."""
 
 
 def imu_to_cdr(s: T.ImuSample) -> bytes:
     """Serialize an :class:`ImuSample` as the generic path does, without building a message."""
     g, a, q = s.gyro, s.accel, s.orientation
-    if type(g) is not np.ndarray or type(a) is not np.ndarray or not (
-            q is None or type(q) is np.ndarray):
+    gc, ac = s.gyro_cov, s.accel_cov
+    if (type(g) is not np.ndarray or type(a) is not np.ndarray or not _is_cov(gc)
+            or not _is_cov(ac)):
         return _imu_to_cdr_any(s)
-    covs = _imu_covs((s.gyro_cov, s.accel_cov) if q is None else
-                     (s.orientation_cov, s.gyro_cov, s.accel_cov))
-    if covs is None:
+    if q is not None and (type(q) is not np.ndarray or not _is_cov(s.orientation_cov)):
         return _imu_to_cdr_any(s)
     sec, nsec = divmod(T.stamp_of(s.t, s.stamp_ns), 1_000_000_000)
+    isfinite = math.isfinite
     try:
         pack, nf, fb = _IMU_LAYOUTS.get(s.frame_id) or _imu_layout(s.frame_id)
         g0, g1, g2 = g.tolist()
         a0, a1, a2 = a.tolist()
+        gl, al = gc.ravel().tolist(), ac.ravel().tolist()
+        # a sum is finite only when every term is (an overflow just takes the slower check)
+        if not isfinite(sum(gl)):
+            gl = _cov9(gc, 0.0)
+        if not isfinite(sum(al)):
+            al = _cov9(ac, 0.0)
         if q is None:
-            qw, qx, qy, qz, *ocov = _ORIENTATION_UNKNOWN
-            return pack(_CDR_LE, sec, nsec, nf, fb, qx, qy, qz, qw, *ocov, g0, g1, g2, *covs[:9],
-                        a0, a1, a2, *covs[9:])
+            return pack(_CDR_LE, sec, nsec, nf, fb, *_Q_UNKNOWN, g0, g1, g2, *gl, a0, a1, a2,
+                        *al)
         qw, qx, qy, qz = q.tolist()
-        return pack(_CDR_LE, sec, nsec, nf, fb, qx, qy, qz, qw, *covs[:9], g0, g1, g2,
-                    *covs[9:18], a0, a1, a2, *covs[18:])
+        ol = s.orientation_cov.ravel().tolist()
+        if not isfinite(sum(ol)):
+            ol = _cov9(s.orientation_cov, 0.0)
+        return pack(_CDR_LE, sec, nsec, nf, fb, qx, qy, qz, qw, *ol, g0, g1, g2, *gl,
+                    a0, a1, a2, *al)
     except (ValueError, TypeError, AttributeError, struct.error):  # odd fields: one by one
         return _imu_to_cdr_any(s)
 
 
-def _cov_terms(cov: list) -> list:
-    """Return the pack arguments of _COV36 from the 9 values of a 3x3 covariance."""
-    c0, c1, c2, c3, c4, c5, c6, c7, c8 = cov
-    return [c0, c1, c2, c3, c4, c5, 1e6, 1e6, 1e6, c6, c7, c8]
+_E6 = (1e6, 1e6, 1e6)
+"""The variances of z, roll and pitch in a 6x6 covariance (_cov36), between values 6 and 7."""
+
+
+def _cov_terms(cov: np.ndarray) -> list:
+    """Return the pack arguments of _COV36 from a 3x3 float64 covariance (non-finite: 0)."""
+    out = cov.ravel().tolist()
+    if not math.isfinite(sum(out)):  # non-finite values are written as 0 (_cov36)
+        out = [v if math.isfinite(v) else 0.0 for v in out]
+    out[6:6] = _E6
+    return out
 
 
 def odom_to_cdr(s: T.OdomSample) -> bytes:
     """Serialize an :class:`OdomSample` as the generic path does, without building a message."""
-    covs = _covs((s.pose_cov, s.twist_cov))
-    if covs is None:
+    pc, tc = s.pose_cov, s.twist_cov
+    if not _is_cov(pc) or not _is_cov(tc):
         return _odom_to_cdr_any(s)
-    if not math.isfinite(sum(covs)):  # non-finite values are written as 0 (_cov36)
-        covs = [v if math.isfinite(v) else 0.0 for v in covs]
     sec, nsec = divmod(T.stamp_of(s.t, s.stamp_ns), 1_000_000_000)
     try:
         frames = (s.frame_id, s.child_frame_id)
         pack, nf, fb, nc, cb = _ODOM_LAYOUTS.get(frames) or _odom_layout(frames)
         qw, qx, qy, qz = quat_tuple_from_rpy(s.roll, s.pitch, s.yaw)
         return pack(_CDR_LE, sec, nsec, nf, fb, nc, cb, s.x, s.y, s.z, qx, qy, qz, qw,
-                    *_cov_terms(covs[:9]), s.vx, s.vy, s.wz, *_cov_terms(covs[9:]))
+                    *_cov_terms(pc), s.vx, s.vy, s.wz, *_cov_terms(tc))
     except (ValueError, TypeError, AttributeError, struct.error):  # odd fields: one by one
         return _odom_to_cdr_any(s)
 

@@ -138,9 +138,20 @@ class Reservoir:
             if len(self.values) < self.capacity:
                 return
             self._skip(start + room)
-        while self._next <= self.count:
-            self.values[self._rng.randrange(self.capacity)] = values[self._next - start - 1]
-            self._skip(self._next)
+        nxt, count = self._next, self.count
+        if nxt > count:
+            return
+        # _skip inlined (the same draws in the same order): most of a long run's cost
+        kept, k, w = self.values, self.capacity, self._w
+        rng = self._rng
+        randrange, random_, exp, log, log1p = rng.randrange, rng.random, math.exp, math.log, \
+            math.log1p
+        while nxt <= count:
+            kept[randrange(k)] = values[nxt - start - 1]
+            w *= exp(log(1.0 - random_()) / k)
+            step = log1p(-w)
+            nxt += (int(log(1.0 - random_()) / step) if step < 0.0 else 2**62) + 1
+        self._next, self._w = nxt, w
 
     def _skip(self, count: int) -> None:
         """Draw the count of the next value to keep after value ``count`` (algorithm L)."""

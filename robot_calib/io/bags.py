@@ -400,6 +400,8 @@ class BagWriter:
         self._mcap = None
         self.fast_mcap = True  # write mcap records directly (same bytes as rosbags)
         self._conns: dict[str, Any] = {}
+        self._pending: dict[int, list] = {}
+        """Channel id -> [messages, first, last time (ns)] not yet in rosbags' counts."""
         self.count = 0
         self.counts: dict[str, int] = {}
 
@@ -418,6 +420,8 @@ class BagWriter:
             self._writer.open()
             mcap.write_chunk_crcs(self._writer)
             self._mcap = mcap.fast_storage(self._writer) if self.fast_mcap else None
+            if self._mcap is not None:
+                mcap.fast_close_chunk(self._mcap)
         except OSError as exc:
             shutil.rmtree(self._tmpdir, ignore_errors=True)
             raise BagError(f'cannot write bag {self.path}: {_one_line(exc)}') from None
@@ -458,6 +462,8 @@ class BagWriter:
         the first message, as :meth:`write_raw` adds it.
         """
         topic = normalize_topic(topic)
+        if self._mcap is not None:
+            return self._direct_writer(topic, msgtype)
         conn = None
 
         def write(data: bytes, time_ns: int) -> None:
@@ -466,6 +472,61 @@ class BagWriter:
                 conn = self._connection(topic, msgtype)
             self._put(conn, topic, int(time_ns), data)
         return write
+
+    def _direct_writer(self, topic: str, msgtype: str) -> Callable[[bytes, int], None]:
+        """
+        Return ``write(data, time_ns)`` appending mcap records as :meth:`_write_mcap` does.
+
+        One call a message: the chunk's index and time span are kept as each record
+        is appended; the counts and time span of the whole file (rosbags'
+        ``channel_stats``, ``counts``, start and end times) are summed per channel
+        in :attr:`_pending` and added before the file is closed (:meth:`_settle`).
+        """
+        st, counts, pack = self._mcap, self.counts, mcap.MESSAGE_HEADER.pack
+        cid = -1
+        pending: list = []
+
+        def write(data: bytes, time_ns: int) -> None:
+            nonlocal cid, pending
+            if cid < 0:
+                cid = self._connection(topic, msgtype).id
+                pending = self._pending.setdefault(cid, [0, 2**63 - 1, 0])
+                counts.setdefault(topic, 0)
+            ts = int(time_ns)
+            chunk = st.chunk
+            if ts < chunk.message_start_time:
+                chunk.message_start_time = ts
+            if ts > chunk.message_end_time:
+                chunk.message_end_time = ts
+            bio = chunk.bio
+            pos = bio.tell()
+            chunk.msgs[cid].append((ts, pos))
+            bio.write(pack(0x05, 22 + len(data), cid, 0, ts, ts))
+            bio.write(data)
+            if pos + 31 + len(data) > 2**20:
+                st.close_chunk()
+            pending[0] += 1
+            if ts < pending[1]:
+                pending[1] = ts
+            if ts > pending[2]:
+                pending[2] = ts
+            self.count += 1
+            counts[topic] += 1
+        return write
+
+    def _settle(self) -> None:
+        """Add the counts and time spans :meth:`_direct_writer` kept aside to rosbags' own."""
+        writer, st = self._writer, self._mcap
+        for cid, (n, lo, hi) in self._pending.items():
+            if not n:
+                continue
+            st.channel_stats[cid] += n
+            writer.counts[cid] += n
+            st.message_start_time = min(st.message_start_time, lo)
+            st.message_end_time = max(st.message_end_time, hi)
+            writer.min_timestamp = min(writer.min_timestamp, lo)
+            writer.max_timestamp = max(writer.max_timestamp, hi)
+        self._pending.clear()
 
     def _put(self, conn: Any, topic: str, time_ns: int, data: bytes) -> None:
         """Append one message record on ``conn`` (``topic``) and count it."""
@@ -513,6 +574,8 @@ class BagWriter:
         """Close; on success move the bag into place, on error remove the partial bag."""
         try:
             if self._writer is not None:
+                if self._mcap is not None:
+                    self._settle()
                 self._writer.close()
         except BaseException:
             shutil.rmtree(self._tmpdir, ignore_errors=True)

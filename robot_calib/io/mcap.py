@@ -12,14 +12,18 @@ and adds here what replay needs from the format itself:
 - :func:`write_chunk_crcs` makes rosbags' writer store every chunk's CRC-32
   (it stores 0, "not computed"), so that readers can tell a corrupt chunk;
 - :func:`fast_storage` and :data:`MESSAGE_HEADER` let the bag writer append
-  message records directly, byte for byte as rosbags would.
+  message records directly, byte for byte as rosbags would, and
+  :func:`fast_close_chunk` closes its chunks with ``struct`` (same bytes).
 
 Record layouts: the mcap specification (https://mcap.dev/spec), op codes
-0x05 (Message) and 0x06 (Chunk).
+0x05 (Message), 0x06 (Chunk), 0x07 (Message Index) and 0x08 (Chunk Index).
 """
 
 from __future__ import annotations
 
+from collections import defaultdict
+from io import BytesIO
+from itertools import chain
 from operator import itemgetter
 from pathlib import Path
 import struct
@@ -208,3 +212,59 @@ def write_chunk_crcs(writer: Any) -> None:
         st.bio.seek(end)
 
     st.close_chunk = close_chunk_with_crc
+
+
+_CHUNK_HEAD = struct.Struct('<BQQQQII')
+"""Op 0x06, record length, message start and end time, uncompressed size, CRC, string length."""
+_INDEX_HEAD = struct.Struct('<BQHI')
+"""Op 0x07, record length, channel id, length of the (log time, offset) pairs in bytes."""
+
+
+def fast_close_chunk(st: Any) -> None:
+    """
+    Make rosbags' McapWriter ``st`` close chunks with ``struct`` (same bytes, CRC included).
+
+    rosbags writes each chunk's message index field by field (two BytesIO writes a
+    message); this packs each record at once: the Chunk (0x06) with the CRC-32
+    :func:`write_chunk_crcs` stores, a Message Index (0x07) per channel, and the
+    Chunk Index (0x08) body kept for the summary, laid out as the specification
+    and rosbags lay them out. Times outside uint64 take the former path.
+    """
+    from rosbags.rosbag2.storage_mcap import PendingChunk
+    former = st.close_chunk
+    u64 = _U64.pack
+
+    def close_chunk() -> None:
+        chunk = st.chunk
+        start, end = chunk.message_start_time, chunk.message_end_time
+        if not (0 <= start and end < 2**64):
+            former()
+            return
+        raw = chunk.bio.getvalue()
+        compressed = st.compressor(raw)
+        comp = st.compression.encode()
+        bio = st.bio
+        chunk_start = bio.tell()
+        bio.write(_CHUNK_HEAD.pack(0x06, 40 + len(comp) + len(compressed), start, end,
+                                   len(raw), zlib.crc32(raw), len(comp)))
+        bio.write(comp)
+        bio.write(u64(len(compressed)))
+        bio.write(compressed)
+        chunk_end = bio.tell()
+        offsets = []
+        for cid, msgs in chunk.msgs.items():
+            offsets.append(struct.pack('<HQ', cid, bio.tell()))
+            bio.write(_INDEX_HEAD.pack(0x07, 6 + 16 * len(msgs), cid, 16 * len(msgs)))
+            bio.write(struct.pack(f'<{2 * len(msgs)}Q', *chain.from_iterable(msgs)))
+        rec = BytesIO()
+        rec.write(struct.pack('<QQQQI', start, end, chunk_start, chunk_end - chunk_start,
+                              10 * len(offsets)))
+        rec.write(b''.join(offsets))
+        rec.write(u64(bio.tell() - chunk_end))
+        rec.write(_U32.pack(len(comp)))
+        rec.write(comp)
+        rec.write(struct.pack('<QQ', len(compressed), len(raw)))
+        st.chunks.append(rec)
+        st.chunk = PendingChunk(2**63 - 1, 0, BytesIO(), defaultdict(list))
+
+    st.close_chunk = close_chunk

@@ -156,7 +156,7 @@ class Pipeline(abc.ABC):
             self.static_transforms[(sample.parent, sample.child)] = sample
             self.on_static_transform(sample)
             return []
-        if key in self.refusable:
+        if self.refusable and key in self.refusable:
             reason = self.refusal(key)
             if reason:
                 return self.refuse(key, reason)
@@ -171,9 +171,10 @@ class Pipeline(abc.ABC):
             shift = self._shift.get(key)
             if shift is not None:
                 sample = replace(sample, t=sample.t + shift)
+        t = sample.t
         last = self._last_t.get(key)
         if last is not None:
-            step = sample.t - last
+            step = t - last
             if not (0.0 < step <= self.max_gap and step <= self.clock_jump):
                 if step == 0.0:
                     return self.reject(key, 'duplicate_stamp')
@@ -185,22 +186,30 @@ class Pipeline(abc.ABC):
                     counts['gaps'] += 1
             if self._pending:
                 self._pending.pop(key, None)  # the time line goes on: those were stray stamps
-        return self._accept(key, sample)
+        return self._accept(key, sample, counts, t)
 
-    def _accept(self, key: str, sample: Any) -> list[Output]:
-        """Check the rate of an in-order sample and hand it to :meth:`handle`."""
+    def _accept(self, key: str, sample: Any, counts: Optional[dict] = None,
+                t: Optional[float] = None) -> list[Output]:
+        """
+        Check the rate of an in-order sample and hand it to :meth:`handle`.
+
+        ``counts`` is ``self.counts[key]`` and ``t`` is ``sample.t`` (s) when the
+        caller has them.
+        """
         guard = self._rate.get(key)
         if guard is None:
             guard = self._rate[key] = RateGuard(self._kinds.get(key, ''))
-        t = sample.t
+        if t is None:
+            t = sample.t
         if not guard.allow(t):
             return self.reject(key, 'implausible_rate')
         self._last_t[key] = t
         outs = self.handle(key, sample)
-        self.counts[key]['accepted'] += 1
-        n_outputs = self.n_outputs
-        for out_key, _ in outs:
-            n_outputs[out_key] += 1
+        (self.counts[key] if counts is None else counts)['accepted'] += 1
+        if outs:
+            n_outputs = self.n_outputs
+            for out_key, _ in outs:
+                n_outputs[out_key] += 1
         return outs
 
     def _off_time_line(self, key: str, sample: Any, last: float) -> list[Output]:

@@ -100,36 +100,61 @@ class _Emitter:
     def __init__(self, writer: BagWriter, stats: RunStats):
         self.writer = writer
         self.stats = stats
-        self._routes: dict[tuple[int, str], Optional[tuple]] = {}
-        """(id(run), output key) -> (topic, declared type, write), None when undeclared."""
+        self._routes: dict[int, dict[str, Optional[tuple]]] = {}
+        """id(run) -> output key -> (topic, declared type, write, encoders), None: undeclared."""
 
     def _route(self, run: NodeRun, out_key: str) -> Optional[tuple]:
         spec = run.outputs.get(out_key)
         route = None if spec is None else (spec[0], spec[1],
-                                           self.writer.raw_writer(spec[0], spec[1]))
-        self._routes[(id(run), out_key)] = route
+                                           self.writer.raw_writer(spec[0], spec[1]), {})
+        self._routes[id(run)][out_key] = route
         return route
+
+    @staticmethod
+    def _encoder(encoders: dict, sample_type: type, declared: str) -> Any:
+        """
+        Return (and keep) the fast encoder :func:`codec.serialize` takes for ``sample_type``.
+
+        None when it takes none or writes another type than ``declared`` (the
+        sample then goes through :func:`codec.serialize`, which says why).
+        """
+        row = codec.BY_SAMPLE.get(sample_type)
+        encode = (row.fast.encode_cdr if row is not None and row.msgtype == declared
+                  else None)
+        encoders[sample_type] = encode
+        return encode
 
     def __call__(self, run: NodeRun, outs: list) -> None:
         """Write outputs ``(key, sample)`` of ``run``; a bad one is counted, never fatal."""
-        routes = self._routes
+        routes = self._routes.get(id(run))
+        if routes is None:
+            routes = self._routes[id(run)] = {}
+        out_counts = self.stats.out_counts
         for out_key, sample in outs:
-            route = routes.get((id(run), out_key), False)
+            route = routes.get(out_key, False)
             if route is False:
                 route = self._route(run, out_key)
             try:
                 if route is None:
                     raise KeyError(f'output {out_key!r} is not declared in outputs')
-                topic, declared, write = route
-                msgtype, data = codec.serialize(sample)
-                if msgtype != declared:
-                    raise TypeError(f'output {out_key!r} is {msgtype}, declared {declared}')
-                write(data, codec.sample_time_ns(
-                    sample if not isinstance(sample, list) else sample[0]))
+                topic, declared, write, encoders = route
+                encode = encoders.get(type(sample), False)
+                if encode is False:
+                    encode = self._encoder(encoders, type(sample), declared)
+                # codec.serialize and codec.sample_time_ns for a stamp that fits a ROS time
+                ns = sample.stamp_ns if encode is not None else None
+                if type(ns) is int and ns < 2**62 and (ns >= 0 or 0 <= sample.t < 2**31):
+                    write(encode(sample), ns if ns >= 0 else int(round(sample.t * 1e9)))
+                else:
+                    msgtype, data = codec.serialize(sample)
+                    if msgtype != declared:
+                        raise TypeError(f'output {out_key!r} is {msgtype}, declared {declared}')
+                    write(data, codec.sample_time_ns(
+                        sample if not isinstance(sample, list) else sample[0]))
             except Exception as exc:  # noqa: B902 - counted, never fatal
                 run.error('output', exc)
                 continue
-            self.stats.out_counts[topic] += 1
+            out_counts[topic] += 1
             if isinstance(sample, T.OdomSample):
                 self.stats.out_traj[topic].append((sample.t, sample.x, sample.y, sample.yaw))
 
