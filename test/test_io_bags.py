@@ -511,3 +511,21 @@ def test_raw_writer_writes_what_write_raw_writes(tmp_path, fast):
                       counts))
     assert files[0] == files[1]
     assert files[0][1] == (3000, [('/b', 1000), ('/a', 2000)])
+
+
+@pytest.mark.parametrize('storage', ['mcap', 'sqlite3'])
+def test_a_receive_time_no_bag_can_hold_is_refused_and_the_bag_stays_whole(tmp_path, storage):
+    path = tmp_path / 'b'
+    odom = 'nav_msgs/msg/Odometry'
+    with bags.BagWriter(path, storage=storage) as w:
+        w.write('/odom', T.OdomSample(1.0, 0.0, 0.0, 0.0, stamp_ns=10**9))
+        with pytest.raises(bags.BagError, match='receive time'):
+            w.write('/odom', T.OdomSample(-1.0, 0.0, 0.0, 0.0))
+        _, raw = codec.serialize(T.OdomSample(1.5, 0.0, 0.0, 0.0))
+        fast = w.raw_writer('/odom', odom)
+        for bad in (-5, 2**63):
+            with pytest.raises(bags.BagError, match='receive time'):
+                fast(raw, bad)
+        fast(raw, 15 * 10**8)
+        w.write('/odom', T.OdomSample(2.0, 0.0, 0.0, 0.0, stamp_ns=2 * 10**9))
+    assert [m.time_ns for m in bags.read_messages([path])] == [10**9, 15 * 10**8, 2 * 10**9]

@@ -538,3 +538,18 @@ def test_wheel_calibration_refuses_odometry_while_joint_states_drive_it(repo_roo
                                    'rejected_joint_states_preferred': b['inputs']['odom']['read']}
     assert a['result'] == b['result'] and a['result']['verdict'] == 'converged'
     assert a['timing']['input_messages'] == b['timing']['input_messages']
+
+
+def test_an_output_no_bag_can_hold_is_counted_and_the_output_bag_stays_whole(tmp_path):
+    """An echoed odometry stamped before 1970 cannot be written: counted, the rest kept."""
+    path = tmp_path / 'in'
+    with bags.BagWriter(path) as w:
+        for i in range(10):
+            ns = 10**9 + i * 10**8
+            w.write('/imu', _imu(ns), ns)
+            t = -0.5 if i == 0 else ns * 1e-9          # the first header stamp before 1970
+            w.write('/odom', T.OdomSample(t, 0.1 * i, 0.0, 0.0), ns + 1)
+    s = replay(path, tmp_path / 'o', nodes=ECHO, progress=False)
+    assert s['nodes']['echo']['errors']['output'] == 1
+    echoed = list(bags.read_messages([tmp_path / 'o'], topics=['/echo/odom']))
+    assert len(echoed) == s['nodes']['echo']['inputs']['odom']['accepted'] - 1

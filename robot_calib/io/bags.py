@@ -492,7 +492,7 @@ class BagWriter:
                 cid = self._connection(topic, msgtype).id
                 pending = self._pending.setdefault(cid, [0, 2**63 - 1, 0])
                 counts.setdefault(topic, 0)
-            ts = int(time_ns)
+            ts = receive_time(time_ns)
             chunk = st.chunk
             if ts < chunk.message_start_time:
                 chunk.message_start_time = ts
@@ -530,6 +530,7 @@ class BagWriter:
 
     def _put(self, conn: Any, topic: str, time_ns: int, data: bytes) -> None:
         """Append one message record on ``conn`` (``topic``) and count it."""
+        time_ns = receive_time(time_ns)
         if self._mcap is not None:
             self._write_mcap(conn, time_ns, data)
         else:
@@ -583,6 +584,20 @@ class BagWriter:
         if exc_type is None:
             os.replace(self._tmp, self.path)
         shutil.rmtree(self._tmpdir, ignore_errors=True)
+
+
+def receive_time(time_ns: int) -> int:
+    """
+    Return ``time_ns`` as a bag receive time (ns), or raise BagError when no bag can hold it.
+
+    rosbag2 stores receive times as non-negative integers (mcap: uint64; both
+    storages: below 2^63); one outside would fail the whole file when it is
+    closed, so it is refused before anything of the message is written.
+    """
+    ts = int(time_ns)
+    if not 0 <= ts < 2**63:
+        raise BagError(f'receive time {ts} ns is outside 0 .. 2^63 - 1 ns')
+    return ts
 
 
 def _latched_qos() -> Any:
