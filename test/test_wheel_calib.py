@@ -450,3 +450,10 @@ def test_seed_mode_differential_is_censi_faithful():
     for k in P.DIFF_KEYS:
         assert abs(res.values[k] - DIFF_TRUTH[k]) < 5 * res.stds[k], k
     assert res.segments_used < 200  # the authors' trimming drops ~1 % per pass
+
+
+def test_relative_pose_of_single_poses_as_floats_equals_the_array_form():
+    rng = np.random.default_rng(8)
+    for a, b in zip(rng.uniform(-5, 5, (500, 3)), rng.uniform(-5, 5, (500, 3))):
+        assert np.allclose(K.between_scalar(a.tolist(), b.tolist()),
+                           K.compose(K.inverse(a), b), rtol=0, atol=1e-12)

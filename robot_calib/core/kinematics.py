@@ -29,6 +29,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 import math
+from typing import Sequence
 
 import numpy as np
 
@@ -94,6 +95,13 @@ def compose_scalar(a: tuple, b: tuple) -> tuple[float, float, float]:
     """Return :func:`compose` of two single poses as floats (b expressed in a)."""
     c, s = math.cos(a[2]), math.sin(a[2])
     return a[0] + c * b[0] - s * b[1], a[1] + s * b[0] + c * b[1], a[2] + b[2]
+
+
+def between_scalar(a: Sequence[float], b: Sequence[float]) -> tuple[float, float, float]:
+    """Return ``compose(inverse(a), b)`` of two single poses as floats (b seen from a)."""
+    c, s = math.cos(a[2]), math.sin(a[2])
+    ix, iy, ith = -c * a[0] - s * a[1], s * a[0] - c * a[1], -a[2]
+    return compose_scalar((ix, iy, ith), b)
 
 
 def compose(a: np.ndarray, b: np.ndarray) -> np.ndarray:

@@ -321,7 +321,7 @@ class DriveSegmenter:
             return
         kp = self.params.keyframe
         kf = self._kf
-        rel = K.compose(K.inverse(kf.odom), odom)
+        rel = K.between_scalar(kf.odom.tolist(), odom.tolist())
         dist, ang = math.hypot(rel[0], rel[1]), abs(rel[2])
         moving = dist > 1e-3 or ang > 1e-3
         if not (dist >= kp.distance or ang >= kp.angle or
@@ -337,7 +337,7 @@ class DriveSegmenter:
             self.close_stage()
             self._kf = new_kf
             return
-        guess = K.sensor_motion(rel, self.sensor_pose)
+        guess = K.sensor_motion(np.array(rel), self.sensor_pose)
         if kf.target is None:
             kf.target = self.prepare(kf.points)
         self.counts['match_attempts'] += 1
