@@ -235,3 +235,23 @@ def test_odometry_decoder_takes_the_orientation_as_quat_normalize_does():
         assert np.array(got).tobytes() == np.array(expected, dtype=float).tobytes()
         assert s.pose_cov.tobytes() == v[7:43].reshape(6, 6)[POSE_IDX].tobytes()
         assert s.twist_cov.tobytes() == v[49:85].reshape(6, 6)[POSE_IDX].tobytes()
+
+
+def test_odometry_pose_decoder_gives_the_full_decoders_values():
+    rng = np.random.default_rng(11)
+    pose_of = codec.pose_decoder('nav_msgs/msg/Odometry')
+    assert codec.pose_decoder('sensor_msgs/msg/Imu') is None
+    assert codec.pose_decoder('nav_msgs/msg/Odometry', ros1=True) is None
+    for i in range(200):
+        t, ns = _stamp(rng)
+        q = rng.normal(size=4) * (0.0 if i == 7 else 1.0)      # one all-zero quaternion
+        sample = T.OdomSample(t, *rng.normal(size=2) * 50, 0.0, stamp_ns=ns,
+                              frame_id=_frame(rng), child_frame_id=_frame(rng))
+        msgtype, raw = codec.serialize(sample)
+        raw = bytearray(raw)
+        cdr_pos = 4 + ((12 + raw[12] + 3) & ~3)
+        child = int.from_bytes(raw[cdr_pos:cdr_pos + 4], 'little')
+        off = 4 + ((cdr_pos - 4 + 4 + child + 7) & ~7)
+        raw[off + 24:off + 56] = np.array([q[1], q[2], q[3], q[0]]).tobytes()
+        full = codec.decoder(msgtype)(bytes(raw), 0)[0]
+        assert pose_of(bytes(raw)) == (full.t, full.x, full.y, full.yaw)

@@ -141,6 +141,18 @@ def decoder(msgtype: str, generic: Optional[Decode] = None, ros1: bool = False) 
     return decode
 
 
+def pose_decoder(msgtype: str, ros1: bool = False) -> Optional[Callable[[bytes], tuple]]:
+    """
+    Return ``pose(raw) -> (t, x, y, yaw)`` of little-endian CDR odometry, None for others.
+
+    The values the full decoder gives, for trajectories that are drawn only.
+    """
+    if ros1 or msgtype != KINDS['odom'].msgtype:
+        return None
+    from robot_calib.codec.cdr import odom_pose_from_cdr
+    return odom_pose_from_cdr
+
+
 def batch_decoder(msgtype: str, ros1: bool = False) -> Optional[Callable[[list], list]]:
     """Return a decoder of many CDR messages of one topic at once, or None when there is none."""
     return None if ros1 else _row(msgtype).fast.decode_cdr_batch

@@ -27,6 +27,7 @@ from robot_calib.core.geometry import quat_from_rpy, quat_to_rpy, quat_tuple_fro
 _U32 = struct.Struct('<I')
 _STAMP2 = struct.Struct('<iII')  # CDR: sec, nanosec, frame_id length (incl. NUL)
 _STAMP1 = struct.Struct('<IIII')  # ROS 1: seq, secs, nsecs, frame_id length (no NUL)
+_D7 = struct.Struct('<7d')  # position x y z, orientation x y z w
 _NAN33 = np.full((3, 3), np.nan)
 _NAN33.setflags(write=False)
 
@@ -101,6 +102,22 @@ def odom_from_cdr(raw: bytes) -> T.OdomSample:
     off = 4 + ((pos - 4 + 4 + m + 7) & ~7)
     v = np.frombuffer(raw, '<f8', 85, off)
     return _odom_sample(sec * 1_000_000_000 + nsec, frame, child, v)
+
+
+def odom_pose_from_cdr(raw: bytes) -> tuple[float, float, float, float]:
+    """
+    Return (t s, x m, y m, yaw rad) of a little-endian CDR nav_msgs/Odometry.
+
+    The values :func:`odom_from_cdr` gives (same operations), without the rest
+    of the message: for trajectories drawn, not used.
+    """
+    sec, nsec, n = _STAMP2.unpack_from(raw, 4)
+    pos = 4 + ((12 + n + 3) & ~3)
+    m = _U32.unpack_from(raw, pos)[0]
+    off = 4 + ((pos - 4 + 4 + m + 7) & ~7)
+    x, y, _, qx, qy, qz, qw = _D7.unpack_from(raw, off)
+    yaw = quat_to_rpy(_unit_quat((qw, qx, qy, qz)))[2]
+    return (sec * 1_000_000_000 + nsec) * 1e-9, x, y, yaw
 
 
 def odom_from_ros1(raw: bytes) -> T.OdomSample:

@@ -108,7 +108,7 @@ class Stream:
     """
 
     __slots__ = ('topic', 'msgtype', 'count', 'bag', 'decode', 'decode_generic', 'to_msg',
-                 'to_cdr', 'latched', 'conn', 'decode_batch')
+                 'to_cdr', 'latched', 'conn', 'decode_batch', 'decode_pose')
 
     def __init__(self, topic: str, msgtype: str, count: int, bag: Path, conn: Any,
                  to_msg: Callable[[bytes], Any], to_cdr: Callable[[bytes], bytes],
@@ -130,6 +130,8 @@ class Stream:
         supported = codec.supported(msgtype)
         self.decode_batch = codec.batch_decoder(msgtype, ros1) if supported else None
         self.decode = codec.decoder(msgtype, generic, ros1) if supported else generic
+        self.decode_pose = codec.pose_decoder(msgtype, ros1)
+        """(t, x, y, yaw) of a little-endian CDR message (odometry), None when there is none."""
 
 
 def _is_latched(conn: Any) -> bool:

@@ -270,6 +270,11 @@ def _decode(stream: Any, raw: bytes, time_ns: int, undecodable: dict[str, int],
 def _pose(stream: Any, raw: bytes, time_ns: int, undecodable: dict[str, int],
           topic: str) -> Optional[tuple[float, float, float, float]]:
     """Return (t, x, y, yaw) of an odometry message; None (counted) when undecodable."""
+    if stream.decode_pose is not None and raw[1] == 1:  # little-endian CDR
+        try:
+            return stream.decode_pose(raw)
+        except Exception:  # noqa: B902 - the full decoder says whether it is undecodable
+            pass
     samples = _decode(stream, raw, time_ns, undecodable, topic)
     if samples is None:
         return None
