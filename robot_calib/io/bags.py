@@ -484,7 +484,7 @@ class BagWriter:
         ``channel_stats``, ``counts``, start and end times) are summed per channel
         in :attr:`_pending` and added before the file is closed (:meth:`_settle`).
         """
-        st, counts, pack = self._mcap, self.counts, mcap.MESSAGE_HEADER.pack
+        st, counts, append = self._mcap, self.counts, mcap.append_message
         cid = -1
         pending: list = []
 
@@ -495,18 +495,7 @@ class BagWriter:
                 pending = self._pending.setdefault(cid, [0, 2**63 - 1, 0])
                 counts.setdefault(topic, 0)
             ts = receive_time(time_ns)
-            chunk = st.chunk
-            if ts < chunk.message_start_time:
-                chunk.message_start_time = ts
-            if ts > chunk.message_end_time:
-                chunk.message_end_time = ts
-            bio = chunk.bio
-            pos = bio.tell()
-            chunk.msgs[cid].append((ts, pos))
-            bio.write(pack(0x05, 22 + len(data), cid, 0, ts, ts))
-            bio.write(data)
-            if pos + 31 + len(data) > 2**20:
-                st.close_chunk()
+            append(st, cid, ts, data)
             pending[0] += 1
             if ts < pending[1]:
                 pending[1] = ts
@@ -551,22 +540,12 @@ class BagWriter:
         """
         writer, st = self._writer, self._mcap
         cid = conn.id
-        chunk = st.chunk
         if ts < st.message_start_time:
             st.message_start_time = ts
         if ts > st.message_end_time:
             st.message_end_time = ts
         st.channel_stats[cid] += 1
-        if ts < chunk.message_start_time:
-            chunk.message_start_time = ts
-        if ts > chunk.message_end_time:
-            chunk.message_end_time = ts
-        bio = chunk.bio
-        chunk.msgs[cid].append((ts, bio.tell()))
-        bio.write(mcap.MESSAGE_HEADER.pack(0x05, 22 + len(data), cid, 0, ts, ts))
-        bio.write(data)
-        if bio.tell() > 2**20:
-            st.close_chunk()
+        mcap.append_message(st, cid, ts, data)
         writer.counts[cid] += 1
         if ts < writer.min_timestamp:
             writer.min_timestamp = ts

@@ -174,6 +174,28 @@ def _corrupt_chunk(sub: Any, chunk: Any, connmap: dict, exc: BaseException) -> d
             'messages': lost, 'reason': ' '.join(str(exc).split()) or type(exc).__name__}
 
 
+def append_message(st: Any, cid: int, ts: int, data: bytes) -> None:
+    """
+    Append a Message record to the open chunk of rosbags' McapWriter ``st``, as it would.
+
+    Channel ``cid``, log and publish time ``ts`` (ns), sequence 0; the chunk's
+    time span and message index are kept, and the chunk is closed once past
+    1 MiB. The file-wide statistics are the caller's.
+    """
+    chunk = st.chunk
+    if ts < chunk.message_start_time:
+        chunk.message_start_time = ts
+    if ts > chunk.message_end_time:
+        chunk.message_end_time = ts
+    bio = chunk.bio
+    pos = bio.tell()
+    chunk.msgs[cid].append((ts, pos))
+    bio.write(MESSAGE_HEADER.pack(0x05, 22 + len(data), cid, 0, ts, ts))
+    bio.write(data)
+    if pos + 31 + len(data) > 2**20:
+        st.close_chunk()
+
+
 def fast_storage(writer: Any) -> Any:
     """Return rosbags' McapWriter of an open Writer when records can be appended directly."""
     from rosbags.rosbag2 import CompressionMode
