@@ -242,8 +242,7 @@ class GyroLineBase(abc.ABC):
     def _update_imu(self, s: T.ImuSample) -> None:
         """Integrate one IMU sample (gyro rad/s in the IMU frame)."""
         t = s.t
-        if self._t0 is None:
-            self._t0 = t
+        self._start(t)
         rate = self._gyro_z(s.gyro)
         prev = self._imu_t
         prev_rate = self._last_imu_rate

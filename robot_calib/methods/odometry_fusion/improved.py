@@ -217,21 +217,15 @@ class ImprovedFusion(FusionFilter):
         return None
 
     # -- odometry update -------------------------------------------------------------------
-    def _scalar_update(self, h: np.ndarray, resid: float, r: float,
-                       consider: Optional[int] = None) -> tuple[float, float]:
-        """
-        Kalman update with one scalar observation; return (innovation variance, NIS).
-
-        ``consider`` (n) leaves the first n states uncorrected (Schmidt-Kalman
-        consider update): their uncertainty enters the innovation variance,
-        their values are kept.
-        """
-        Ph = self.P @ h
-        return self._gain_update(Ph, float(h @ Ph) + r, resid, consider)
-
     def _unit_update(self, i: int, sign: float, resid: float, r: float,
                      consider: Optional[int] = None) -> tuple[float, float]:
-        """:meth:`_scalar_update` with ``h = sign * e_i`` (sign +-1): ``P h`` is a column."""
+        """
+        Kalman update with one observation ``h = sign * e_i`` (sign +-1); (s, NIS).
+
+        ``P h`` is a column of P; ``consider`` (n) leaves the first n states
+        uncorrected (Schmidt-Kalman consider update): their uncertainty enters
+        the innovation variance, their values are kept.
+        """
         Ph = self.P[:, i] if sign > 0.0 else -self.P[:, i]
         return self._gain_update(Ph, float(Ph[i] * sign) + r, resid, consider)
 
