@@ -553,3 +553,17 @@ def test_an_output_no_bag_can_hold_is_counted_and_the_output_bag_stays_whole(tmp
     assert s['nodes']['echo']['errors']['output'] == 1
     echoed = list(bags.read_messages([tmp_path / 'o'], topics=['/echo/odom']))
     assert len(echoed) == s['nodes']['echo']['inputs']['odom']['accepted'] - 1
+
+
+def test_replay_keeps_freed_heap_under_glibc():
+    """Under glibc both malloc thresholds are accepted, once a process (then remembered)."""
+    import subprocess
+    import sys
+    libc = os.confstr('CS_GNU_LIBC_VERSION') if 'CS_GNU_LIBC_VERSION' in os.confstr_names else ''
+    if not libc.startswith('glibc'):
+        pytest.skip('not glibc')
+    code = ('from robot_calib.replay.run import keep_freed_heap; '
+            'print(keep_freed_heap(), keep_freed_heap())')
+    out = subprocess.run([sys.executable, '-c', code], capture_output=True, text=True,
+                         check=True)
+    assert out.stdout.split() == ['True', 'True']

@@ -294,3 +294,26 @@ def test_line_normals_are_the_least_spread_eigenvectors():
     cross = normals[:, 0] * evecs[:, 1, 0] - normals[:, 1] * evecs[:, 0, 0]
     assert np.allclose(np.hypot(*normals.T), 1.0) and np.max(np.abs(cross)) < 1e-9
     assert np.array_equal(ok, evals[:, 0] / evals[:, 1] <= 0.3) and 0 < ok.sum() < len(pts)
+
+
+def test_gauss_newton_step_is_the_damped_solve():
+    """The cofactor step equals numpy's solve of the damped normal equations; None if singular."""
+    rng = np.random.default_rng(7)
+    for scale in (1.0, 1e-3, 1e3):
+        rows = rng.normal(size=(50, 4)) * scale
+        sums = rows.T @ rows
+        want = -np.linalg.solve(sums[:3, :3] + 1e-9 * np.eye(3), sums[:3, 3])
+        assert np.allclose(sm._gauss_newton_step(sums), want, rtol=1e-10, atol=0.0)
+    flat = np.zeros((4, 4))
+    flat[:3, :3] = -1e-9 * np.eye(3)                  # the damping makes it exactly singular
+    assert sm._gauss_newton_step(flat) is None
+
+
+@pytest.mark.parametrize('rank', [3, 2, 0])
+def test_symmetric_pseudo_inverse_is_numpy_pinv(rank):
+    """Full rank, rank-deficient (a corridor) and zero Hessians: numpy's pinv to rounding."""
+    rng = np.random.default_rng(rank)
+    jac = rng.normal(size=(40, 3))
+    jac[:, rank:] = 0.0
+    h = jac.T @ jac
+    assert np.allclose(sm._pseudo_inverse(h), np.linalg.pinv(h), rtol=1e-10, atol=1e-14)

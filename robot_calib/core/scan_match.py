@@ -263,10 +263,16 @@ def _normals(points: np.ndarray, tree: Optional[cKDTree], k: int,
     dev = np.hypot(half_diff, b)
     least, most = mean - dev, mean + dev               # eigenvalues, ascending (m^2)
     axis = 0.5 * np.arctan2(b, half_diff)              # major axis direction (rad)
-    normals = np.column_stack((-np.sin(axis), np.cos(axis)))
+    normals = np.empty((n, 2))
+    np.negative(np.sin(axis), out=normals[:, 0])
+    np.cos(axis, out=normals[:, 1])
     spread = np.maximum(least, 0.0) / np.maximum(most, 1e-12)
     ok = (spread <= max_spread) & (most > 0)
     return normals, ok
+
+
+_DAMPING = 1e-9
+"""Added to the Gauss-Newton Hessian's diagonal (m^2 and m^2 rad^-2 units alike)."""
 
 
 _ROUNDING = 1e-9
@@ -363,45 +369,64 @@ def _coarse(source: np.ndarray, target: PreparedScan, guess: np.ndarray,
     return pose, True
 
 
+def _gauss_newton_step(m: np.ndarray) -> Optional[tuple[float, float, float]]:
+    """
+    Return the step ``-(h + 1e-9 I)^-1 g`` from the 4x4 ``[[h, g], [g^T, .]]`` sums.
+
+    Cofactors of the symmetric 3x3 ``h`` (Cramer's rule: the inverse's adjugate
+    over the determinant), in floats; None when the damped ``h`` is singular.
+    """
+    (a, b, c, x), (_, e, f, y), (_, _, i, z) = m[:3].tolist()
+    a += _DAMPING
+    e += _DAMPING
+    i += _DAMPING
+    co_a, co_b, co_c = e * i - f * f, c * f - b * i, b * f - c * e
+    det = a * co_a + b * co_b + c * co_c
+    if not det:
+        return None
+    co_e, co_f, co_i = a * i - c * c, b * c - a * f, a * e - b * b
+    return (-(co_a * x + co_b * y + co_c * z) / det,
+            -(co_b * x + co_e * y + co_f * z) / det,
+            -(co_c * x + co_f * y + co_i * z) / det)
+
+
 def _refine(source: np.ndarray, target: PreparedScan, pose: np.ndarray,
             p: ScanMatchParams, nearest: _Nearest) -> tuple[np.ndarray, bool, int]:
     """Point-to-line Gauss-Newton with an annealed gate and a Cauchy kernel."""
-    pose = np.array(pose, dtype=float)
+    px, py, yaw = (float(v) for v in pose)
     converged = False
     it = 0
     last_step = (math.inf, math.inf)
     n_it = p.refine_iterations
     n_anneal = max(1, min(p.refine_anneal_iterations, n_it - 1))
     ratio = p.refine_min_correspondence / p.refine_max_correspondence
-    rot_jac = np.column_stack((-source[:, 1], source[:, 0]))  # d(R p)/d yaw = R [-p_y, p_x]
+    scale = p.robust_scale
     # a missed query returns index len(points): that row of usable is False
-    usable = target.usable
-    damping = 1e-9 * np.eye(3)
+    usable, normals = target.usable, target.normals
     for it in range(1, n_it + 1):
         # The gate shrinks geometrically from the wide to the narrow value, then stays.
         frac = min(1.0, (it - 1) / n_anneal)
         gate = p.refine_max_correspondence * ratio ** frac
-        r_t = rot2(pose[2]).T
-        moved = source @ r_t + pose[:2]
-        idx, _, offset = nearest.query(moved, gate)
+        c, s = math.cos(yaw), math.sin(yaw)
+        turned = source @ np.array(((c, s), (-s, c)))            # R p (m)
+        idx, _, offset = nearest.query(turned + (px, py), gate)
         use = np.flatnonzero(usable[idx])
         if len(use) < 3:
             break
-        nrm = target.normals[idx[use]]
-        res = np.einsum('ij,ij->i', nrm, offset[use])              # point-line (m)
-        jac = np.empty((len(use), 3))
-        jac[:, :2] = nrm
-        jac[:, 2] = np.einsum('ij,ij->i', nrm, rot_jac[use] @ r_t)
-        w = 1.0 / (1.0 + (res / p.robust_scale) ** 2)      # Cauchy weights
-        h = jac.T @ (jac * w[:, None])
-        g = jac.T @ (w * res)
-        try:
-            delta = -np.linalg.solve(h + damping, g)
-        except np.linalg.LinAlgError:
+        nrm = normals[idx[use]]
+        tu = turned[use]
+        # rows [n_x, n_y, n . d(R p)/d yaw, point-line residual (m)]
+        rows = np.empty((len(use), 4))
+        rows[:, :2] = nrm
+        rows[:, 2] = nrm[:, 1] * tu[:, 0] - nrm[:, 0] * tu[:, 1]
+        rows[:, 3] = np.einsum('ij,ij->i', nrm, offset[use])
+        w = 1.0 / (1.0 + (rows[:, 3] / scale) ** 2)               # Cauchy weights
+        step = _gauss_newton_step(rows.T @ (rows * w[:, None]))
+        if step is None:
             break
-        pose = np.array([pose[0] + delta[0], pose[1] + delta[1],
-                         wrap_angle(float(pose[2] + delta[2]))])
-        last_step = (math.hypot(delta[0], delta[1]), abs(delta[2]))
+        px, py = px + step[0], py + step[1]
+        yaw = wrap_angle(yaw + step[2])
+        last_step = (math.hypot(step[0], step[1]), abs(step[2]))
         if (frac >= 1.0 and last_step[0] < p.convergence_translation
                 and last_step[1] < p.convergence_rotation):
             converged = True
@@ -409,43 +434,60 @@ def _refine(source: np.ndarray, target: PreparedScan, pose: np.ndarray,
     if not converged and it == n_it:
         # A slow final creep (sub-mm, sub-mrad steps) still counts as converged.
         converged = last_step[0] < 1e-3 and last_step[1] < 1e-3
-    return pose, converged, it
+    return np.array([px, py, yaw]), converged, it
 
 
 def _quality(source: np.ndarray, target: PreparedScan, pose: np.ndarray,
              p: ScanMatchParams, result: MatchResult, nearest: _Nearest) -> None:
     """Fill inliers, RMSE, Hessian, covariance and degeneracy of ``result`` at ``pose``."""
-    r_mat = rot2(pose[2])
-    moved = source @ r_mat.T + pose[:2]
+    c, s = math.cos(pose[2]), math.sin(pose[2])
+    turned = source @ np.array(((c, s), (-s, c)))                # R p (m)
     # only inliers are used: the search stops beyond inlier_distance (a miss: index N)
     bound = np.nextafter(p.inlier_distance, np.inf)
-    idx, sq, offset = nearest.query(moved, bound)
+    idx, sq, offset = nearest.query(turned + pose[:2], bound)
     inl = np.sqrt(sq) <= p.inlier_distance
     inl &= idx < len(target)
-    result.inliers = int(inl.sum())
+    result.inliers = int(np.count_nonzero(inl))
     result.inlier_ratio = result.inliers / max(1, len(source))
-    use = inl & target.usable[idx]
-    if use.sum() < 3:
+    use = np.flatnonzero(inl & target.usable[idx])
+    n = len(use)
+    if n < 3:
         result.degenerate = True
         result.min_eigenvalue = 0.0
         return
     nrm = target.normals[idx[use]]
-    src = source[use]
-    res = np.einsum('ij,ij->i', nrm, offset[use])
-    dp = np.column_stack((-src[:, 1], src[:, 0])) @ r_mat.T
-    jac = np.column_stack((nrm, np.einsum('ij,ij->i', nrm, dp)))
-    h = jac.T @ jac
-    n = len(res)
+    tu = turned[use]
+    # rows [n_x, n_y, n . d(R p)/d yaw, point-line residual (m)]
+    rows = np.empty((n, 4))
+    rows[:, :2] = nrm
+    rows[:, 2] = nrm[:, 1] * tu[:, 0] - nrm[:, 0] * tu[:, 1]
+    rows[:, 3] = np.einsum('ij,ij->i', nrm, offset[use])
+    sums = rows.T @ rows
+    h = sums[:3, :3]
+    sq_res = float(sums[3, 3])                                    # sum of residuals^2 (m^2)
     result.hessian = h
-    result.rmse = float(math.sqrt(np.mean(res ** 2)))
-    length = max(1e-3, float(math.sqrt(np.mean(np.sum(source ** 2, axis=1)))))
-    s = np.diag([1.0, 1.0, 1.0 / length])
-    evals = np.linalg.eigvalsh(s @ h @ s / n)
+    result.rmse = math.sqrt(sq_res / n)
+    length = max(1e-3, math.sqrt(float(np.einsum('ij,ij->', source, source)) / len(source)))
+    scale = np.array((1.0, 1.0, 1.0 / length))
+    evals = np.linalg.eigvalsh(h * np.outer(scale, scale) / n)
     result.min_eigenvalue = float(max(0.0, evals[0]))
     result.degenerate = result.min_eigenvalue < p.degenerate_eigenvalue
-    sigma2 = float(np.sum(res ** 2) / max(1, n - 3))
-    sigma2 = max(sigma2, 1e-8)
-    result.covariance = sigma2 * np.linalg.pinv(h)
+    sigma2 = max(sq_res / max(1, n - 3), 1e-8)
+    result.covariance = sigma2 * _pseudo_inverse(h)
+
+
+def _pseudo_inverse(h: np.ndarray) -> np.ndarray:
+    """
+    Return ``numpy.linalg.pinv`` of a symmetric matrix from its eigen-decomposition.
+
+    For a symmetric matrix the singular values are the eigenvalues' magnitudes,
+    so pinv's rule (drop those at or below 1e-15 of the largest) reads the same on
+    the eigenvalues; one ``eigh`` costs a quarter of pinv's SVD on a 3x3.
+    """
+    lam, vec = np.linalg.eigh(h)
+    mag = np.abs(lam)
+    keep = mag > 1e-15 * mag.max()
+    return (vec * np.where(keep, 1.0 / np.where(keep, lam, 1.0), 0.0)) @ vec.T
 
 
 def register(source_points: Union[np.ndarray, PreparedScan],

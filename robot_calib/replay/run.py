@@ -13,7 +13,7 @@ from __future__ import annotations
 
 from collections import defaultdict
 from dataclasses import dataclass, field
-from functools import partial
+from functools import cache, partial
 import gc
 import os
 from pathlib import Path
@@ -302,6 +302,34 @@ def _place_output_bag(bag_dir: Path, tmp: Path, storage: str) -> None:
         os.replace(bag_dir, tmp / OUTPUT_BAG)
 
 
+_M_TRIM_THRESHOLD, _M_MMAP_THRESHOLD = -1, -3
+"""glibc's ``mallopt`` parameters (malloc.h)."""
+
+
+@cache
+def keep_freed_heap() -> bool:
+    """
+    Let glibc keep freed memory for reuse (once a process); return whether it was set.
+
+    By default glibc serves an array over 128 KiB (raised as larger ones are freed)
+    with its own ``mmap`` and returns it on free, and hands the top of the heap back
+    beyond twice that: the many large, short-lived numpy arrays of a replay then
+    meet fresh pages, each a page fault (a 1 h wheel calibration replay: 550k
+    faults, 1.5 s of kernel time). Arrays up to 32 MiB now come from the heap,
+    which keeps up to 64 MiB free (measured: 54k faults, 0.4 s). Other C
+    libraries are left alone.
+    """
+    try:
+        if not os.confstr('CS_GNU_LIBC_VERSION').startswith('glibc'):
+            return False
+        import ctypes
+        mallopt = ctypes.CDLL(None).mallopt
+    except (AttributeError, OSError, ValueError):
+        return False
+    mallopt.argtypes, mallopt.restype = (ctypes.c_int, ctypes.c_int), ctypes.c_int
+    return bool(mallopt(_M_MMAP_THRESHOLD, 32 << 20) and mallopt(_M_TRIM_THRESHOLD, 64 << 20))
+
+
 def run(bagset: BagSet, plan: Plan, tmp: Path, progress: Optional[bool], storage: str,
         window: tuple[float, Optional[float]] = (0.0, None), compress: bool = True,
         plots: bool = True) -> RunStats:
@@ -312,6 +340,7 @@ def run(bagset: BagSet, plan: Plan, tmp: Path, progress: Optional[bool], storage
     trajectory plots (the ground truth is read for them alone).
     """
     wall0 = time.perf_counter()
+    keep_freed_heap()
     stats = RunStats()
     times: list = []
     routes = _routes(plan, times)
