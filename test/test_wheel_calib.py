@@ -457,3 +457,32 @@ def test_relative_pose_of_single_poses_as_floats_equals_the_array_form():
     for a, b in zip(rng.uniform(-5, 5, (500, 3)), rng.uniform(-5, 5, (500, 3))):
         assert np.allclose(K.between_scalar(a.tolist(), b.tolist()),
                            K.compose(K.inverse(a), b), rtol=0, atol=1e-12)
+
+
+@pytest.mark.parametrize('drive', ['differential', 'steered_wheel'])
+def test_sensor_motion_during_a_scan_is_the_composed_odometry(drive):
+    """The expanded deskew motion equals l^-1 (+) a(t0)^-1 (+) a(t) (+) l from kinematics."""
+    from robot_calib.core import types as T
+    from robot_calib.methods.wheel_odometry_calibration.wheels import WheelHistory
+    rng = np.random.default_rng(3)
+    x_nom = (np.array([0.05, 0.05, 0.3, 0.1, -0.02, 0.04]) if drive == 'differential'
+             else np.array([0.02, 1.0, 0.1, 0.5, 0.3, 0.05, 0.1]))
+    hist = WheelHistory(drive, x_nom, 0.5)
+    t, a, b = 0.0, 0.0, 0.0
+    for _ in range(600):
+        t += 0.01
+        a += rng.normal(0.3, 0.1)
+        b = b + rng.normal(0.32, 0.1) if drive == 'differential' else rng.normal(0.0, 0.4)
+        hist.add(t, a, b)
+    lidar = x_nom[-3:]
+    dt = np.arange(360) * (0.1 / 360)
+    for stamp in rng.uniform(0.5, 5.5, 20):
+        scan = T.ScanSample(stamp, -math.pi, 2 * math.pi / 360, np.ones(360),
+                            time_increment=0.1 / 360, scan_time=0.1)
+        poses = np.asarray(hist.pose[:])
+        at = np.column_stack([np.interp(stamp + dt, hist.t, poses[:, j]) for j in range(3)])
+        a0 = np.array([np.interp(stamp, hist.t, poses[:, j]) for j in range(3)])
+        want = K.sensor_motion(K.compose(np.broadcast_to(K.inverse(a0), at.shape), at), lidar)
+        got = hist.sensor_motion_during(scan, lidar)(dt)
+        assert np.allclose(got, want, rtol=0.0, atol=1e-13)
+        assert np.ptp(got[:, 0]) > 1e-3                # the robot moved during the scan

@@ -179,6 +179,8 @@ class WheelHistory:
         time and the sensor pose (x m, y m, yaw rad) in base_link.
         """
         pose_list = self.pose if poses is None else poses
+        lx, ly, lyaw = (float(v) for v in sensor_pose)
+        cl, sl = math.cos(lyaw), math.sin(lyaw)
 
         def motion(dt: np.ndarray) -> np.ndarray:
             first, last = scan.time_span()
@@ -187,10 +189,20 @@ class WheelHistory:
             tt = np.asarray(self.t[lo:hi])
             rows = np.asarray(pose_list[lo:hi])
             ti = scan.t + dt
-            at = np.column_stack([np.interp(ti, tt, rows[:, j]) for j in range(3)])
-            a0 = np.array([np.interp(scan.t, tt, rows[:, j]) for j in range(3)])
-            rel = K.compose(np.broadcast_to(K.inverse(a0), at.shape), at)
-            return K.sensor_motion(rel, sensor_pose)
+            x0, y0, yaw0 = (float(np.interp(scan.t, tt, rows[:, j])) for j in range(3))
+            # odometry at each beam time relative to the stamp: a0^-1 (+) a(t), a0 at the stamp
+            c0, s0 = math.cos(yaw0), math.sin(yaw0)
+            dx, dy = np.interp(ti, tt, rows[:, 0]) - x0, np.interp(ti, tt, rows[:, 1]) - y0
+            rx, ry = c0 * dx + s0 * dy, c0 * dy - s0 * dx
+            ryaw = np.interp(ti, tt, rows[:, 2]) - yaw0
+            # the sensor's own motion l^-1 (+) rel (+) l (kinematics.sensor_motion, expanded)
+            c, s = np.cos(ryaw), np.sin(ryaw)
+            qx, qy = rx + c * lx - s * ly - lx, ry + s * lx + c * ly - ly
+            out = np.empty((len(ti), 3))
+            out[:, 0] = cl * qx + sl * qy
+            out[:, 1] = cl * qy - sl * qx
+            out[:, 2] = ryaw
+            return out
         return motion
 
 
