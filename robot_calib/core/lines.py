@@ -330,17 +330,23 @@ def fit_line(pts: np.ndarray, method: str = 'total') -> tuple[np.ndarray, np.nda
 
 def _fit(pts: np.ndarray, method: str) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Return (centroid, unit direction, points minus centroid) of :func:`fit_line`."""
+    c, ux, uy, d = _fit_floats(pts, method)
+    return c, np.array([ux, uy]), d
+
+
+def _fit_floats(pts: np.ndarray, method: str) -> tuple[np.ndarray, float, float, np.ndarray]:
+    """Return :func:`_fit` with the unit direction as two floats (cosine and sine)."""
     c = np.add.reduce(pts, axis=0) / pts.shape[0]  # = pts.sum(axis=0), without its wrapper
     d = pts - c
     if method == 'ordinary':
         sxx = float(d[:, 0] @ d[:, 0])
         slope = float(d[:, 0] @ d[:, 1]) / sxx if sxx > 1e-12 else 0.0
-        u = np.array([1.0, slope]) / math.hypot(1.0, slope)
-        return c, u, d
-    cov = (d.T @ d).tolist()
+        norm = math.hypot(1.0, slope)
+        return c, 1.0 / norm, slope / norm, d
+    (sxx, sxy), (_, syy) = (d.T @ d).tolist()
     # closed-form principal direction of a 2x2 symmetric matrix
-    phi = 0.5 * math.atan2(2.0 * cov[0][1], cov[0][0] - cov[1][1])
-    return c, np.array([math.cos(phi), math.sin(phi)]), d
+    phi = 0.5 * math.atan2(2.0 * sxy, sxx - syy)
+    return c, math.cos(phi), math.sin(phi), d
 
 
 def condition1(pts: np.ndarray, params: LineParams, t: float = 0.0) -> Optional[Line]:
@@ -353,19 +359,9 @@ def condition1(pts: np.ndarray, params: LineParams, t: float = 0.0) -> Optional[
     """
     pts = np.asarray(pts, dtype=float)
     fewest = max(params.min_cells, 2)
-    total = params.fit_method != 'ordinary'
     while pts.shape[0] >= fewest:
-        if total:  # _fit written out: the direction's cosine and sine are needed as floats
-            c = np.add.reduce(pts, axis=0) / pts.shape[0]
-            d = pts - c
-            (sxx, sxy), (_, syy) = (d.T @ d).tolist()
-            phi = 0.5 * math.atan2(2.0 * sxy, sxx - syy)
-            ux, uy = math.cos(phi), math.sin(phi)
-            u = np.array([ux, uy])
-        else:
-            c, u, d = _fit(pts, params.fit_method)
-            ux, uy = u.tolist()
-        along = d @ u
+        c, ux, uy, d = _fit_floats(pts, params.fit_method)
+        along = d @ np.array([ux, uy])
         dist = d @ np.array([-uy, ux])
         lo, hi = float(np.minimum.reduce(along)), float(np.maximum.reduce(along))
         if hi - lo < params.min_length:  # seed S11
