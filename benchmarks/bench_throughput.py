@@ -10,9 +10,10 @@ that row alone is measured and replaced, the other rows are kept).
 Each figure is a whole ``robot-calib replay`` process (read, decode, the node, write
 output.mcap, summary, report with plots), timed by its CPU time (user + system of
 the child, so other jobs on the shared machine do not count) and its wall clock;
-the median of ``--runs``. Bags, simulated in the same run: a 300 s IMU-only 200 Hz
-bag (tilt), a 600 s vacuum bag (gyro line), a drive of ``--hours`` (wheel
-calibration alone, and every node), a 10 s drive (start-up). Floors from the
+the median of ``--runs`` (every node on the long drive: one run; the CPU seconds of
+each run are listed). Bags, simulated in the same run: a 300 s IMU-only 200 Hz bag
+(tilt), a 600 s vacuum bag (gyro line), a drive of ``--hours`` (wheel calibration
+alone, and every node), a 10 s drive (start-up). Floors from the
 same bags: reading and decoding every message alone (in this process), and each
 node's pipeline alone (``process`` + ``finish`` time that replay measures around
 the node, in the summary).
@@ -62,7 +63,8 @@ def replay_runs(bag: Path, nodes: str, out: Path, runs: int) -> dict:
         cpu.append(_children_cpu() - c0)
         wall.append(time.perf_counter() - w0)
     summary = json.loads((out / f'r{runs - 1}' / 'summary.json').read_text())
-    return {'cpu': statistics.median(cpu), 'wall': statistics.median(wall), 'summary': summary}
+    return {'cpu': statistics.median(cpu), 'wall': statistics.median(wall), 'cpus': cpu,
+            'summary': summary}
 
 
 def compile_package() -> None:
@@ -128,7 +130,8 @@ def main() -> int:
         bags = make_bags(tmp, args.hours, args.only == 'wheel')
         cases = [('tilt_detection', 'imu200', 'tilt_detection', args.runs),
                  ('gyro_line_calibration', 'vacuum', 'gyro_line_calibration', args.runs),
-                 ('wheel_odometry_calibration', 'drive', 'wheel_odometry_calibration', 1),
+                 ('wheel_odometry_calibration', 'drive', 'wheel_odometry_calibration',
+                  args.runs),
                  ('every node', 'drive', '', 1)]
         if args.only == 'wheel':
             cases = cases[2:3]
@@ -141,7 +144,8 @@ def main() -> int:
             core = {n: _node_seconds(summary, n) for n in node_list}
             inputs = {n: _inputs(summary, n) for n in node_list}
             rows.append({'label': label, 'bag': bag_name, 'seconds': seconds, 'runs': runs,
-                         'cpu': res['cpu'], 'wall': res['wall'], 'messages': n_msgs,
+                         'cpu': res['cpu'], 'wall': res['wall'], 'cpus': res['cpus'],
+                         'messages': n_msgs,
                          'decode': dec, 'core': core, 'inputs': inputs})
         if args.only == 'wheel':
             text = replace_wheel_row(OUT.read_text(), rows[0], load0, os.getloadavg()[0])
@@ -208,8 +212,10 @@ def _row_line(row: dict) -> str:
     dec_rate = row['messages'] / row['decode']
     core = '; '.join(f'{n} {row["inputs"][n] / max(s, 1e-9):,.0f} msg/s '
                      f'({row["seconds"] / max(s, 1e-9):.0f}x)' for n, s in row['core'].items())
+    runs = ('' if len(row['cpus']) < 2 else
+            f'; runs {", ".join(f"{c:.1f}" for c in row["cpus"])}')
     return (f'| {row["label"]} | {row["bag"]} ({row["seconds"]:.0f} s, '
-            f'{row["messages"]:,} msgs) | {row["cpu"]:.1f} ({row["wall"]:.1f}) | '
+            f'{row["messages"]:,} msgs) | {row["cpu"]:.1f} ({row["wall"]:.1f}){runs} | '
             f'{measured} | {goal} | {"met" if met else "missed"} | '
             f'{dec_rate:,.0f} msg/s ({row["seconds"] / row["decode"]:.0f}x) | {core} |')
 
