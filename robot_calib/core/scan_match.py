@@ -272,7 +272,8 @@ def _normals(points: np.ndarray, tree: Optional[cKDTree], k: int,
 
 
 _DAMPING = 1e-9
-"""Added to the Gauss-Newton Hessian's diagonal (m^2 and m^2 rad^-2 units alike)."""
+"""Added to each diagonal entry of the Gauss-Newton Hessian (a regulariser; those entries
+are sums of squared normal components, dimensionless, and of squared lever arms, m^2)."""
 
 
 _ROUNDING = 1e-9
