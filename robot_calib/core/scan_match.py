@@ -391,6 +391,21 @@ def _gauss_newton_step(m: np.ndarray) -> Optional[tuple[float, float, float]]:
             -(co_c * x + co_f * y + co_i * z) / det)
 
 
+def _line_rows(normals: np.ndarray, turned: np.ndarray, offset: np.ndarray) -> np.ndarray:
+    """
+    Return the point-to-line rows (N, 4) ``[n_x, n_y, n . d(R p)/d yaw, residual]``.
+
+    ``normals`` are the matched target normals, ``turned`` the source points
+    rotated (R p, m) and ``offset`` the moved points minus their targets (m); the
+    yaw column (m) and the point-line residual (m) follow from them.
+    """
+    rows = np.empty((len(normals), 4))
+    rows[:, :2] = normals
+    rows[:, 2] = normals[:, 1] * turned[:, 0] - normals[:, 0] * turned[:, 1]
+    rows[:, 3] = np.einsum('ij,ij->i', normals, offset)
+    return rows
+
+
 def _refine(source: np.ndarray, target: PreparedScan, pose: np.ndarray,
             p: ScanMatchParams, nearest: _Nearest) -> tuple[np.ndarray, bool, int]:
     """Point-to-line Gauss-Newton with an annealed gate and a Cauchy kernel."""
@@ -414,13 +429,7 @@ def _refine(source: np.ndarray, target: PreparedScan, pose: np.ndarray,
         use = np.flatnonzero(usable[idx])
         if len(use) < 3:
             break
-        nrm = normals[idx[use]]
-        tu = turned[use]
-        # rows [n_x, n_y, n . d(R p)/d yaw, point-line residual (m)]
-        rows = np.empty((len(use), 4))
-        rows[:, :2] = nrm
-        rows[:, 2] = nrm[:, 1] * tu[:, 0] - nrm[:, 0] * tu[:, 1]
-        rows[:, 3] = np.einsum('ij,ij->i', nrm, offset[use])
+        rows = _line_rows(normals[idx[use]], turned[use], offset[use])
         w = 1.0 / (1.0 + (rows[:, 3] / scale) ** 2)               # Cauchy weights
         step = _gauss_newton_step(rows.T @ (rows * w[:, None]))
         if step is None:
@@ -456,13 +465,7 @@ def _quality(source: np.ndarray, target: PreparedScan, pose: np.ndarray,
         result.degenerate = True
         result.min_eigenvalue = 0.0
         return
-    nrm = target.normals[idx[use]]
-    tu = turned[use]
-    # rows [n_x, n_y, n . d(R p)/d yaw, point-line residual (m)]
-    rows = np.empty((n, 4))
-    rows[:, :2] = nrm
-    rows[:, 2] = nrm[:, 1] * tu[:, 0] - nrm[:, 0] * tu[:, 1]
-    rows[:, 3] = np.einsum('ij,ij->i', nrm, offset[use])
+    rows = _line_rows(target.normals[idx[use]], turned[use], offset[use])
     sums = rows.T @ rows
     h = sums[:3, :3]
     sq_res = float(sums[3, 3])                                    # sum of residuals^2 (m^2)
