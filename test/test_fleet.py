@@ -83,6 +83,27 @@ def test_fleet_flags_the_drift_and_records_the_broken_bag(fleet, tmp_path):
     # two worker processes, from scratch: the same rows
     two = run_fleet(fleet, tmp_path / 'two', nodes=NODES, workers=2, progress=False)
     assert _table(two['rows']) == _table(rows)
+    # ... and the same figures, drawn by the workers
+    pngs = sorted(p.relative_to(out) for p in (out / 'plots').rglob('*.png'))
+    assert pngs == sorted(p.relative_to(tmp_path / 'two')
+                          for p in (tmp_path / 'two' / 'plots').rglob('*.png'))
+    assert all((tmp_path / 'two' / p).read_bytes() == (out / p).read_bytes() for p in pngs)
+
+
+def test_report_hands_every_figure_to_the_executor(fleet, tmp_path):
+    """The figures (one a robot) go to the fleet's workers, not drawn in the parent."""
+    from robot_calib.fleet import report, results
+    rows = run_fleet(fleet, tmp_path / 'out', nodes=NODES, workers=1, progress=False)['rows']
+    handed = []
+
+    def draw_all(calls):
+        handed.extend(calls)
+        return [report.draw(call) for call in calls]
+    report.write_report(rows, results.flags(rows), tmp_path / 'again', 1.0, draw_all)
+    drawn = sorted((tmp_path / 'again').rglob('*.png'))
+    assert sorted(args[-1] for _, args in handed) == drawn
+    assert {p.name for p in drawn} >= {'r1.png', 'r2.png', 'fleet_histograms.png',
+                                       'odometry_fusion.gyro_bias.png'}
 
 
 def test_manifest_names_bags_and_dates(fleet, tmp_path):

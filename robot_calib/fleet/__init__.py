@@ -20,7 +20,7 @@ import os
 from pathlib import Path
 import sys
 import time
-from typing import Any, Iterable, Optional, Union
+from typing import Any, Callable, Iterable, Iterator, Optional, Union
 
 from robot_calib.fleet import report, results
 from robot_calib.fleet.runner import run_job, Settings
@@ -37,51 +37,65 @@ def _progress(total: int, progress: Optional[bool]) -> Any:
     return tqdm(total=total, unit='bag', file=sys.stderr, desc='fleet', dynamic_ncols=True)
 
 
-def _run_all(jobs: list[Job], settings: Settings, workers: int, bar: Any) -> list[dict]:
-    rows: list[dict] = []
-    if workers <= 1:
-        for job in jobs:
-            rows += run_job(job, settings)
-            if bar is not None:
-                bar.update(1)
-        return rows
-    context = multiprocessing.get_context('spawn')  # no state shared with the parent
-    with ProcessPoolExecutor(max_workers=workers, mp_context=context) as pool:
-        futures = [pool.submit(run_job, job, settings) for job in jobs]
+class _InProcess:
+    """Runs every call in this process, one after another (``--workers 1``)."""
+
+    def each(self, function: Callable, items: Iterable, *args: Any) -> Iterator[Any]:
+        """Yield ``function(item, *args)`` for each item."""
+        for item in items:
+            yield function(item, *args)
+
+    def close(self) -> None:
+        """Nothing to release."""
+
+
+class _Pool(_InProcess):
+    """A local process pool: each call on a worker, results as they come."""
+
+    def __init__(self, workers: int) -> None:
+        context = multiprocessing.get_context('spawn')  # no state shared with the parent
+        self.pool = ProcessPoolExecutor(max_workers=workers, mp_context=context)
+
+    def each(self, function: Callable, items: Iterable, *args: Any) -> Iterator[Any]:
+        """Yield ``function(item, *args)`` for each item, in the order they finish."""
+        futures = [self.pool.submit(function, item, *args) for item in items]
         for future in as_completed(futures):
-            rows += future.result()
-            if bar is not None:
-                bar.update(1)
-    return rows
+            yield future.result()
+
+    def close(self) -> None:
+        """Stop the workers (calls not started yet are dropped)."""
+        self.pool.shutdown(cancel_futures=True)
 
 
-def _run_ray(jobs: list[Job], settings: Settings, address: str, workers: int,
-             bar: Any) -> list[dict]:
-    """Run the jobs as Ray tasks: ``address`` of a cluster, or ``auto`` for a local Ray."""
-    try:
-        import ray
-    except ImportError:
-        raise FleetError('--ray needs Ray, an optional extra: pip install -r '
-                         'requirements-ray.txt (or pip install .[ray])') from None
-    started = not ray.is_initialized()
-    if started:
-        if address == 'auto':
-            ray.init(num_cpus=workers, include_dashboard=False, log_to_driver=False)
-        else:
-            ray.init(address=address, log_to_driver=False)
-    try:
-        task = ray.remote(run_job)
-        pending = [task.remote(job, settings) for job in jobs]
-        rows: list[dict] = []
+class _Ray(_InProcess):
+    """Ray tasks: ``address`` of a cluster, or ``auto`` for a local Ray with ``workers`` CPUs."""
+
+    def __init__(self, address: str, workers: int) -> None:
+        try:
+            import ray
+        except ImportError:
+            raise FleetError('--ray needs Ray, an optional extra: pip install -r '
+                             'requirements-ray.txt (or pip install .[ray])') from None
+        self.ray = ray
+        self.started = not ray.is_initialized()
+        if self.started:
+            if address == 'auto':
+                ray.init(num_cpus=workers, include_dashboard=False, log_to_driver=False)
+            else:
+                ray.init(address=address, log_to_driver=False)
+
+    def each(self, function: Callable, items: Iterable, *args: Any) -> Iterator[Any]:
+        """Yield ``function(item, *args)`` for each item, in the order they finish."""
+        task = self.ray.remote(function)
+        pending = [task.remote(item, *args) for item in items]
         while pending:
-            done, pending = ray.wait(pending, num_returns=1)
-            rows += ray.get(done[0])
-            if bar is not None:
-                bar.update(1)
-        return rows
-    finally:
-        if started:
-            ray.shutdown()
+            done, pending = self.ray.wait(pending, num_returns=1)
+            yield self.ray.get(done[0])
+
+    def close(self) -> None:
+        """Shut down a Ray this run started."""
+        if self.started:
+            self.ray.shutdown()
 
 
 def run_fleet(source: Union[str, os.PathLike], out: Union[str, os.PathLike],
@@ -119,21 +133,29 @@ def run_fleet(source: Union[str, os.PathLike], out: Union[str, os.PathLike],
     settings = Settings(out.resolve(), tuple(nodes) if nodes else None,
                         Path(params_file).resolve() if params_file else None,
                         tuple(overrides), force, bag_plots)
-    bar = _progress(len(jobs), progress)
+    workers = min(workers, len(jobs))
+    executor = _Ray(ray, workers) if ray else _Pool(workers) if workers > 1 else _InProcess()
     try:
-        if ray:
-            done = _run_ray(jobs, settings, ray, workers, bar)
-        else:
-            done = _run_all(jobs, settings, min(workers, len(jobs)), bar)
+        bar = _progress(len(jobs), progress)
+        done: list[dict] = []
+        try:
+            for part in executor.each(run_job, jobs, settings):
+                done += part
+                if bar is not None:
+                    bar.update(1)
+        finally:
+            if bar is not None:
+                bar.close()
         rows = results.sort_rows(done)
+        found = results.flags(rows, flag_sigma)
+        results.write_table(rows, out)
+        results.write_flags(found, out)
+        seconds = time.perf_counter() - t0
+        # the figures (one a robot) are drawn by the same workers
+        report.write_report(rows, found, out, seconds,
+                            lambda calls: executor.each(report.draw, calls))
     finally:
-        if bar is not None:
-            bar.close()
-    found = results.flags(rows, flag_sigma)
-    results.write_table(rows, out)
-    results.write_flags(found, out)
-    seconds = time.perf_counter() - t0
-    report.write_report(rows, found, out, seconds)
+        executor.close()
     failed = len({r['bag'] for r in rows if r['status'] == 'failed'})
     return {'bags': len(jobs), 'failed': failed, 'flags': len(found), 'rows': rows,
             'seconds': seconds}

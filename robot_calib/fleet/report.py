@@ -13,7 +13,7 @@ go to ``DIR/plots/`` (``robots/<robot>.png``, ``fleet_histograms.png``,
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Any
+from typing import Any, Callable, Iterable
 
 from robot_calib.core import figures
 from robot_calib.fleet import plots
@@ -27,9 +27,29 @@ def _flag_table(found: list[dict[str, Any]]) -> list[str]:
                      f'{f["reason"]} |' for f in found] or ['| - | - | - | - | none |'])
 
 
+Draw = Callable[[list[tuple]], Iterable[str]]
+"""Runs figure calls (see :func:`draw`), on the fleet's workers or in this process."""
+
+
+def draw(call: tuple) -> str:
+    """Draw one figure: ``call`` is ``(plots function, its arguments)``; return the file name."""
+    function, args = call
+    return function(*args)
+
+
+def _draw_here(calls: list[tuple]) -> list[str]:
+    return [draw(call) for call in calls]
+
+
+def _slim(rows: list[dict[str, Any]], cols: list[str]) -> list[dict[str, Any]]:
+    """Return ``rows`` with only what the figures of ``cols`` read (sent to a worker)."""
+    keep = ['robot', 'status', 'date'] + [k for c in cols for k in (c, f'{c}_std')]
+    return [{k: r[k] for k in keep if k in r} for r in rows]
+
+
 def _figures(rows: list[dict[str, Any]], found: list[dict[str, Any]], out: Path,
-             robots: list[str]) -> list[str]:
-    """Draw the figures; return the report lines that show them."""
+             robots: list[str], draw_all: Draw) -> list[str]:
+    """Draw the figures (through ``draw_all``); return the report lines that show them."""
     failed = {f['robot'] for f in found if f['reason'].startswith('failed')}
     cols = plots.tracked(rows)
     if not cols or not figures.available():
@@ -41,27 +61,39 @@ def _figures(rows: list[dict[str, Any]], found: list[dict[str, Any]], out: Path,
     (out / 'plots' / 'robots').mkdir(parents=True, exist_ok=True)
     (out / 'plots' / 'estimates').mkdir(parents=True, exist_ok=True)
     drawn = sorted({r['robot'] for r in rows if r['status'] == 'ok'})
-    for robot in drawn:
-        plots.robot_figure(rows, robot, cols, flagged_bags.get(robot, {}),
-                           out / 'plots' / 'robots' / f'{robot}.png')
+    slim = _slim(rows, cols)
+    by_robot: dict[str, list[dict[str, Any]]] = {}
+    for r in slim:
+        by_robot.setdefault(r['robot'], []).append(r)
+    calls = [(plots.robot_figure, (by_robot[robot], robot, cols, flagged_bags.get(robot, {}),
+                                   out / 'plots' / 'robots' / f'{robot}.png'))
+             for robot in drawn]
+    calls.append((plots.histograms, (slim, drawn, cols, out / 'plots' / 'fleet_histograms.png')))
     lines = ['', '## Robots with flags', '']
     attention = [r for r in robots if r in flagged_bags or r in failed]
     lines += [f'### {r}\n\n![{r}](plots/robots/{r}.png)\n' if r in drawn else
               f'### {r}\n\nno bag processed\n' for r in attention] or ['none']
-    plots.histograms(rows, drawn, cols, out / 'plots' / 'fleet_histograms.png')
     lines += ['', '## Fleet', '', '![latest values](plots/fleet_histograms.png)', '']
     for col in cols:
         flagged = {r for r, by_col in flagged_bags.items() if col in by_col}
-        plots.overview(rows, drawn, col, flagged, out / 'plots' / 'estimates' / f'{col}.png')
+        calls.append((plots.overview, (_slim(rows, [col]), drawn, col, flagged,
+                                       out / 'plots' / 'estimates' / f'{col}.png')))
         lines.append(f'![{col}](plots/estimates/{col}.png)')
     lines += ['', '## Every robot', '',
               ', '.join(f'[{r}](plots/robots/{r}.png)' for r in drawn)]
+    list(draw_all(calls))
     return lines
 
 
 def write_report(rows: list[dict[str, Any]], found: list[dict[str, Any]], out: Path,
-                 seconds: float) -> None:
-    """Write ``report.md`` and its figures into ``out``."""
+                 seconds: float, draw_all: Draw = _draw_here) -> None:
+    """
+    Write ``report.md`` and its figures into ``out``.
+
+    ``draw_all`` runs the figure calls (a list of :func:`draw` arguments): the
+    fleet hands them to its workers, since a figure costs about 0.3-0.5 s and a
+    fleet has one per robot.
+    """
     bags = {(r['robot'], r['bag']) for r in rows}
     failed = {(r['robot'], r['bag']) for r in rows if r['status'] == 'failed'}
     robots = sorted({r['robot'] for r in rows})
@@ -69,7 +101,7 @@ def write_report(rows: list[dict[str, Any]], found: list[dict[str, Any]], out: P
              f'{len(bags)} bags of {len(robots)} robots in {seconds:.1f} s; '
              f'{len(failed)} failed; {len(found)} flags.', '']
     lines += _flag_table(found)
-    lines += _figures(rows, found, out, robots)
+    lines += _figures(rows, found, out, robots, draw_all)
     slow = sorted((r for r in rows if r['status'] == 'ok'), key=lambda r: -r['runtime_s'])[:5]
     lines += ['', '## Slowest bags', '', '| robot | bag | node | runtime (s) |',
               '|---|---|---|---|']
