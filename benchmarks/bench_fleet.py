@@ -284,6 +284,8 @@ def _keep(name: str) -> list[str]:
             keep = line[3:].strip() in name
         if keep:
             lines.append(line)
+    while lines and not lines[-1].strip():
+        lines.pop()   # the caller adds the blank line between sections
     return lines
 
 
