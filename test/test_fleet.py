@@ -135,6 +135,10 @@ def test_ray_executor_gives_the_same_rows(fleet, tmp_path):
     assert _table(ray['rows']) == _table(pool['rows'])
     assert (tmp_path / 'ray' / 'flags.csv').read_text() == \
         (tmp_path / 'pool' / 'flags.csv').read_text()
+    # the report's figures, drawn as Ray tasks, are the ones drawn in-process
+    pngs = sorted(p.relative_to(tmp_path / 'pool') for p in (tmp_path / 'pool').rglob('*.png'))
+    assert pngs and all((tmp_path / 'ray' / p).read_bytes() == (tmp_path / 'pool' / p).read_bytes()
+                        for p in pngs)
 
 
 def test_trend_flags_a_steady_drift_not_noise():
