@@ -320,11 +320,12 @@ def main(argv=None) -> int:
              'shifts and a block error, or a first-order lag for a drive; then the effects of '
              'the library as regressors (whole-sensor: a rotated IMU, a lever arm) selected '
              'forward by BIC on the weighted residual (each sample weighted by its local noise), '
-             'kept only when a block-robust Wald test passes, held-out time improves and the '
-             'parameter is plausible; alternatives within 10 BIC with the motion that would '
-             'separate them; a confidence per finding; effects below the size worth naming '
-             'listed as minor; structure no effect explains reported as `unexplained`. Real '
-             'recordings: docs/bench/9-mismatch-real.md.', '']
+             'kept only when a block-robust Wald test passes, a gain (scale, cross-axis) acts '
+             'alike on slow and fast motion (the same test on its two parts), held-out time '
+             'improves and the parameter is plausible; alternatives within 10 BIC with the '
+             'motion that would separate them; a confidence per finding; effects below the size '
+             'worth naming listed as minor; structure no effect explains reported as '
+             '`unexplained`. Real recordings: docs/bench/9-mismatch-real.md.', '']
     rows, cpu = run_suite(args.pairs)
     s = score_suite(rows)
     try:

@@ -147,6 +147,30 @@ def test_small_significant_effect_is_listed_as_minor():
     assert minor and minor[0]['parameters']['scale'] == pytest.approx(0.004, rel=0.1)
 
 
+def test_a_bandwidth_difference_is_not_named_a_scale():
+    """A reference carrying less fast motion than the sensor is not a gyro scale or cross-axis."""
+    t, w, a = _tumbling_imu(13, duration=90.0)
+    width = int(0.15 / (t[1] - t[0]))
+    slow = w.copy()
+    slow[:, 0] = np.convolve(w[:, 0], np.ones(width) / width, 'same')  # the reference's x
+    out, _ = analyse_recordings(_imu_rec(t, slow, a), _noisy(_imu_rec(t, w, a), 14))
+    gains = [f for f in _named(out, 'gyro_scale') + _named(out, 'gyro_cross_axis')
+             if f['channel'].endswith('angular_velocity.x')]
+    assert not gains, gains
+    assert any('angular_velocity.x' in n and 'not as one gain' in n for n in out['notes'])
+
+
+def test_a_gain_acts_alike_on_slow_and_fast_motion():
+    """The same gain on both halves of the spectrum passes the band test."""
+    t, w, a = _tumbling_imu(15, duration=90.0)
+    rg = w.copy()
+    rg[:, 1] = 1.03 * w[:, 1]
+    out, _ = analyse_recordings(_imu_rec(t, w, a), _noisy(_imu_rec(t, rg, a), 16))
+    scale = [f for f in _named(out, 'gyro_scale') if f['channel'].endswith('angular_velocity.y')]
+    assert scale and scale[0]['parameters']['scale'] == pytest.approx(0.03, rel=0.1)
+    assert not any('not as one gain' in n for n in out['notes'])
+
+
 def test_drive_lag_told_from_a_delay():
     rng = np.random.default_rng(13)
     dt = 0.02

@@ -206,6 +206,17 @@ def _select(prob: S.Problem, cands: list, prm: MismatchParams, edges: np.ndarray
         notes.append(f'{t.channel}: a candidate {t.effect} fits, but not consistently across '
                      f'the recording (robust test {w:.3g} < {thr:.3g} over {kb} blocks); '
                      'not reported')
+    if prm.gain_band_s > 0 and prm.mode != 'seed':
+        sel, unequal = R.band_prune(prob, sel, edges, prm.alpha, prm.gain_band_s)
+        for t, (slow, fast, w, thr, _) in unequal:
+            notes.append(f'{t.channel}: a candidate {t.effect} fits, but not as one gain: '
+                         f'{fast:+.3g} on fast motion, {slow:+.3g} on slow, which alone is not '
+                         f'significant (split at a {prm.gain_band_s:g} s average; robust test of '
+                         f'the difference {w:.3g} > {thr:.3g}); the simulation may carry less '
+                         'fast motion than the real sensor (a bandwidth or filter difference); '
+                         'not reported')
+        if unequal and sel:
+            sel = S.refine_nonlinear(prob, sel)
     sel = _plain_offsets(prob, sel, prm)
     sel, implausible = _implausible(prob, sel, not_judged)
     held = _heldout(prob, sel, prm.heldout_chunks) if sel else {}

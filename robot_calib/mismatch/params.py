@@ -32,6 +32,10 @@ class MismatchParams:
     max_terms: int = param(14, '', 'most effects selected per topic', minimum=1)
     alpha: float = param(1e-6, '', 'false-alarm probability of the block-robust test an '
                          'effect must pass', minimum=1e-15, maximum=0.5)
+    gain_band_s: float = param(0.25, 's', 'moving average splitting a gain (scale, cross-axis) '
+                               'into slow and fast motion; a gain whose two parts differ by the '
+                               'block-robust test while the slow one fails it is not reported '
+                               '(0: no such test)', minimum=0.0)
     blocks: int = param(40, '', 'contiguous blocks of the time line for the block-robust '
                         'tests', minimum=4)
     min_block_s: float = param(1.0, 's', 'shortest block of the block-robust tests',

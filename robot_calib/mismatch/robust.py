@@ -23,15 +23,29 @@ independent stretches of the recording:
 A constant offset that shows in every block passes with a few blocks; a
 "scale" that only follows the ground truth's errors in some stretches does
 not.
+
+A gain (a scale, a cross-axis term) acts the same on slow and on fast motion.
+:func:`band_prune` splits its regressor into a slow part (a moving average)
+and the fast rest and fits both. When the two coefficients differ by the same
+robust test and the slow part alone does not pass it, the "gain" lives in fast
+motion only: it follows a difference of bandwidth (a reference carrying less
+fast motion than the real sensor), not a sensor's gain, and is dropped. A real
+gain shows on slow motion too, even where the fast part differs (a gain added
+to a sensor whose fast motion the reference also misses).
 """
 
 from __future__ import annotations
 
+from dataclasses import replace
 from typing import Optional
 
 import numpy as np
 
+from robot_calib.mismatch import effects as E
 from robot_calib.mismatch import select as S
+
+GAIN_EFFECTS = ('gyro_scale', 'gyro_cross_axis', 'accel_scale')
+"""Effects whose model is one constant gain on a simulated signal (:func:`band_prune`)."""
 
 
 def block_edges(n: int, dt: float, target: int = 40, min_block_s: float = 1.0,
@@ -199,4 +213,65 @@ def robust_prune(prob: S.Problem, sel: list, edges: np.ndarray, alpha: float,
         dropped.append((out.pop(i), tests[i]))
         if refine is not None and out:
             out = refine(out)
+    return out, dropped
+
+
+def _slow_part(x: np.ndarray, width: int) -> np.ndarray:
+    """Return the centred moving average of the columns of ``x`` over ``width`` samples."""
+    n = x.shape[0]
+    c = np.concatenate([np.zeros((1, x.shape[1])), np.cumsum(x, axis=0)])
+    half = width // 2
+    idx = np.arange(n)
+    i0, i1 = np.maximum(idx - half, 0), np.minimum(idx + half + 1, n)
+    return (c[i1] - c[i0]) / (i1 - i0)[:, None]
+
+
+def band_test(prob: S.Problem, sel: list, j: int, edges: np.ndarray, alpha: float,
+              width_s: float) -> Optional[tuple]:
+    """
+    Return ``(slow, fast, W, threshold, W_slow)`` of the gain ``sel[j]`` split by frequency.
+
+    The term's regressor is cut into its moving average over ``width_s`` seconds
+    (the slow part, below about ``0.44 / width_s`` Hz) and the rest; both are
+    fitted with the other selected terms. ``W`` is the robust Wald statistic of
+    their difference and ``W_slow`` that of the slow coefficient, both judged
+    like :func:`wald` (``F(1, K_e - 1)`` at ``alpha``). None when the blocks
+    cannot tell.
+    """
+    from scipy import special
+    t = sel[j]
+    width = max(3, int(round(width_s / max(prob.pt.dt, 1e-9))) | 1)
+    slow = {f: _slow_part(c, width) for f, c in t.cols.items()}
+    parts = [replace(t, cols=slow, group=f'{t.group}:slow', uid=next(E._UID)),
+             replace(t, cols={f: c - slow[f] for f, c in t.cols.items()},
+                     group=f'{t.group}:fast', uid=next(E._UID))]
+    model = sel[:j] + sel[j + 1:] + parts
+    fit = S.fit(prob, model, contributions=True)
+    V = sandwich(prob, model, fit, edges)
+    kb = active_blocks(prob, t, edges)
+    if V is None or kb <= 2:
+        return None
+    b_slow, b_fast = float(fit.betas[-2][0]), float(fit.betas[-1][0])
+    var = V[-2, -2] + V[-1, -1] - 2.0 * V[-2, -1]
+    w = (b_slow - b_fast) ** 2 / var if var > 0 else 0.0
+    w_slow = b_slow ** 2 / V[-2, -2] if V[-2, -2] > 0 else 0.0
+    return b_slow, b_fast, w, float(special.fdtri(1, kb - 1, 1.0 - alpha)), w_slow
+
+
+def band_prune(prob: S.Problem, sel: list, edges: np.ndarray, alpha: float,
+               width_s: float) -> tuple[list, list]:
+    """
+    Drop the gains that act on fast motion only (:func:`band_test`); return (kept, dropped).
+
+    A gain is dropped when its slow and fast coefficients differ and the slow one
+    is not significant. ``dropped`` holds ``(term, (slow, fast, W, threshold, W_slow))``.
+    """
+    out, dropped = [], []
+    for j, t in enumerate(sel):
+        test = band_test(prob, sel, j, edges, alpha, width_s) \
+            if t.effect in GAIN_EFFECTS and t.p == 1 and t.window is None else None
+        if test is not None and test[2] > test[3] and test[4] < test[3]:
+            dropped.append((t, test))
+        else:
+            out.append(t)
     return out, dropped
