@@ -181,6 +181,19 @@ def test_broad_slice_finds_the_gyro_bias(shared_data):
     assert found[0]['parameters']['bias'] == pytest.approx(ref[ax], abs=0.0004)
 
 
+def test_broad_translation_bandwidth_is_not_a_gyro_gain(shared_data):
+    """Trial 10's x gyro follows the optical rates with a gain on fast motion only: not named."""
+    from robot_calib.io.datasets import broad
+    from robot_calib.mismatch import protocols as P
+    tr = broad.load_trial(shared_data / 'broad' / '10_undisturbed_slow_translation_A.npz')
+    res, _ = analyse_recordings(*P.broad_pair(tr))
+    x = '/imu.angular_velocity.x'
+    assert not [f for f in res['findings'] if f['channel'] == x and
+                f['effect'] in ('gyro_scale', 'gyro_cross_axis')], res['findings']
+    assert any(n.startswith(f'{x}: a candidate gyro_scale fits, but not as one gain')
+               for n in res['notes'])
+
+
 def test_ferraris_protocol_scale_and_bias(shared_data):
     from robot_calib.io.datasets import ferraris
     from robot_calib.mismatch import protocols as P
