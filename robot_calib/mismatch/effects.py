@@ -226,6 +226,10 @@ class Term:
         """Return a copy acting only inside ``window`` (sample indices)."""
         return replace(self, window=window)
 
+    def with_cols(self, cols: dict, group: str) -> 'Term':
+        """Return a new term of the same effect on other regressor columns (its own ``uid``)."""
+        return replace(self, cols=cols, group=group, uid=next(_UID))
+
 
 def _col(x: np.ndarray) -> np.ndarray:
     return np.nan_to_num(np.asarray(x, float)).reshape(-1, 1)

@@ -36,12 +36,10 @@ to a sensor whose fast motion the reference also misses).
 
 from __future__ import annotations
 
-from dataclasses import replace
 from typing import Optional
 
 import numpy as np
 
-from robot_calib.mismatch import effects as E
 from robot_calib.mismatch import select as S
 
 GAIN_EFFECTS = ('gyro_scale', 'gyro_cross_axis', 'accel_scale')
@@ -242,9 +240,8 @@ def band_test(prob: S.Problem, sel: list, j: int, edges: np.ndarray, alpha: floa
     t = sel[j]
     width = max(3, int(round(width_s / max(prob.pt.dt, 1e-9))) | 1)
     slow = {f: _slow_part(c, width) for f, c in t.cols.items()}
-    parts = [replace(t, cols=slow, group=f'{t.group}:slow', uid=next(E._UID)),
-             replace(t, cols={f: c - slow[f] for f, c in t.cols.items()},
-                     group=f'{t.group}:fast', uid=next(E._UID))]
+    parts = [t.with_cols(slow, f'{t.group}:slow'),
+             t.with_cols({f: c - slow[f] for f, c in t.cols.items()}, f'{t.group}:fast')]
     model = sel[:j] + sel[j + 1:] + parts
     fit = S.fit(prob, model, contributions=True)
     V = sandwich(prob, model, fit, edges)
