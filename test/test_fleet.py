@@ -106,6 +106,45 @@ def test_report_hands_every_figure_to_the_executor(fleet, tmp_path):
                                        'odometry_fusion.gyro_bias.png'}
 
 
+def _dies_on_three(item: int) -> int:
+    """Return ``item``, except that item 3 kills the worker process running it."""
+    import os
+    if item == 3:
+        os._exit(1)
+    return item
+
+
+def test_a_worker_that_dies_costs_its_own_call_only():
+    """A killed or crashed worker breaks the pool: its call is lost, every other one is run."""
+    from robot_calib.fleet import _Pool, LOST_REASON
+    pool = _Pool(2)
+    try:
+        got = list(pool.each(_dies_on_three, range(10), lost=lambda item, why: (item, why)))
+        assert sorted(g for g in got if isinstance(g, int)) == [0, 1, 2, 4, 5, 6, 7, 8, 9]
+        assert [g for g in got if not isinstance(g, int)] == [(3, LOST_REASON)]
+        # the pool goes on working after it
+        assert sorted(pool.each(_dies_on_three, [10, 11])) == [10, 11]
+    finally:
+        pool.close()
+
+
+def test_a_bag_lost_with_its_worker_is_a_failed_row(fleet, tmp_path):
+    """The row of a bag whose worker died goes through the table, the flags and the report."""
+    from robot_calib.fleet import LOST_REASON, report, results
+    from robot_calib.fleet.runner import failed_rows
+    from robot_calib.fleet.source import discover
+    rows = run_fleet(fleet, tmp_path / 'out', nodes=NODES, workers=1, progress=False)['rows']
+    job = next(j for j in discover(fleet) if j.robot == 'r2')
+    rows = results.sort_rows(rows + failed_rows(job, LOST_REASON, 0.0, None))
+    found = results.flags(rows)
+    (tmp_path / 'again').mkdir()
+    results.write_table(rows, tmp_path / 'again')
+    report.write_report(rows, found, tmp_path / 'again', 1.0)
+    assert {'robot': 'r2', 'reason': f'failed: {LOST_REASON}'}.items() <= \
+        next(f for f in found if f['robot'] == 'r2').items()
+    assert 'r2' in (tmp_path / 'again' / 'report.md').read_text()
+
+
 def test_manifest_names_bags_and_dates(fleet, tmp_path):
     manifest = tmp_path / 'fleet.csv'
     manifest.write_text('robot,bag,date\n'

@@ -14,7 +14,8 @@ on the number of workers or on the executor.
 
 from __future__ import annotations
 
-from concurrent.futures import as_completed, ProcessPoolExecutor
+from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
+from concurrent.futures.process import BrokenProcessPool
 import multiprocessing
 import os
 from pathlib import Path
@@ -23,7 +24,7 @@ import time
 from typing import Any, Callable, Iterable, Iterator, Optional, Union
 
 from robot_calib.fleet import report, results
-from robot_calib.fleet.runner import run_job, Settings
+from robot_calib.fleet.runner import failed_rows, run_job, Settings
 from robot_calib.fleet.source import discover, FleetError, Job
 
 __all__ = ['FleetError', 'Job', 'run_fleet']
@@ -37,10 +38,17 @@ def _progress(total: int, progress: Optional[bool]) -> Any:
     return tqdm(total=total, unit='bag', file=sys.stderr, desc='fleet', dynamic_ncols=True)
 
 
+Lost = Callable[[Any, str], Any]
+"""Makes the result of a call whose worker process died: ``lost(item, reason)``."""
+
+LOST_REASON = 'its worker process died while running it (killed, out of memory or crashed)'
+
+
 class _InProcess:
     """Runs every call in this process, one after another (``--workers 1``)."""
 
-    def each(self, function: Callable, items: Iterable, *args: Any) -> Iterator[Any]:
+    def each(self, function: Callable, items: Iterable, *args: Any,
+             lost: Optional[Lost] = None) -> Iterator[Any]:
         """Yield ``function(item, *args)`` for each item."""
         for item in items:
             yield function(item, *args)
@@ -50,17 +58,68 @@ class _InProcess:
 
 
 class _Pool(_InProcess):
-    """A local process pool: each call on a worker, results as they come."""
+    """
+    A local process pool: each call on a worker, results as they come.
+
+    A worker that dies (killed, out of memory, a crash in a C library) breaks a
+    process pool and every call in flight with it. At most two calls a worker
+    are in flight; when the pool breaks, those calls run again one at a time on
+    a fresh worker, which tells the call that kills its worker (``lost``) from
+    the ones that were only in flight beside it, and the rest go on in a new pool.
+    """
 
     def __init__(self, workers: int) -> None:
-        context = multiprocessing.get_context('spawn')  # no state shared with the parent
-        self.pool = ProcessPoolExecutor(max_workers=workers, mp_context=context)
+        self.workers = workers
+        self.pool = self._new_pool(workers)
 
-    def each(self, function: Callable, items: Iterable, *args: Any) -> Iterator[Any]:
+    @staticmethod
+    def _new_pool(workers: int) -> ProcessPoolExecutor:
+        context = multiprocessing.get_context('spawn')  # no state shared with the parent
+        return ProcessPoolExecutor(max_workers=workers, mp_context=context)
+
+    def each(self, function: Callable, items: Iterable, *args: Any,
+             lost: Optional[Lost] = None) -> Iterator[Any]:
         """Yield ``function(item, *args)`` for each item, in the order they finish."""
-        futures = [self.pool.submit(function, item, *args) for item in items]
-        for future in as_completed(futures):
-            yield future.result()
+        queue = list(items)[::-1]
+        running: dict = {}
+        while queue or running:
+            while queue and len(running) < 2 * self.workers:
+                item = queue.pop()
+                running[self.pool.submit(function, item, *args)] = item
+            done, _ = wait(running, return_when=FIRST_COMPLETED)
+            if any(isinstance(f.exception(), BrokenProcessPool) for f in done):
+                wait(running)  # the pool is dead: every call in flight ends with it
+            results, suspects = [], []
+            for future in [f for f in running if f.done()]:
+                item = running.pop(future)
+                if isinstance(future.exception(), BrokenProcessPool):
+                    suspects.append(item)
+                else:
+                    results.append(future.result())
+            yield from results
+            if suspects:
+                self.pool.shutdown(wait=True, cancel_futures=True)
+                yield from self._one_at_a_time(function, suspects, args, lost)
+                self.pool = self._new_pool(self.workers)
+
+    @classmethod
+    def _one_at_a_time(cls, function: Callable, items: list, args: tuple,
+                       lost: Optional[Lost]) -> Iterator[Any]:
+        """Run ``items`` one by one on a single worker; yield ``lost`` for one that kills it."""
+        pool = cls._new_pool(1)
+        try:
+            for item in items:
+                try:
+                    result = pool.submit(function, item, *args).result()
+                except BrokenProcessPool:
+                    if lost is None:
+                        raise
+                    pool.shutdown(wait=True, cancel_futures=True)
+                    pool = cls._new_pool(1)
+                    result = lost(item, LOST_REASON)
+                yield result
+        finally:
+            pool.shutdown(cancel_futures=True)
 
     def close(self) -> None:
         """Stop the workers (calls not started yet are dropped)."""
@@ -84,13 +143,26 @@ class _Ray(_InProcess):
             else:
                 ray.init(address=address, log_to_driver=False)
 
-    def each(self, function: Callable, items: Iterable, *args: Any) -> Iterator[Any]:
-        """Yield ``function(item, *args)`` for each item, in the order they finish."""
+    def each(self, function: Callable, items: Iterable, *args: Any,
+             lost: Optional[Lost] = None) -> Iterator[Any]:
+        """
+        Yield ``function(item, *args)`` for each item, in the order they finish.
+
+        A task Ray gives up on (its worker died more often than Ray retries a task)
+        yields ``lost``.
+        """
         task = self.ray.remote(function)
-        pending = [task.remote(item, *args) for item in items]
+        pending = {task.remote(item, *args): item for item in items}
         while pending:
-            done, pending = self.ray.wait(pending, num_returns=1)
-            yield self.ray.get(done[0])
+            done, _ = self.ray.wait(list(pending), num_returns=1)
+            item = pending.pop(done[0])
+            try:
+                result = self.ray.get(done[0])
+            except self.ray.exceptions.RayError as exc:
+                if lost is None:
+                    raise
+                result = lost(item, f'{LOST_REASON} ({type(exc).__name__})')
+            yield result
 
     def close(self) -> None:
         """Shut down a Ray this run started."""
@@ -139,7 +211,8 @@ def run_fleet(source: Union[str, os.PathLike], out: Union[str, os.PathLike],
         bar = _progress(len(jobs), progress)
         done: list[dict] = []
         try:
-            for part in executor.each(run_job, jobs, settings):
+            for part in executor.each(run_job, jobs, settings,
+                                      lost=lambda job, why: failed_rows(job, why, 0.0, None)):
                 done += part
                 if bar is not None:
                     bar.update(1)
@@ -153,7 +226,7 @@ def run_fleet(source: Union[str, os.PathLike], out: Union[str, os.PathLike],
         seconds = time.perf_counter() - t0
         # the figures (one a robot) are drawn by the same workers
         report.write_report(rows, found, out, seconds,
-                            lambda calls: executor.each(report.draw, calls))
+                            lambda calls: executor.each(report.draw, calls, lost=lambda c, w: ''))
     finally:
         executor.close()
     failed = len({r['bag'] for r in rows if r['status'] == 'failed'})

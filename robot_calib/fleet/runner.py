@@ -84,10 +84,11 @@ def _rows(job: Job, summary: dict, seconds: float) -> list[dict[str, Any]]:
     return rows
 
 
-def _failed(job: Job, reason: str, seconds: float) -> list[dict[str, Any]]:
+def failed_rows(job: Job, reason: str, seconds: float,
+                peak_mb: Optional[float]) -> list[dict[str, Any]]:
+    """Return the one ``failed`` row of a bag (``peak_mb``: its worker's peak memory, if known)."""
     return [{'robot': job.robot, 'date': job.date or '', 'bag': str(job.bag), 'node': '',
-             'status': 'failed', 'reason': reason, 'runtime_s': seconds,
-             'peak_rss_mb': peak_rss_mb()}]
+             'status': 'failed', 'reason': reason, 'runtime_s': seconds, 'peak_rss_mb': peak_mb}]
 
 
 def run_job(job: Job, settings: Settings) -> list[dict[str, Any]]:
@@ -116,8 +117,8 @@ def run_job(job: Job, settings: Settings) -> list[dict[str, Any]]:
         rows = _rows(job, summary, time.perf_counter() - t0)
     except Exception as exc:  # noqa: B902 - any failure of one bag is a failed row
         gc.collect()
-        return _failed(job, f'{type(exc).__name__}: {" ".join(str(exc).split())}'[:300],
-                       time.perf_counter() - t0)
+        return failed_rows(job, f'{type(exc).__name__}: {" ".join(str(exc).split())}'[:300],
+                           time.perf_counter() - t0, peak_rss_mb())
     tmp = done.with_suffix('.tmp')
     tmp.write_text(json.dumps({'fingerprint': stamp, 'rows': rows}, allow_nan=False,
                               default=str))
