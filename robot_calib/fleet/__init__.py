@@ -59,71 +59,49 @@ class _InProcess:
 
 class _Pool(_InProcess):
     """
-    A local process pool: each call on a worker, results as they come.
+    Local worker processes, one call in flight on each, results as they come.
 
-    A worker that dies (killed, out of memory, a crash in a C library) breaks a
-    process pool and every call in flight with it. At most two calls a worker
-    are in flight; when the pool breaks, those calls run again one at a time on
-    a fresh worker, which tells the call that kills its worker (``lost``) from
-    the ones that were only in flight beside it, and the rest go on in a new pool.
+    Each worker is a process pool of its own: a worker that dies (killed, out of
+    memory, a crash in a C library) breaks only its own pool, in the middle of
+    exactly one call, which is lost (``lost``); a fresh worker takes its place.
     """
 
     def __init__(self, workers: int) -> None:
-        self.workers = workers
-        self.pool = self._new_pool(workers)
+        self.pools = [self._new_pool() for _ in range(workers)]
 
     @staticmethod
-    def _new_pool(workers: int) -> ProcessPoolExecutor:
+    def _new_pool() -> ProcessPoolExecutor:
         context = multiprocessing.get_context('spawn')  # no state shared with the parent
-        return ProcessPoolExecutor(max_workers=workers, mp_context=context)
+        return ProcessPoolExecutor(max_workers=1, mp_context=context)
 
     def each(self, function: Callable, items: Iterable, *args: Any,
              lost: Optional[Lost] = None) -> Iterator[Any]:
         """Yield ``function(item, *args)`` for each item, in the order they finish."""
         queue = list(items)[::-1]
+        idle = list(range(len(self.pools)))
         running: dict = {}
         while queue or running:
-            while queue and len(running) < 2 * self.workers:
+            while queue and idle:
+                k = idle.pop()
                 item = queue.pop()
-                running[self.pool.submit(function, item, *args)] = item
+                running[self.pools[k].submit(function, item, *args)] = (k, item)
             done, _ = wait(running, return_when=FIRST_COMPLETED)
-            if any(isinstance(f.exception(), BrokenProcessPool) for f in done):
-                wait(running)  # the pool is dead: every call in flight ends with it
-            results, suspects = [], []
-            for future in [f for f in running if f.done()]:
-                item = running.pop(future)
-                if isinstance(future.exception(), BrokenProcessPool):
-                    suspects.append(item)
-                else:
-                    results.append(future.result())
-            yield from results
-            if suspects:
-                self.pool.shutdown(wait=True, cancel_futures=True)
-                yield from self._one_at_a_time(function, suspects, args, lost)
-                self.pool = self._new_pool(self.workers)
-
-    @classmethod
-    def _one_at_a_time(cls, function: Callable, items: list, args: tuple,
-                       lost: Optional[Lost]) -> Iterator[Any]:
-        """Run ``items`` one by one on a single worker; yield ``lost`` for one that kills it."""
-        pool = cls._new_pool(1)
-        try:
-            for item in items:
-                try:
-                    result = pool.submit(function, item, *args).result()
-                except BrokenProcessPool:
-                    if lost is None:
-                        raise
-                    pool.shutdown(wait=True, cancel_futures=True)
-                    pool = cls._new_pool(1)
-                    result = lost(item, LOST_REASON)
-                yield result
-        finally:
-            pool.shutdown(cancel_futures=True)
+            for future in done:
+                k, item = running.pop(future)
+                idle.append(k)
+                if not isinstance(future.exception(), BrokenProcessPool):
+                    yield future.result()
+                    continue
+                self.pools[k].shutdown(wait=True)
+                self.pools[k] = self._new_pool()
+                if lost is None:
+                    raise BrokenProcessPool(LOST_REASON)
+                yield lost(item, LOST_REASON)
 
     def close(self) -> None:
         """Stop the workers (calls not started yet are dropped)."""
-        self.pool.shutdown(cancel_futures=True)
+        for pool in self.pools:
+            pool.shutdown(cancel_futures=True)
 
 
 class _Ray(_InProcess):
