@@ -123,7 +123,8 @@ def test_a_worker_that_dies_costs_its_own_call_only():
         assert sorted(g for g in got if isinstance(g, int)) == [0, 1, 2, 4, 5, 6, 7, 8, 9]
         assert [g for g in got if not isinstance(g, int)] == [(3, LOST_REASON)]
         # the pool goes on working after it
-        assert sorted(pool.each(_dies_on_three, [10, 11])) == [10, 11]
+        again = pool.each(_dies_on_three, [10, 11], lost=lambda item, why: (item, why))
+        assert sorted(again) == [10, 11]
     finally:
         pool.close()
 

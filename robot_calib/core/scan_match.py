@@ -372,7 +372,7 @@ def _coarse(source: np.ndarray, target: PreparedScan, guess: np.ndarray,
 
 def _gauss_newton_step(m: np.ndarray) -> Optional[tuple[float, float, float]]:
     """
-    Return the step ``-(h + 1e-9 I)^-1 g`` from the 4x4 ``[[h, g], [g^T, .]]`` sums.
+    Return the step ``-(h + _DAMPING I)^-1 g`` from the 4x4 ``[[h, g], [g^T, .]]`` sums.
 
     Cofactors of the symmetric 3x3 ``h`` (Cramer's rule: the inverse's adjugate
     over the determinant), in floats; None when the damped ``h`` is singular.

@@ -48,8 +48,8 @@ class _InProcess:
     """Runs every call in this process, one after another (``--workers 1``)."""
 
     def each(self, function: Callable, items: Iterable, *args: Any,
-             lost: Optional[Lost] = None) -> Iterator[Any]:
-        """Yield ``function(item, *args)`` for each item."""
+             lost: Lost) -> Iterator[Any]:
+        """Yield ``function(item, *args)`` for each item (``lost``: for a dead worker)."""
         for item in items:
             yield function(item, *args)
 
@@ -75,7 +75,7 @@ class _Pool(_InProcess):
         return ProcessPoolExecutor(max_workers=1, mp_context=context)
 
     def each(self, function: Callable, items: Iterable, *args: Any,
-             lost: Optional[Lost] = None) -> Iterator[Any]:
+             lost: Lost) -> Iterator[Any]:
         """Yield ``function(item, *args)`` for each item, in the order they finish."""
         queue = list(items)[::-1]
         idle = list(range(len(self.pools)))
@@ -94,8 +94,6 @@ class _Pool(_InProcess):
                     continue
                 self.pools[k].shutdown(wait=True)
                 self.pools[k] = self._new_pool()
-                if lost is None:
-                    raise BrokenProcessPool(LOST_REASON)
                 yield lost(item, LOST_REASON)
 
     def close(self) -> None:
@@ -122,7 +120,7 @@ class _Ray(_InProcess):
                 ray.init(address=address, log_to_driver=False)
 
     def each(self, function: Callable, items: Iterable, *args: Any,
-             lost: Optional[Lost] = None) -> Iterator[Any]:
+             lost: Lost) -> Iterator[Any]:
         """
         Yield ``function(item, *args)`` for each item, in the order they finish.
 
@@ -137,8 +135,6 @@ class _Ray(_InProcess):
             try:
                 result = self.ray.get(done[0])
             except self.ray.exceptions.RayError as exc:
-                if lost is None:
-                    raise
                 result = lost(item, f'{LOST_REASON} ({type(exc).__name__})')
             yield result
 
