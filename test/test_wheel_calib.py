@@ -131,7 +131,7 @@ def test_packed_steps_predict_as_padded(drive):
 
 def test_calibrated_odometry_poses_are_the_composed_arcs():
     """The re-deskew's odometry (running sums) is the arcs composed one by one."""
-    from robot_calib.methods.wheel_odometry_calibration.wheels import WheelHistory
+    from robot_calib.methods.wheel_odometry_calibration.wheels import integrate, WheelHistory
     rng = np.random.default_rng(5)
     x = np.array([DIFF_TRUTH[k] for k in P.DIFF_KEYS])
     hist = WheelHistory('differential', x, 0.5)
@@ -144,7 +144,7 @@ def test_calibrated_odometry_poses_are_the_composed_arcs():
     expected = [np.zeros(3)]
     for arc in arcs:
         expected.append(K.compose(expected[-1], arc))
-    poses = hist.poses_with(x)
+    poses = integrate('differential', hist.a, hist.b, x)
     assert poses.shape == (3000, 3)
     np.testing.assert_allclose(poses, np.array(expected), rtol=0, atol=1e-10)
 
@@ -380,6 +380,63 @@ def test_front_end_exact_stream(drive):
         assert res.values[k] == pytest.approx(truth[k], abs=1e-5), k
     if drive == 'steered_wheel':
         assert res.counts['stages'] >= 3
+
+
+@pytest.mark.parametrize('drive', ['differential', 'steered_wheel'])
+def test_long_drive_keeps_bounded_segments_and_wheel_data(drive):
+    """Past max_segments every other segment goes; the rest still span the whole drive."""
+    from robot_calib.methods.wheel_odometry_calibration import wheels as W
+    truth = DIFF_TRUTH if drive == 'differential' else STEER_TRUTH
+    world, samples = _stream(drive, truth, t_end=480.0)
+    cal = ImprovedWheelCalibrator(_params(drive, max_segments=40), matcher=world.matcher,
+                                  prepare=world.prepare, periodic=False)
+    cal.front.deskewed_points = lambda scan: scan
+    run = run_batch(cal, samples)
+    front, res = cal.front, run.result
+    for k in P.keys_of(drive):
+        assert res.values[k] == pytest.approx(truth[k], abs=1e-5), k
+    kept = front.segments
+    assert 20 < len(kept) <= 40 and front.stride >= 4 and front.stride & (front.stride - 1) == 0
+    assert res.counts['segments_thinned'] == front.segments_cut - len(kept)
+    assert kept[0].t0 < 5.0 and kept[-1].t1 > 480.0 - 3 * front.stride
+    gaps = np.diff([seg.t0 for seg in kept])
+    assert gaps.max() < 3.0 * np.median(gaps)                    # evenly thinned
+    notes = [m for u in run.outputs for _, m in u.notes if 'max_segments' in m]
+    assert len(notes) == int(math.log2(front.stride))           # one note per doubling
+    # the wheel history keeps the recent part only: 24000 samples went in
+    assert res.counts['wheel_samples'] == 24000
+    assert len(front.wheels.t) < 2 * W.TRIM_MIN_SAMPLES + W.TRIM_MARGIN / 0.02
+
+
+def test_redeskew_from_the_wheel_window_equals_the_whole_drive():
+    """A scan's motion integrated from its own window equals the whole drive's integration."""
+    from robot_calib.core import types as T
+    from robot_calib.methods.wheel_odometry_calibration import wheels as W
+    rng = np.random.default_rng(8)
+    x_nom = np.array([0.05, 0.05, 0.3, 0.1, -0.02, 0.04])
+    x = x_nom * np.array([1.01, 0.99, 1.02, 1.0, 1.0, 1.0])
+    hist = W.WheelHistory('differential', x_nom, 0.5)
+    a = b = 0.0
+    for i in range(6000):
+        a, b = a + rng.normal(0.3, 0.1), b + rng.normal(0.32, 0.1)
+        hist.add(0.01 * i, a, b)
+    whole = W.integrate('differential', hist.a, hist.b, x)
+    dt = np.arange(360) * (0.1 / 360)
+    for stamp in rng.uniform(1.0, 59.0, 10):
+        scan = T.ScanSample(stamp, -math.pi, 2 * math.pi / 360, np.ones(360),
+                            time_increment=0.1 / 360, scan_time=0.1)
+        win = hist.window(scan)
+        assert len(win.t) < 15
+        local = W.motion(scan, win.t, W.integrate('differential', win.a, win.b, x), x[-3:])
+        want = W.motion(scan, np.array(hist.t), whole, x[-3:])
+        assert np.allclose(local(dt), want(dt), rtol=0.0, atol=1e-12)
+        assert np.ptp(want(dt)[:, 0]) > 1e-3
+    assert hist.trim_before(30.0) == 0                  # fewer than TRIM_MIN_SAMPLES to drop
+    kept_pose, last = hist.pose[5899], (hist.t[-1], hist.a[-1], hist.b[-1])
+    dropped = hist.trim_before(59.0 + W.TRIM_MARGIN)    # keeps one sample before 59 s
+    assert dropped == 5899 and hist.t[0] < 59.0 <= hist.t[1]
+    assert len(hist.pose) == len(hist.t) == len(hist.a) == len(hist.b) == 101
+    assert np.array_equal(hist.pose[0], kept_pose) and (hist.t[-1], hist.a[-1], hist.b[-1]) == last
 
 
 def test_front_end_steering_encoder_wraps_and_traction_wraps():

@@ -188,6 +188,10 @@ class Rows:
         """Return the number of rows."""
         return len(self._buf) // self.width
 
+    def drop_first(self, n: int) -> None:
+        """Forget the first ``n`` rows."""
+        del self._buf[:max(int(n), 0) * self.width]
+
     def __getitem__(self, index: Any) -> np.ndarray:
         """Return a copy of one row (width,) or of a slice of rows (k, width)."""
         w, n = self.width, len(self)

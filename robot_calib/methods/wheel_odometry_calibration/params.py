@@ -133,6 +133,11 @@ class WheelCalibParams:
     redeskew: bool = param(
         True, '', 'At the end, deskew the key-frame scans again with the calibrated odometry, '
         're-match them and solve once more (removes the bias a wrong nominal geometry leaves)')
+    max_segments: int = param(
+        4096, '', 'Most segments kept for the solve. Past it every other one is dropped and '
+        'later ones are kept at twice the stride, so the kept ones still span the whole drive '
+        'while memory and solve time stay bounded on long recordings and robots calibrating '
+        'for days (a 10-minute calibration drive cuts about 3000; 0: keep all)', minimum=0)
     scan_time_offset: float = param(
         0.0, 's', 'Added to every scan stamp before it is paired with the wheel data (a '
         'negative value for a lidar whose stamps lag the measurement)', minimum=-1.0,

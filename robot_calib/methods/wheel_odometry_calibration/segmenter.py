@@ -25,8 +25,8 @@ from robot_calib.core import frames
 from robot_calib.core import kinematics as K
 from robot_calib.core.kinematics import Segment
 from robot_calib.methods.wheel_odometry_calibration import drive_detect
+from robot_calib.methods.wheel_odometry_calibration import wheels as W
 from robot_calib.methods.wheel_odometry_calibration.params import keys_of, WheelCalibParams
-from robot_calib.methods.wheel_odometry_calibration.wheels import WheelHistory
 
 MatchFn = Callable[[Any, Any, np.ndarray], Optional[tuple[np.ndarray, dict]]]
 
@@ -110,6 +110,7 @@ class _KeyFrame:
     target: Any
     odom: np.ndarray
     scan: Any = None
+    wheels: Optional[W.WheelWindow] = None
 
 
 class DriveSegmenter:
@@ -121,9 +122,13 @@ class DriveSegmenter:
     drive wheel are collected with :meth:`take_stages`. A key frame closes a
     segment after ``keyframe.distance`` or ``keyframe.angle`` of nominal
     odometry motion; its scan is registered against the previous key frame's
-    scan, guessed from the nominal odometry. The wheel data of the whole drive
-    is kept for :meth:`redeskew`. When the drive type changes (``auto``
-    deciding from the joint names), everything so far is dropped and
+    scan, guessed from the nominal odometry. A segment keeps its two scans
+    and the wheel samples around them for :meth:`redeskew`; the wheel history
+    itself keeps only the recent part. At most ``max_segments`` segments are
+    kept: beyond that every other one goes and later ones are kept at twice the
+    stride, so the kept ones span the whole drive and memory stays bounded
+    (:attr:`stride`, :attr:`segments_cut`). When the drive type changes
+    (``auto`` deciding from the joint names), everything so far is dropped and
     :attr:`epoch` counts up.
     """
 
@@ -152,7 +157,7 @@ class DriveSegmenter:
         self.counts = {'wheel_samples': 0, 'scans': 0, 'match_attempts': 0, 'match_failed': 0,
                        'wheel_gaps': 0, 'encoder_unwraps': 0, 'stages': 0,
                        'stage_match_failed': 0, 'scans_without_wheel_data': 0,
-                       'missing_joints': 0}
+                       'missing_joints': 0, 'segments_thinned': 0}
         self.epoch = -1
         """Counts the (re)starts of the calibration (a new drive type drops the data)."""
         self._set_drive(p.drive_type if p.drive_type != 'auto' else drive_detect.DIFFERENTIAL)
@@ -163,6 +168,10 @@ class DriveSegmenter:
         self.params = dataclasses.replace(self.params, drive_type=drive)
         self.x_nom = np.array([self.nominal[k] for k in keys_of(drive)], dtype=float)
         self.segments: list[Segment] = []
+        self.segments_cut = 0
+        """Segments cut (matched) in this drive, kept or thinned out."""
+        self.stride = 1
+        """Every ``stride``-th segment cut is kept (doubles each time the cap is reached)."""
         self._stages: list[Segment] = []
         self.epoch += 1
         self._reset_wheels()
@@ -254,8 +263,7 @@ class DriveSegmenter:
                                   f'{self.drive} (set drive_type: {found.drive_type}, or auto)')
 
     def _reset_wheels(self) -> None:
-        # the whole drive is kept for the final re-deskew: compact storage (8 bytes a value)
-        self.wheels = WheelHistory(self.drive, self.x_nom, self.params.keyframe.max_wheel_gap)
+        self.wheels = W.WheelHistory(self.drive, self.x_nom, self.params.keyframe.max_wheel_gap)
         self._kf: Optional[_KeyFrame] = None
         self._stage: list[Segment] = []
         self._stage_start: Optional[_KeyFrame] = None
@@ -291,33 +299,44 @@ class DriveSegmenter:
 
     def _drain(self) -> None:
         times = self.wheels.t
+        drained = False
         while self._pending and times and _scan_end(self._pending[0]) <= times[-1]:
             scan = self._pending.pop(0)
+            drained = True
             if scan.t < times[0]:
                 self.counts['scans_without_wheel_data'] += 1
                 continue
             self._on_scan(scan)
+        if drained:
+            self._trim_wheels()
 
-    def deskewed_points(self, scan: Any, poses: Optional[Any] = None,
-                        sensor_pose: Optional[np.ndarray] = None) -> np.ndarray:
+    def _trim_wheels(self) -> None:
+        """Forget wheel data no key frame or waiting scan needs any more."""
+        needed = [self.wheels.t[-1]]
+        if self._kf is not None:
+            needed.append(self._kf.t)
+        if self._pending:
+            needed.append(min(self._pending[0].t, self._pending[0].time_span()[0]))
+        self.wheels.trim_before(min(needed))
+
+    def deskewed_points(self, scan: Any) -> np.ndarray:
         """
         Return the scan's points (m) in its frame at the stamp, motion-compensated.
 
         A rotating lidar measures beam i at ``t + i * time_increment``; the
-        wheel odometry (nominal, or ``poses`` integrated with calibrated
-        parameters, one per wheel sample) moves each point into the sensor
-        frame at the stamp (without this, turns bias the scan-matched rotation).
+        nominal wheel odometry moves each point into the sensor frame at the
+        stamp (without this, turns bias the scan-matched rotation);
+        :meth:`redeskew` does it again with the calibrated odometry.
         """
-        sensor_pose = self.sensor_pose if sensor_pose is None else sensor_pose
         motion = None
         if len(self.wheels.t) >= 2:
-            motion = self.wheels.sensor_motion_during(scan, sensor_pose, poses)
+            motion = self.wheels.sensor_motion_during(scan, self.sensor_pose)
         return frames.scan_points(scan, max_range=self.max_range, motion=motion)[0]
 
     def _on_scan(self, scan: Any) -> None:
         odom, _ = self.wheels.odom_at(scan.t)
         if self._kf is None:
-            self._kf = _KeyFrame(scan.t, self.deskewed_points(scan), None, odom, scan)
+            self._kf = self._key_frame(scan, self.deskewed_points(scan), odom)
             return
         kp = self.params.keyframe
         kf = self._kf
@@ -327,11 +346,11 @@ class DriveSegmenter:
         if not (dist >= kp.distance or ang >= kp.angle or
                 (scan.t - kf.t >= kp.max_time and moving)):
             if scan.t - kf.t >= kp.max_time:
-                self._kf = _KeyFrame(scan.t, self.deskewed_points(scan), None, odom, scan)
+                self._kf = self._key_frame(scan, self.deskewed_points(scan), odom)
             return
         pts = self.deskewed_points(scan)
         steps = self.wheels.steps(kf.t, scan.t)
-        new_kf = _KeyFrame(scan.t, pts, None, odom, scan)
+        new_kf = self._key_frame(scan, pts, odom)
         if steps is None:
             self.counts['wheel_gaps'] += 1
             self.close_stage()
@@ -348,10 +367,27 @@ class DriveSegmenter:
             self.close_stage()
             return
         seg = Segment(kf.t, scan.t, steps, np.asarray(m[0], dtype=float),
-                      {**m[1], 'scans': (kf.scan, scan)})
-        self.segments.append(seg)
+                      {**m[1], 'scans': (kf.scan, scan), 'wheels': (kf.wheels, new_kf.wheels)})
+        self._keep(seg)
         if self.drive == 'steered_wheel':
             self._stage_add(seg, kf, new_kf)
+
+    def _key_frame(self, scan: Any, points: np.ndarray, odom: np.ndarray) -> _KeyFrame:
+        """Return a key frame of ``scan`` with the wheel samples around it."""
+        return _KeyFrame(scan.t, points, None, odom, scan, self.wheels.window(scan))
+
+    def _keep(self, seg: Segment) -> None:
+        """Keep every ``stride``-th segment; past ``max_segments`` drop every other one."""
+        index, self.segments_cut = self.segments_cut, self.segments_cut + 1
+        if index % self.stride:
+            self.counts['segments_thinned'] += 1
+            return
+        self.segments.append(seg)
+        cap = self.params.max_segments
+        if cap and len(self.segments) > cap:
+            self.counts['segments_thinned'] += len(self.segments) // 2
+            self.segments = self.segments[::2]
+            self.stride *= 2
 
     # -- seed stages ----------------------------------------------------------------------
     def _is_straight(self, seg: Segment) -> bool:
@@ -435,20 +471,22 @@ class DriveSegmenter:
         segs = [s for s in self.segments if 'scans' in s.info]
         if not segs or not any(s.info['scans'][1].time_increment != 0 for s in segs):
             return None
-        poses = self.wheels.poses_with(x)
         lp = np.asarray(x[-3:], dtype=float)
         out = []
         cache: dict = {}
 
-        def points(scan):
+        def points(seg: Segment, k: int) -> np.ndarray:
+            scan, wheels = seg.info['scans'][k], seg.info['wheels'][k]
             key = id(scan)
             if key not in cache:
-                cache[key] = self.deskewed_points(scan, poses, lp)
+                poses = W.integrate(self.drive, wheels.a, wheels.b, x)
+                cache[key] = frames.scan_points(scan, max_range=self.max_range,
+                                                motion=W.motion(scan, wheels.t, poses, lp))[0]
             return cache[key]
         for lo in range(0, len(segs), REMATCH_CHUNK):
             chunk = segs[lo:lo + REMATCH_CHUNK]
-            sources = [points(seg.info['scans'][1]) for seg in chunk]
-            targets = [self.prepare(points(seg.info['scans'][0])) for seg in chunk]
+            sources = [points(seg, 1) for seg in chunk]
+            targets = [self.prepare(points(seg, 0)) for seg in chunk]
             # the first match is the guess: deskewing moves points, not the scan stamps
             guesses = [seg.sensor_motion for seg in chunk]
             if self.rematch_many is not None:
@@ -458,5 +496,6 @@ class DriveSegmenter:
             for seg, m in zip(chunk, found):
                 if m is not None:
                     out.append(Segment(seg.t0, seg.t1, seg.steps, np.asarray(m[0], dtype=float),
-                                       {**m[1], 'scans': seg.info['scans']}))
+                                       {**m[1], 'scans': seg.info['scans'],
+                                        'wheels': seg.info['wheels']}))
         return out

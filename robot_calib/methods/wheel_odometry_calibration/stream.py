@@ -71,6 +71,7 @@ class StreamingCalibrator(abc.ABC):
         self._sensor_frame: Optional[str] = None
         self._notes: list[tuple[str, str]] = []
         self._told_problem = ''
+        self._told_stride = 1
         self._last_update: Optional[float] = None
         self._n_solved = 0
         self._latest: Optional[CalibResult] = None
@@ -107,6 +108,13 @@ class StreamingCalibrator(abc.ABC):
         else:
             return None
         self._version += 1
+        stride = self.front.stride
+        if stride != self._told_stride:
+            self._told_stride = stride
+            if stride > 1:   # (a new drive type starts over at 1)
+                self._notes.append(('info', f'{self.front.segments_cut} segments cut, more '
+                                            f'than max_segments ({self.params.max_segments}):'
+                                            f' keeping one in {stride}, spread over the drive'))
         self._sync_stages()
         status = None if rejected else self._tick(sample.t)
         if not (rejected or status is not None or self._notes):
@@ -156,7 +164,7 @@ class StreamingCalibrator(abc.ABC):
         if t - self._last_update < self.params.update_period:
             return None
         self._last_update = t
-        n = len(self.front.segments) + self.front.counts['stages']
+        n = self.front.segments_cut + self.front.counts['stages']
         grown = max(self._n_solved * RESOLVE_GROWTH, self._n_solved + 10)
         if self._latest is None or n >= grown:
             self._n_solved = n

@@ -5,13 +5,16 @@ The wheel data of a calibration drive: positions, their steps and the nominal od
 
 A traction or wheel position that jumps by about 2 pi is unwrapped (using
 the joint velocity when present), a steering reading is wrapped to (-pi, pi].
-The whole drive is kept (8 bytes a value) for the final re-deskew.
+Only the recent part of the drive is kept (8 bytes a value): each key-frame
+scan takes the wheel samples around it along (:class:`WheelWindow`) for the
+final re-deskew, so memory does not grow with the length of the drive.
 """
 
 from __future__ import annotations
 
 from array import array
 import bisect
+from dataclasses import dataclass
 import math
 from typing import Any, Callable, Optional
 
@@ -19,6 +22,24 @@ import numpy as np
 from robot_calib.core import kinematics as K
 from robot_calib.core.geometry import wrap_angle
 from robot_calib.core.series import Rows
+
+TRIM_MARGIN = 10.0
+"""Wheel data kept before the oldest time still needed (s): scans that arrive late."""
+TRIM_MIN_SAMPLES = 4096
+"""Samples dropped at once at least (the deletion moves the rest of the arrays)."""
+
+
+@dataclass(frozen=True)
+class WheelWindow:
+    """
+    The wheel samples around one scan: times (s) and positions (rad), one before and after.
+
+    What the re-deskew of that scan needs once the history has moved on.
+    """
+
+    t: np.ndarray
+    a: np.ndarray
+    b: np.ndarray
 
 
 class WheelHistory:
@@ -147,63 +168,90 @@ class WheelHistory:
             return np.column_stack((np.diff(aa), np.diff(bb)))
         return np.column_stack((np.diff(aa), 0.5 * (bb[1:] + bb[:-1])))
 
-    def poses_with(self, x: np.ndarray) -> np.ndarray:
-        """Return the odometry poses (N, 3) (m, m, rad) of all samples, integrated with ``x``."""
-        a, b = np.asarray(self.a), np.asarray(self.b)
-        if self.drive == 'differential':
-            steps = np.column_stack((np.diff(a), np.diff(b)))
-        else:
-            steps = np.column_stack((np.diff(a), 0.5 * (b[1:] + b[:-1])))
-        if self.drive == 'differential':
-            ds, dth = K.diff_arc(steps[:, 0], steps[:, 1], x[0], x[1], x[2])
-        else:
-            ds, dth = K.steered_arc(steps[:, 0], steps[:, 1], x[2], x[3], x[0], x[1])
-        arcs = K.arc_pose(ds, dth)
-        # p_k+1 = p_k (+) arc_k: the heading is a running sum, each arc turned by the one before
-        poses = np.zeros((len(arcs) + 1, 3))
-        poses[1:, 2] = np.cumsum(arcs[:, 2])
-        c, s = np.cos(poses[:-1, 2]), np.sin(poses[:-1, 2])
-        poses[1:, 0] = np.cumsum(c * arcs[:, 0] - s * arcs[:, 1])
-        poses[1:, 1] = np.cumsum(s * arcs[:, 0] + c * arcs[:, 1])
-        return poses
+    def window(self, scan: Any) -> WheelWindow:
+        """Return the samples around ``scan`` (first beam to last, one more on each side)."""
+        lo, hi = self._around(scan)
+        return WheelWindow(np.asarray(self.t[lo:hi]), np.asarray(self.a[lo:hi]),
+                           np.asarray(self.b[lo:hi]))
+
+    def _around(self, scan: Any) -> tuple[int, int]:
+        """Return the index range of the samples around ``scan``'s beams."""
+        first, last = scan.time_span()
+        return (max(bisect.bisect_left(self.t, first) - 1, 0),
+                bisect.bisect_right(self.t, last) + 1)
+
+    def trim_before(self, t: float) -> int:
+        """
+        Forget samples older than ``t`` - ``TRIM_MARGIN`` (s), keeping one before; return how many.
+
+        Nothing is dropped until at least ``TRIM_MIN_SAMPLES`` can go at once.
+        """
+        k = bisect.bisect_left(self.t, t - TRIM_MARGIN) - 1
+        if k < TRIM_MIN_SAMPLES:
+            return 0
+        del self.t[:k], self.a[:k], self.b[:k]
+        self.pose.drop_first(k)
+        return k
 
     def sensor_motion_during(self, scan: Any, sensor_pose: np.ndarray,
-                             poses: Optional[Any] = None,
                              ) -> Callable[[np.ndarray], np.ndarray]:
-        """
-        Return the sensor's motion during ``scan`` for :func:`robot_calib.core.frames.scan_points`.
+        """Return the sensor's motion during ``scan`` by the nominal odometry (:func:`motion`)."""
+        lo, hi = self._around(scan)
+        return motion(scan, np.asarray(self.t[lo:hi]), self.pose[lo:hi], sensor_pose)
 
-        The returned function maps times after the stamp (s) to the sensor
-        poses (N, 3) (m, m, rad) relative to the sensor at the stamp, from the
-        odometry (nominal, or ``poses``, one per sample) interpolated at each
-        time and the sensor pose (x m, y m, yaw rad) in base_link.
-        """
-        pose_list = self.pose if poses is None else poses
-        lx, ly, lyaw = (float(v) for v in sensor_pose)
-        cl, sl = math.cos(lyaw), math.sin(lyaw)
 
-        def motion(dt: np.ndarray) -> np.ndarray:
-            first, last = scan.time_span()
-            lo = max(bisect.bisect_left(self.t, first) - 1, 0)
-            hi = bisect.bisect_right(self.t, last) + 1
-            tt = np.asarray(self.t[lo:hi])
-            rows = np.asarray(pose_list[lo:hi])
-            ti = scan.t + dt
-            x0, y0, yaw0 = (float(np.interp(scan.t, tt, rows[:, j])) for j in range(3))
-            # odometry at each beam time relative to the stamp: a0^-1 (+) a(t), a0 at the stamp
-            c0, s0 = math.cos(yaw0), math.sin(yaw0)
-            dx, dy = np.interp(ti, tt, rows[:, 0]) - x0, np.interp(ti, tt, rows[:, 1]) - y0
-            rx, ry = c0 * dx + s0 * dy, c0 * dy - s0 * dx
-            ryaw = np.interp(ti, tt, rows[:, 2]) - yaw0
-            # the sensor's own motion l^-1 (+) rel (+) l (kinematics.sensor_motion, expanded)
-            c, s = np.cos(ryaw), np.sin(ryaw)
-            qx, qy = rx + c * lx - s * ly - lx, ry + s * lx + c * ly - ly
-            out = np.empty((len(ti), 3))
-            out[:, 0] = cl * qx + sl * qy
-            out[:, 1] = cl * qy - sl * qx
-            out[:, 2] = ryaw
-            return out
-        return motion
+def integrate(drive: str, a: np.ndarray, b: np.ndarray, x: np.ndarray) -> np.ndarray:
+    """
+    Return the odometry poses (N, 3) (m, m, rad) of wheel positions ``a``, ``b`` under ``x``.
+
+    ``x`` holds the parameters in :func:`keys_of` order; the first pose is the origin.
+    """
+    a, b = np.asarray(a, dtype=float), np.asarray(b, dtype=float)
+    if drive == 'differential':
+        ds, dth = K.diff_arc(np.diff(a), np.diff(b), x[0], x[1], x[2])
+    else:
+        ds, dth = K.steered_arc(np.diff(a), 0.5 * (b[1:] + b[:-1]), x[2], x[3], x[0], x[1])
+    arcs = K.arc_pose(ds, dth)
+    # p_k+1 = p_k (+) arc_k: the heading is a running sum, each arc turned by the one before
+    poses = np.zeros((len(arcs) + 1, 3))
+    poses[1:, 2] = np.cumsum(arcs[:, 2])
+    c, s = np.cos(poses[:-1, 2]), np.sin(poses[:-1, 2])
+    poses[1:, 0] = np.cumsum(c * arcs[:, 0] - s * arcs[:, 1])
+    poses[1:, 1] = np.cumsum(s * arcs[:, 0] + c * arcs[:, 1])
+    return poses
+
+
+def motion(scan: Any, times: np.ndarray, poses: np.ndarray, sensor_pose: np.ndarray,
+           ) -> Callable[[np.ndarray], np.ndarray]:
+    """
+    Return the sensor's motion during ``scan`` for :func:`robot_calib.core.frames.scan_points`.
+
+    The returned function maps times after the stamp (s) to the sensor poses
+    (N, 3) (m, m, rad) relative to the sensor at the stamp, from the odometry
+    ``poses`` (N, 3) at ``times`` (N,) (samples around the scan) interpolated
+    at each time and the sensor pose (x m, y m, yaw rad) in base_link.
+    """
+    lx, ly, lyaw = (float(v) for v in sensor_pose)
+    cl, sl = math.cos(lyaw), math.sin(lyaw)
+    tt, rows = times, poses
+
+    def during(dt: np.ndarray) -> np.ndarray:
+        ti = scan.t + dt
+        x0, y0, yaw0 = (float(np.interp(scan.t, tt, rows[:, j])) for j in range(3))
+        # odometry at each beam time relative to the stamp: a0^-1 (+) a(t), a0 at the stamp
+        c0, s0 = math.cos(yaw0), math.sin(yaw0)
+        dx, dy = np.interp(ti, tt, rows[:, 0]) - x0, np.interp(ti, tt, rows[:, 1]) - y0
+        rx, ry = c0 * dx + s0 * dy, c0 * dy - s0 * dx
+        ryaw = np.interp(ti, tt, rows[:, 2]) - yaw0
+        # the sensor's own motion l^-1 (+) rel (+) l (kinematics.sensor_motion, expanded)
+        c, s = np.cos(ryaw), np.sin(ryaw)
+        qx, qy = rx + c * lx - s * ly - lx, ry + s * lx + c * ly - ly
+        out = np.empty((len(ti), 3))
+        out[:, 0] = cl * qx + sl * qy
+        out[:, 1] = cl * qy - sl * qx
+        out[:, 2] = ryaw
+        return out
+    return during
 
 
 def _unwrap(d: float, v: float, dt: float) -> tuple[float, int]:
