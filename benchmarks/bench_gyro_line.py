@@ -174,7 +174,7 @@ def run_method(method: str, result, truth: Truth, switch: float):
             p.seed.phase_switch_time = max(switch, 1e-3)
         core = make_estimator(p)
     est_t, est_h = [], []
-    scan_cpu = []
+    scan_cpu, corrections = [], []        # every correction (the core keeps the latest)
     cpu0 = time.process_time()
     for topic, m in result.messages:
         if topic == '/tf_static':
@@ -188,16 +188,16 @@ def run_method(method: str, result, truth: Truth, switch: float):
             core.update(m)
         elif topic == '/scan':
             c0 = time.process_time()
-            core.update(m)
+            corrections.extend(core.update(m) or ())
             scan_cpu.append(time.process_time() - c0)
     cpu = time.process_time() - cpu0
     est_t = np.array(est_t)
     err = np.degrees(_wrap(np.array(est_h) - np.interp(est_t, truth.t, truth.yaw)))
-    idx = np.searchsorted(est_t, [c.t for c in core.corrections], side='right')
+    idx = np.searchsorted(est_t, [c.t for c in corrections], side='right')
     idx = idx[idx < err.size]
     after = np.abs(err[idx])
     wrong = 0
-    for c in core.corrections:
+    for c in corrections:
         if not c.reference_ids or c.pose_before is None:
             continue
         for line, rid in zip(c.lines, c.reference_ids):
@@ -209,7 +209,7 @@ def run_method(method: str, result, truth: Truth, switch: float):
             if i >= 0 and j >= 0 and not truth.same_line(i, j):
                 wrong += 1
     return {'final': abs(float(err[-1])), 'max_after': float(after.max()) if after.size else 0,
-            'n_after_bad': int((after > 0.5).sum()), 'corrections': len(core.corrections),
+            'n_after_bad': int((after > 0.5).sum()), 'corrections': len(corrections),
             'rms': float(np.sqrt(np.mean(err ** 2))), 'max': float(np.abs(err).max()),
             'wrong': wrong, 'cpu': cpu, 'scan_ms': _scan_stats(scan_cpu),
             'bias_est': core.result().gyro_bias, 'counts': dict(core.counts)}
@@ -406,15 +406,17 @@ def real(lines: list) -> None:
     core = make_estimator(GyroLineParams(heading_source='odom'))
     poses, raw = [], []
     c0 = time.process_time()
+    deltas = []
     for key, s in log.messages():
-        core.update(s)
+        made = core.update(s)
         if key == 'scan':
             poses.append(core.pose)
+            deltas += [c.delta for c in made or ()]
     cpu = time.process_time() - c0
     poses = np.array(poses)
     raw = np.array(log.scan_odom)
     times = np.asarray(log.scan_times)
-    deltas = np.array([c.delta for c in core.corrections])
+    deltas = np.array(deltas)
     # revisits: scans >= 20 s apart whose corrected OR raw poses are within 2 m and 45 deg;
     # one pair per revisit event (no two pairs within 5 s of each other at both ends)
     cand = set()

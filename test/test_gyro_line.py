@@ -210,6 +210,34 @@ def test_vacuum_scenario_automatic_mode_beats_uncorrected_gyro():
     assert 0.0 < c.result().gyro_bias < 2.0 * bias     # learning the bias (slowly: 2 minutes only)
 
 
+def test_correction_totals_count_every_correction_while_few_are_kept(monkeypatch):
+    """The summary's total and the plot's trace cover the whole run, not the kept window."""
+    from robot_calib.methods.gyro_line_calibration import base
+    monkeypatch.setattr(base, 'KEPT_CORRECTIONS', 4)
+    r = run_scenario('vacuum', seed=0, duration=120.0,
+                     overrides={'imu.gyro_bias': [0.0, 0.0, 60.0 * DEG / 3600.0]})
+    pipe = GyroLinePipeline()
+    made = []
+    for topic, m in r.messages:
+        if topic == '/tf_static':
+            for tf in m:
+                pipe.core.set_mounting(tf)
+        elif topic in ('/imu', '/odom', '/scan'):
+            out = pipe.core.update(m)
+            if topic == '/scan':
+                made += list(out or ())
+    core = pipe.core
+    assert len(made) > 10 and list(core.corrections) == made[-4:]
+    deltas = np.array([c.delta for c in made])
+    summary = pipe.method_summary()
+    assert summary['corrections'] == len(made) and summary['corrections_kept'] == 4
+    assert summary['correction_total_deg'] == pytest.approx(np.degrees(deltas.sum()), abs=1e-9)
+    assert summary['correction_abs_max_deg'] == pytest.approx(np.degrees(np.abs(deltas).max()))
+    trace = np.array(list(core.correction_trace))
+    assert core.correction_trace.count == len(made) and trace[0, 0] == made[0].t
+    assert trace[-1, 1] == pytest.approx(deltas.sum(), abs=1e-12)
+
+
 # -- bad input through the pipeline ----------------------------------------------------
 def _scan(t, ranges, n=None):
     r = np.asarray(ranges, float)

@@ -36,11 +36,17 @@ from robot_calib.core import types as T
 from robot_calib.core.frames import constant_motion, planar_pose, rotation_matrix, scan_points
 from robot_calib.core.geometry import quat_from_rpy, quat_to_matrix, rot2, wrap_angle
 from robot_calib.core.lines import extract_lines, Line, ObstacleGrid
+from robot_calib.core.series import Thinned
 from robot_calib.methods.gyro_line_calibration.common import (
     Correction, frozen_counts, GyroLineResult, PoseEstimate, Reference)
 from robot_calib.methods.gyro_line_calibration.params import GyroLineParams
 
 _DEG = math.pi / 180.0
+KEPT_CORRECTIONS = 2000
+"""The latest corrections kept whole (lines, references, poses: a few kB each) for audits.
+
+Every correction counts in :attr:`GyroLineBase.correction_total`, ``correction_abs_max``
+and ``correction_trace``, which do not grow with the run."""
 _LASER_WORDS = ('laser', 'scan', 'lidar')
 
 
@@ -69,7 +75,13 @@ class GyroLineBase(abc.ABC):
         p = self.params
         self.grid = ObstacleGrid(p.lines)
         self.counts: dict[str, int] = {}
-        self.corrections: deque = deque(maxlen=20000)  # the latest, bounded for a long life
+        self.corrections: deque = deque(maxlen=KEPT_CORRECTIONS)
+        self.correction_total = 0.0
+        """Sum of every heading correction so far (rad)."""
+        self.correction_abs_max = 0.0
+        """Largest |heading correction| so far (rad)."""
+        self.correction_trace = Thinned()
+        """(t s, cumulative heading correction rad) over the whole run, thinned to bound it."""
         self.references: list[Reference] = []
         self.reference_log: dict[int, Reference] = {}
         self._next_id = 0
@@ -186,6 +198,14 @@ class GyroLineBase(abc.ABC):
         return 0
 
     # -- bookkeeping ---------------------------------------------------------------------
+    def _record(self, corr: Correction) -> None:
+        """Keep one correction made: the latest few whole, every one in the totals and trace."""
+        self.corrections.append(corr)
+        self.count('corrections')
+        self.correction_total += corr.delta
+        self.correction_abs_max = max(self.correction_abs_max, abs(corr.delta))
+        self.correction_trace.append((corr.t, self.correction_total))
+
     def count(self, key: str, n: int = 1) -> None:
         """Increment counter ``key``."""
         self.counts[key] = self.counts.get(key, 0) + n

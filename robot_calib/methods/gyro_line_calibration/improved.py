@@ -236,8 +236,7 @@ class ImprovedGyroLine(GyroLineBase):
             return []
         self._last_update = t
         corr = self._correct(keep, t)
-        self.corrections.append(corr)
-        self.count('corrections')
+        self._record(corr)
         return [corr]
 
     def _consistent(self, matches: list) -> list:

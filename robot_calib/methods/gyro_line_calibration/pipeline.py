@@ -146,15 +146,13 @@ class GyroLinePipeline(Pipeline):
 
     def method_summary(self) -> dict[str, Any]:
         """Return corrections, references, bias estimate and event counts."""
-        res = self.core.result()
-        deltas = np.array([c.delta for c in res.corrections])
+        res, core = self.core.result(), self.core
         return {
             'mode': self.params.mode,
             'corrections': res.counts.get('corrections', 0),
-            'correction_total_deg': float(np.degrees(deltas.sum())) if deltas.size else 0.0,
+            'correction_total_deg': math.degrees(core.correction_total),
             'corrections_kept': len(res.corrections),
-            'correction_abs_max_deg': float(np.degrees(np.abs(deltas).max()))
-            if deltas.size else 0.0,
+            'correction_abs_max_deg': math.degrees(core.correction_abs_max),
             'corrections_list': [
                 {'t': c.t, 'delta_deg': math.degrees(c.delta), 'kind': c.kind,
                  'angle_error_deg': math.degrees(c.angle_error),
@@ -181,9 +179,9 @@ class GyroLinePipeline(Pipeline):
             ax[0].plot([line.p1[0], line.p2[0]], [line.p1[1], line.p2[1]], 'k-', lw=1.5)
         ax[0].set_aspect('equal')
         ax[0].set_title('corrected trajectory and reference lines (m)')
-        if res.corrections:
-            c = np.array([(x.t, math.degrees(x.delta)) for x in res.corrections])
-            ax[1].plot(c[:, 0], np.cumsum(c[:, 1]), '.-', ms=2)
+        if self.core.correction_trace:
+            c = np.array(list(self.core.correction_trace))
+            ax[1].plot(c[:, 0], np.degrees(c[:, 1]), '.-', ms=2)
         ax[1].set_xlabel('t (s)')
         ax[1].set_ylabel('cumulative heading correction (deg)')
         return [figures.save(fig, Path(out_dir) / 'gyro_line_calibration.png')]

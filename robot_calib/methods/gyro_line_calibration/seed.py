@@ -178,8 +178,7 @@ class SeedGyroLine(GyroLineBase):
             best.matches += 1
             out.append(Correction(t, delta, best_err, (best.id,), (line,), (best.line,),
                                   self.pose, kind, 0.0, before))
-            self.count('corrections')
-            self.corrections.append(out[-1])
+            self._record(out[-1])
             break  # the pose changed: later lines of this scan were placed with the old one
         return out
 

@@ -45,7 +45,7 @@ class ImprovedWheelCalibrator(StreamingCalibrator):
         """Return the joint fit (warm-started while streaming; final: re-deskewed, re-solved)."""
         front = self.front
         warm = None if final else self._warm
-        res = calibrate(front.drive, front.segments, front.params, problems, x0=warm)
+        res = calibrate(front.drive, list(front.segments), front.params, problems, x0=warm)
         if 'x' in res.details and np.all(np.isfinite(res.details['x'])):
             self._warm = np.asarray(res.details['x'])
             if final and self.params.redeskew:

@@ -32,4 +32,4 @@ class SeedWheelCalibrator(StreamingCalibrator):
         """Return the seed's stage result (steered wheel) or Censi's closed form (differential)."""
         if self.stage_gate is not None:
             return self.stage_gate.result(problems)
-        return censi_result(self.front.segments, self.front.params, problems)
+        return censi_result(list(self.front.segments), self.front.params, problems)

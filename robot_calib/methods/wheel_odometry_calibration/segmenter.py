@@ -18,12 +18,14 @@ from __future__ import annotations
 import dataclasses
 from dataclasses import dataclass
 import math
+import sys
 from typing import Any, Callable, Optional
 
 import numpy as np
 from robot_calib.core import frames
 from robot_calib.core import kinematics as K
 from robot_calib.core.kinematics import Segment
+from robot_calib.core.series import Thinned
 from robot_calib.methods.wheel_odometry_calibration import drive_detect
 from robot_calib.methods.wheel_odometry_calibration import wheels as W
 from robot_calib.methods.wheel_odometry_calibration.params import keys_of, WheelCalibParams
@@ -167,11 +169,8 @@ class DriveSegmenter:
         self.drive = drive
         self.params = dataclasses.replace(self.params, drive_type=drive)
         self.x_nom = np.array([self.nominal[k] for k in keys_of(drive)], dtype=float)
-        self.segments: list[Segment] = []
-        self.segments_cut = 0
-        """Segments cut (matched) in this drive, kept or thinned out."""
-        self.stride = 1
-        """Every ``stride``-th segment cut is kept (doubles each time the cap is reached)."""
+        self.segments = Thinned(self.params.max_segments or sys.maxsize)
+        """The segments kept: at most ``max_segments``, evenly thinned over the drive."""
         self._stages: list[Segment] = []
         self.epoch += 1
         self._reset_wheels()
@@ -377,17 +376,19 @@ class DriveSegmenter:
         return _KeyFrame(scan.t, points, None, odom, scan, self.wheels.window(scan))
 
     def _keep(self, seg: Segment) -> None:
-        """Keep every ``stride``-th segment; past ``max_segments`` drop every other one."""
-        index, self.segments_cut = self.segments_cut, self.segments_cut + 1
-        if index % self.stride:
-            self.counts['segments_thinned'] += 1
-            return
+        """Keep a segment cut, evenly thinned past ``max_segments``."""
         self.segments.append(seg)
-        cap = self.params.max_segments
-        if cap and len(self.segments) > cap:
-            self.counts['segments_thinned'] += len(self.segments) // 2
-            self.segments = self.segments[::2]
-            self.stride *= 2
+        self.counts['segments_thinned'] = self.segments.count - len(self.segments)
+
+    @property
+    def segments_cut(self) -> int:
+        """Return how many segments were cut (matched) in this drive, kept or thinned out."""
+        return self.segments.count
+
+    @property
+    def stride(self) -> int:
+        """Return the thinning stride: every ``stride``-th segment cut is kept from now on."""
+        return self.segments.stride
 
     # -- seed stages ----------------------------------------------------------------------
     def _is_straight(self, seg: Segment) -> bool:
