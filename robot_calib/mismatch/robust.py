@@ -157,6 +157,16 @@ def sandwich(prob: S.Problem, terms: list, fit: S.Fit,
     return C @ B @ C * (k / (k - p))
 
 
+def wald_bar(p: int, blocks: int, alpha: float) -> float:
+    """
+    Return the bar a robust Wald statistic of ``p`` coefficients over ``blocks`` must pass.
+
+    ``p F(p, K_e - p)`` at false-alarm probability ``alpha``.
+    """
+    from scipy import special
+    return p * float(special.fdtri(p, max(blocks - p, 1), 1.0 - alpha))
+
+
 def wald(prob: S.Problem, terms: list, fit: S.Fit, edges: np.ndarray,
          alpha: float, min_block_s: float = 1.0) -> list:
     """
@@ -175,8 +185,7 @@ def wald(prob: S.Problem, terms: list, fit: S.Fit, edges: np.ndarray,
         V_t = V if e_t is edges else sandwich(prob, terms, fit, e_t)
         kb = active_blocks(prob, t, e_t)
         p = t.p
-        from scipy import special
-        thr = p * float(special.fdtri(p, max(kb - p, 1), 1.0 - alpha))
+        thr = wald_bar(p, kb, alpha)
         if V_t is None or kb <= p:
             out.append((0.0, thr, kb))
             continue
@@ -236,7 +245,6 @@ def band_test(prob: S.Problem, sel: list, j: int, edges: np.ndarray, alpha: floa
     like :func:`wald` (``F(1, K_e - 1)`` at ``alpha``). None when the blocks
     cannot tell.
     """
-    from scipy import special
     t = sel[j]
     width = max(3, int(round(width_s / max(prob.pt.dt, 1e-9))) | 1)
     slow = {f: _slow_part(c, width) for f, c in t.cols.items()}
@@ -252,7 +260,7 @@ def band_test(prob: S.Problem, sel: list, j: int, edges: np.ndarray, alpha: floa
     var = V[-2, -2] + V[-1, -1] - 2.0 * V[-2, -1]
     w = (b_slow - b_fast) ** 2 / var if var > 0 else 0.0
     w_slow = b_slow ** 2 / V[-2, -2] if V[-2, -2] > 0 else 0.0
-    return b_slow, b_fast, w, float(special.fdtri(1, kb - 1, 1.0 - alpha)), w_slow
+    return b_slow, b_fast, w, wald_bar(1, kb, alpha), w_slow
 
 
 def band_prune(prob: S.Problem, sel: list, edges: np.ndarray, alpha: float,

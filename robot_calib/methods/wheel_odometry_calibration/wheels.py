@@ -233,16 +233,15 @@ def motion(scan: Any, times: np.ndarray, poses: np.ndarray, sensor_pose: np.ndar
     """
     lx, ly, lyaw = (float(v) for v in sensor_pose)
     cl, sl = math.cos(lyaw), math.sin(lyaw)
-    tt, rows = times, poses
 
     def during(dt: np.ndarray) -> np.ndarray:
         ti = scan.t + dt
-        x0, y0, yaw0 = (float(np.interp(scan.t, tt, rows[:, j])) for j in range(3))
+        x0, y0, yaw0 = (float(np.interp(scan.t, times, poses[:, j])) for j in range(3))
         # odometry at each beam time relative to the stamp: a0^-1 (+) a(t), a0 at the stamp
         c0, s0 = math.cos(yaw0), math.sin(yaw0)
-        dx, dy = np.interp(ti, tt, rows[:, 0]) - x0, np.interp(ti, tt, rows[:, 1]) - y0
+        dx, dy = np.interp(ti, times, poses[:, 0]) - x0, np.interp(ti, times, poses[:, 1]) - y0
         rx, ry = c0 * dx + s0 * dy, c0 * dy - s0 * dx
-        ryaw = np.interp(ti, tt, rows[:, 2]) - yaw0
+        ryaw = np.interp(ti, times, poses[:, 2]) - yaw0
         # the sensor's own motion l^-1 (+) rel (+) l (kinematics.sensor_motion, expanded)
         c, s = np.cos(ryaw), np.sin(ryaw)
         qx, qy = rx + c * lx - s * ly - lx, ry + s * lx + c * ly - ly
