@@ -110,6 +110,30 @@ def test_heteroscedastic_noise_does_not_hide_a_small_bias():
     assert b and b[0]['parameters']['bias'] == pytest.approx(0.003, abs=0.0004)
 
 
+@pytest.mark.parametrize('seed', [5, 7, 9])
+def test_loud_stretches_do_not_outvote_a_drift_the_quiet_ones_show(seed):
+    """
+    A drifting gyro bias, under noise ten times louder while moving, is a finding.
+
+    Held-out time must judge it as the fit weighs each sample: by plain RMSE
+    the loud stretches decide, and the drift was left a weak finding.
+    """
+    t, w, a = _tumbling_imu(seed)
+    rng = np.random.default_rng(seed + 1)
+    moving = (np.sin(2 * np.pi * t / 30.0) > 0).astype(float)
+    real = _imu_rec(t, w, a)
+    for k in GYRO:
+        loud = moving * (0.03 * rng.standard_normal(t.size) +
+                         0.02 * _smooth_noise(rng, t.size, 400))
+        real['/imu'].fields[k] = real['/imu'].fields[k] + 0.002 * rng.standard_normal(t.size) \
+            + loud
+    real['/imu'].fields['angular_velocity.z'] += 1.2e-4 * t
+    out, _ = analyse_recordings(_imu_rec(t, w, a), real)
+    d = [f for f in out['findings'] if f['effect'] == 'gyro_bias_drift']
+    assert d and d[0]['channel'].endswith('.z'), out['findings']
+    assert d[0]['parameters']['drift'] == pytest.approx(1.2e-4, rel=0.05)
+
+
 def test_physics_outside_the_library_is_unexplained_not_misnamed():
     """A drag term (speed squared) on the odometry is not a radius error or slip."""
     rng = np.random.default_rng(7)

@@ -29,6 +29,9 @@ Held-out evaluation: the common time line is cut into ``heldout_chunks``
 equal chunks; every third chunk is held out. The selected effects are
 re-fitted on the other chunks only and the RMSE of ``real - sim`` before and
 after applying them is reported on both parts, inside the finding's window.
+An effect is dropped when it makes the held-out residual worse, and its
+evidence counts how much of its in-sample gain held-out time confirms, both
+weighted as the fit weighs each sample (by its local noise level).
 """
 
 from __future__ import annotations
@@ -219,10 +222,7 @@ def _select(prob: S.Problem, cands: list, prm: MismatchParams, edges: np.ndarray
             sel = S.refine_nonlinear(prob, sel)
     sel = _plain_offsets(prob, sel, prm)
     sel, implausible = _implausible(prob, sel, not_judged)
-    held = _heldout(prob, sel, prm.heldout_chunks) if sel else {}
-    bad = {i for i, h in held.items() if h['heldout_rmse_before'] is not None and
-           h['heldout_rmse_after'] is not None and
-           h['heldout_rmse_after'] > h['heldout_rmse_before']}
+    bad = _heldout_worse(_heldout(prob, sel, prm.heldout_chunks)[1]) if sel else set()
     for i in sorted(bad):
         notes.append(f'{sel[i].channel}: a candidate {sel[i].effect} did not improve the '
                      'held-out part and is not reported')
@@ -247,15 +247,52 @@ def _predict(prob: S.Problem, terms: list, betas: list, f: str) -> np.ndarray:
     return out
 
 
-def _heldout(prob: S.Problem, sel: list, chunks: int) -> dict:
-    """Re-fit the selected terms on the fitting chunks; RMSE before/after per selected term."""
+def _heldout_parts(prob: S.Problem, sel: list, chunks: int) -> tuple[np.ndarray, list]:
+    """
+    Re-fit the selected terms on the fitting chunks; return the held-out mask and per term.
+
+    Per selected term: its channel's field, the samples it is judged on (the
+    channel's valid samples inside its window) and that channel's prediction
+    by every selected term re-fitted without the held-out chunks.
+    """
     n = prob.n
     held = held_mask(n, chunks)
     fit_mask = {f: prob.mask[f] & ~held for f in prob.fields}
     pf = S.Problem(prob.pt, prob.fields, prob.r, fit_mask, prob.sigma, prob.phi, n,
                    sw=dict(prob.sw))
     fr = S.fit(pf, sel)
-    out = {}
+    parts = []
+    for t in sel:
+        f = t.channel[len(t.topic) + 1:]
+        if f not in prob.fields:
+            f = next(iter(t.cols))
+        m = prob.mask[f].copy()
+        if t.window is not None:
+            w = np.zeros(n, bool)
+            w[t.window[0]:t.window[1]] = True
+            m &= w
+        parts.append((f, m, _predict(prob, sel, fr.betas, f)))
+    return held, parts
+
+
+def _heldout(prob: S.Problem, sel: list, chunks: int) -> tuple[dict, dict]:
+    """
+    Re-fit the selected terms on the fitting chunks; RMSE before/after per selected term.
+
+    Returns two dicts of the same keys per term: the plain RMSE (reported) and
+    the RMSE weighted as the fit weighs each sample (``Problem.sw``, lower where
+    the residual is locally noisier), by which a term is judged. A plain RMSE
+    lets a noisy stretch that no effect explains outvote the quiet time where an
+    effect shows (a drifting gyro bias measured at rest, under fast turns the
+    simulation does not reproduce).
+    """
+    n = prob.n
+    held = held_mask(n, chunks)
+    fit_mask = {f: prob.mask[f] & ~held for f in prob.fields}
+    pf = S.Problem(prob.pt, prob.fields, prob.r, fit_mask, prob.sigma, prob.phi, n,
+                   sw=dict(prob.sw))
+    fr = S.fit(pf, sel)
+    plain, weighted = {}, {}
     for i, t in enumerate(sel):
         f = t.channel[len(t.topic) + 1:]
         if f not in prob.fields:
@@ -266,11 +303,19 @@ def _heldout(prob: S.Problem, sel: list, chunks: int) -> dict:
             w = np.zeros(n, bool)
             w[t.window[0]:t.window[1]] = True
             m &= w
-        r = prob.r[f]
-        out[i] = {'rmse_before': rmse(r, m & ~held), 'rmse_after': rmse(r - pred, m & ~held),
-                  'heldout_rmse_before': rmse(r, m & held),
-                  'heldout_rmse_after': rmse(r - pred, m & held)}
-    return out
+        r, sw = prob.r[f], prob.sw[f]
+        for out, x, y in ((plain, r, r - pred), (weighted, sw * r, sw * (r - pred))):
+            out[i] = {'rmse_before': rmse(x, m & ~held), 'rmse_after': rmse(y, m & ~held),
+                      'heldout_rmse_before': rmse(x, m & held),
+                      'heldout_rmse_after': rmse(y, m & held)}
+    return plain, weighted
+
+
+def _heldout_worse(weighted: dict) -> set:
+    """Return the terms (indices) whose re-fit makes held-out time worse (weighted RMSE)."""
+    return {i for i, h in weighted.items() if h['heldout_rmse_before'] is not None and
+            h['heldout_rmse_after'] is not None and
+            h['heldout_rmse_after'] > h['heldout_rmse_before']}
 
 
 # -- findings -------------------------------------------------------------------------------
@@ -301,13 +346,13 @@ def _analyse_topic(pt: PairedTopic, sim: Recording, real: Recording, t0: float,
     cands, cannot = E.candidates(pta, prob.sigma, aux)
     notes.extend(c for c in cannot if c not in notes)
     sel, prob, implausible = _select(prob, cands, prm, edges, notes, not_judged)
-    held = _heldout(prob, sel, prm.heldout_chunks) if sel else {}
+    held, held_w = _heldout(prob, sel, prm.heldout_chunks) if sel else ({}, {})
     final = S.fit(prob, sel, contributions=True)
     tests = R.wald(prob, sel, final, edges, prm.alpha, prm.min_block_s) if sel else []
     alts = S.alternatives(prob, sel, cands, _min_len(prob, prm), prm.alt_margin) \
         if sel and prm.mode != 'seed' else {}
     term_findings = [term_finding(prob, final, sel, i, held.get(i, {}), tests[i],
-                                  alts.get(i, [])) for i in range(len(sel))]
+                                  alts.get(i, []), held_w.get(i)) for i in range(len(sel))]
     time_findings = list(findings)
     findings.extend(term_findings)
     for f in prob.fields:

@@ -9,6 +9,8 @@ times its share among the explanations that fit about as well.
 
 from __future__ import annotations
 
+from typing import Optional
+
 import numpy as np
 
 from robot_calib.mismatch import effects as E
@@ -22,7 +24,8 @@ def evidence(strength: float, fitd: dict) -> float:
 
     The product of how far the robust statistic clears its bar
     (``1 - bar / statistic``) and whether held-out time confirms at least half
-    of the in-sample improvement (full credit), less (partial) or none.
+    of the in-sample improvement (full credit), less (partial) or none, by the
+    RMSEs of ``fitd`` (in-sample and held-out, before and after the effect).
     """
     s = float(np.clip(strength, 0.0, 1.0))
     hb, ha = fitd.get('heldout_rmse_before'), fitd.get('heldout_rmse_after')
@@ -45,14 +48,16 @@ def confidence(evidence: float, alt_deltas: list) -> float:
 
 
 def term_finding(prob: S.Problem, final: S.Fit, sel: list, i: int, fitd: dict,
-                 test: tuple, alts: list) -> dict:
+                 test: tuple, alts: list, weighted: Optional[dict] = None) -> dict:
     """
     Return the finding of the selected term ``sel[i]`` (contract keys plus evidence).
 
     :param final: the joint fit of ``sel``
-    :param fitd: its held-out fit dict
+    :param fitd: its held-out fit dict (reported)
     :param test: its robust test ``(W, threshold, blocks)``
     :param alts: the alternatives ``[(term, fit, delta BIC)]``
+    :param weighted: the same RMSEs weighted as the fit weighs each sample, which
+        judge the evidence (``fitd`` when None)
     """
     pt = prob.pt
     t = sel[i]
@@ -91,6 +96,7 @@ def term_finding(prob: S.Problem, final: S.Fit, sel: list, i: int, fitd: dict,
         names = ', '.join(sorted({a['effect'] for a in fd['alternatives']}))
         fd['explanation'] += f' This recording cannot clearly tell it from {names}; ' \
             f'{fd["alternatives"][0]["separating_motion"]}.'
-    fd['evidence_strength'] = evidence(1.0 - thr / max(w, 1e-12), fitd)
+    fd['evidence_strength'] = evidence(1.0 - thr / max(w, 1e-12),
+                                       fitd if weighted is None else weighted)
     fd['confidence'] = confidence(fd['evidence_strength'], deltas)
     return fd
