@@ -22,16 +22,40 @@ from robot_calib.mismatch import select as S
 from robot_calib.mismatch.channels import IMU_TYPE, PairedTopic
 from robot_calib.mismatch.explain import explain
 from robot_calib.mismatch.findings import confidence, evidence
-from robot_calib.mismatch.problem import held_mask, rmse
+from robot_calib.mismatch.locate import noise_level
+from robot_calib.mismatch.problem import held_mask, noise_floor, rmse
 
 
-def moving_fields(pt: PairedTopic, prob: S.Problem) -> list:
-    """Return the fields whose simulated signal moves well beyond the channel noise."""
+def moving_fields(pt: PairedTopic, prob: S.Problem, smooth: float) -> list:
+    """
+    Return the fields whose simulated signal moves well beyond the channel noise.
+
+    The noise level of the problem is measured on the residual at lag 0, where
+    a delay of the real recording is left in: on fast motion it passes for
+    noise and would hide the very channels that show the delay. A field that
+    fails at lag 0 is judged again with the residual at the lag of the
+    cross-correlation peak (``pt.tau_xcorr``), noise measured as at lag 0
+    (``smooth``: the moving average removed first, s).
+    """
     out = []
+    lag = float(getattr(pt, 'tau_xcorr', 0.0) or 0.0)
     for f in prob.fields:
         x = pt.sim_reg[f][prob.mask[f]]
         x = x[np.isfinite(x)]
-        if x.size > 20 and float(np.std(x)) > 3.0 * prob.sigma[f]:
+        if x.size <= 20:
+            continue
+        spread = float(np.std(x))
+        if spread <= 3.0 * prob.sigma[f] and abs(lag) >= 0.5 * pt.dt:
+            a = delayed(pt.sim[f], lag, pt.dt)
+            b = pt.real[f]
+            m = prob.mask[f] & np.isfinite(a)
+            if m.sum() > 20:
+                res = np.where(m, b - a, 0.0)
+                sigma, _ = noise_level(res, m, pt.dt, smooth)
+                if spread > 3.0 * max(sigma, noise_floor(res, m, a, b)):
+                    out.append(f)
+            continue
+        if spread > 3.0 * prob.sigma[f]:
             out.append(f)
     return out
 
@@ -91,7 +115,7 @@ def aligned(pt: PairedTopic, taus: dict) -> PairedTopic:
 
 def time_stage(pt: PairedTopic, prob: S.Problem, prm: Any, edges: np.ndarray) -> list:
     """Return the significant time effects of a topic: [(kind, TimeEffect, lag info)]."""
-    fields = moving_fields(pt, prob)
+    fields = moving_fields(pt, prob, prm.noise_smooth)
     if not fields:
         return []
     keep = np.ones(prob.n, bool)
