@@ -92,10 +92,10 @@ def test_lever_arm_recovered():
     assert np.linalg.norm(got - r) < 0.1 * np.linalg.norm(r)
 
 
-def test_heteroscedastic_noise_does_not_hide_a_small_bias():
-    """Noise ten times louder while moving: the quiet stretches pin the bias."""
-    t, w, a = _tumbling_imu(5)
-    rng = np.random.default_rng(6)
+def _loud_while_moving(seed):
+    """Return (t, sim, real): a tumbling IMU, its real gyro ten times noisier half the time."""
+    t, w, a = _tumbling_imu(seed)
+    rng = np.random.default_rng(seed + 1)
     moving = (np.sin(2 * np.pi * t / 30.0) > 0).astype(float)
     real = _imu_rec(t, w, a)
     for k in GYRO:
@@ -104,8 +104,14 @@ def test_heteroscedastic_noise_does_not_hide_a_small_bias():
                          0.02 * _smooth_noise(rng, t.size, 400))
         real['/imu'].fields[k] = real['/imu'].fields[k] + 0.002 * rng.standard_normal(t.size) \
             + loud
+    return t, _imu_rec(t, w, a), real
+
+
+def test_heteroscedastic_noise_does_not_hide_a_small_bias():
+    """Noise ten times louder while moving: the quiet stretches pin the bias."""
+    _, sim, real = _loud_while_moving(5)
     real['/imu'].fields['angular_velocity.y'] += 0.003
-    out, _ = analyse_recordings(_imu_rec(t, w, a), real)
+    out, _ = analyse_recordings(sim, real)
     b = [f for f in _named(out, 'gyro_bias') if f['channel'].endswith('.y')]
     assert b and b[0]['parameters']['bias'] == pytest.approx(0.003, abs=0.0004)
 
@@ -118,17 +124,9 @@ def test_loud_stretches_do_not_outvote_a_drift_the_quiet_ones_show(seed):
     Held-out time must judge it as the fit weighs each sample: by plain RMSE
     the loud stretches decide, and the drift was left a weak finding.
     """
-    t, w, a = _tumbling_imu(seed)
-    rng = np.random.default_rng(seed + 1)
-    moving = (np.sin(2 * np.pi * t / 30.0) > 0).astype(float)
-    real = _imu_rec(t, w, a)
-    for k in GYRO:
-        loud = moving * (0.03 * rng.standard_normal(t.size) +
-                         0.02 * _smooth_noise(rng, t.size, 400))
-        real['/imu'].fields[k] = real['/imu'].fields[k] + 0.002 * rng.standard_normal(t.size) \
-            + loud
+    t, sim, real = _loud_while_moving(seed)
     real['/imu'].fields['angular_velocity.z'] += 1.2e-4 * t
-    out, _ = analyse_recordings(_imu_rec(t, w, a), real)
+    out, _ = analyse_recordings(sim, real)
     d = [f for f in out['findings'] if f['effect'] == 'gyro_bias_drift']
     assert d and d[0]['channel'].endswith('.z'), out['findings']
     assert d[0]['parameters']['drift'] == pytest.approx(1.2e-4, rel=0.05)
@@ -138,7 +136,7 @@ def test_a_delay_on_small_fast_motion_is_not_taken_for_noise():
     """
     A gyro axis turning little but quickly still joins the delay, and its scale is found.
 
-    Left in the residual, a 30 ms delay of that axis measures as noise fifty
+    Left in the residual, a 30 ms delay of that axis measures as noise seventy
     times the sensor's; the axis then seemed too still to show a delay at all.
     """
     t, w, a = _tumbling_imu(1)

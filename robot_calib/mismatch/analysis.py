@@ -247,34 +247,6 @@ def _predict(prob: S.Problem, terms: list, betas: list, f: str) -> np.ndarray:
     return out
 
 
-def _heldout_parts(prob: S.Problem, sel: list, chunks: int) -> tuple[np.ndarray, list]:
-    """
-    Re-fit the selected terms on the fitting chunks; return the held-out mask and per term.
-
-    Per selected term: its channel's field, the samples it is judged on (the
-    channel's valid samples inside its window) and that channel's prediction
-    by every selected term re-fitted without the held-out chunks.
-    """
-    n = prob.n
-    held = held_mask(n, chunks)
-    fit_mask = {f: prob.mask[f] & ~held for f in prob.fields}
-    pf = S.Problem(prob.pt, prob.fields, prob.r, fit_mask, prob.sigma, prob.phi, n,
-                   sw=dict(prob.sw))
-    fr = S.fit(pf, sel)
-    parts = []
-    for t in sel:
-        f = t.channel[len(t.topic) + 1:]
-        if f not in prob.fields:
-            f = next(iter(t.cols))
-        m = prob.mask[f].copy()
-        if t.window is not None:
-            w = np.zeros(n, bool)
-            w[t.window[0]:t.window[1]] = True
-            m &= w
-        parts.append((f, m, _predict(prob, sel, fr.betas, f)))
-    return held, parts
-
-
 def _heldout(prob: S.Problem, sel: list, chunks: int) -> tuple[dict, dict]:
     """
     Re-fit the selected terms on the fitting chunks; RMSE before/after per selected term.
