@@ -153,6 +153,67 @@ def test_a_delay_on_small_fast_motion_is_not_taken_for_noise():
     assert s[0]['parameters']['scale'] == pytest.approx(0.04, abs=0.004)
 
 
+@pytest.mark.parametrize('seed', [3, 4, 5])
+def test_a_delay_of_gentle_motion_over_a_long_recording_is_found(seed):
+    """
+    A cart yawing gently (about twice the noise) for 200 s shows its 60 ms lead.
+
+    Per sample the motion hardly stands above the noise, but the delay estimate
+    integrates it over the whole recording; the channels of noise alone stay out.
+    """
+    rate = 100.0
+    n = int(200 * rate)
+    t = np.arange(n) / rate
+    rng = np.random.default_rng(seed)
+    w = np.zeros((n, 3))
+    w[:, 2] = 0.03 * _smooth_noise(rng, n, 100)
+    a = np.zeros((n, 3))
+    a[:, 2] = GRAVITY
+    a[:, 0] = 0.09 * _smooth_noise(rng, n, 150)
+    sim = _noisy(_imu_rec(t, w, a), seed + 1, sg=0.01, sa=0.05)
+    real = _noisy(_imu_rec(t, w, a), seed + 2, sg=0.01, sa=0.05)['/imu']
+    real = {'/imu': Topic('/imu', IMU_TYPE, real.t - 0.06, real.fields)}
+    out, _ = analyse_recordings(sim, real)
+    delays = out['time_alignment']['/imu']['delays']
+    assert len(delays) == 1 and 'angular_velocity.z' in delays[0]['fields'], delays
+    assert not {'angular_velocity.x', 'angular_velocity.y'} & set(delays[0]['fields'])
+    assert delays[0]['tau'] == pytest.approx(-0.06, abs=0.006)
+
+
+def test_a_physical_name_replaces_an_implausible_one_that_fits_the_same():
+    """
+    Driving circles, the real IMU feels 60 % more centripetal acceleration than simulated.
+
+    The simulated lateral acceleration is v omega itself, so a 60 % accelerometer
+    scale (no working sensor has one) fits exactly as well as the missing
+    centripetal term; the physical name is reported, not an unexplained residual.
+    """
+    rate = 100.0
+    n = int(120 * rate)
+    t = np.arange(n) / rate
+    rng = np.random.default_rng(4)
+    v = 1.0 + 0.2 * _smooth_noise(rng, n, 800)
+    wz = 0.5 + 0.1 * _smooth_noise(rng, n, 800)
+    w = np.zeros((n, 3))
+    w[:, 2] = wz
+    a = np.zeros((n, 3))
+    a[:, 0], a[:, 1], a[:, 2] = np.gradient(v, 1 / rate), v * wz, GRAVITY
+    real_a = a.copy()
+    real_a[:, 1] += 0.6 * v * wz
+
+    def odom(noise):
+        fields = (v[::5] + noise * rng.standard_normal(n // 5),
+                  wz[::5] + noise * rng.standard_normal(n // 5))
+        return {'/odom': Topic('/odom', ODOM_TYPE, t[::5].copy(), dict(zip(ODOM_FIELDS, fields)))}
+    out, _ = analyse_recordings({**_imu_rec(t, w, a), **odom(0.0)},
+                                {**_noisy(_imu_rec(t, w, real_a), 5), **odom(0.004)})
+    named = [f for f in out['findings'] if f['channel'].endswith('linear_acceleration.y')]
+    assert [f['effect'] for f in named] == ['centripetal_acceleration'], out['findings']
+    assert named[0]['parameters']['gain'] == pytest.approx(0.6, abs=0.01)
+    assert not any(f['effect'] == 'unexplained' for f in out['findings'])
+    assert any('far beyond a physical value' in n for n in out['notes'])
+
+
 def test_physics_outside_the_library_is_unexplained_not_misnamed():
     """A drag term (speed squared) on the odometry is not a radius error or slip."""
     rng = np.random.default_rng(7)

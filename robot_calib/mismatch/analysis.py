@@ -118,32 +118,51 @@ def _aux(sim: Recording, real: Recording, pt: PairedTopic, t0: float, notes: lis
 
 
 # -- stage 2: amplitude effects -------------------------------------------------------------
-def _implausible(prob: S.Problem, sel: list, not_judged: list) -> tuple[list, list]:
+def _beyond_plausible(term: E.Term, beta: np.ndarray, cov: np.ndarray) -> tuple[dict, list]:
+    """Return a term's parameters and the names of those beyond a working sensor's range."""
+    params, _ = E.to_params(term, beta, cov)
+    spec = E.SPECS[term.effect]
+    return params, [k for k, lim in zip(spec.params, spec.plausible)
+                    if np.isfinite(params[k]) and abs(params[k]) > lim]
+
+
+def _implausible(prob: S.Problem, sel: list, not_judged: list, notes: list, cands: list,
+                 min_len: int, alt_margin: float) -> tuple[list, list]:
     """
     Move effects fitted far beyond their plausible range out of the findings.
 
     A parameter beyond the plausible magnitude of a working sensor (e.g. a
     gyro scale of -1: the real channel does not follow the simulation at all)
-    is not a physical effect of that name; it is reported as a stretch the tool
-    cannot explain. Returns (kept terms, [(term, parameters)] dropped).
+    is not a physical effect of that name. When another effect of the library
+    explains the same residual about as well (within ``alt_margin``) with
+    physical values, it takes the place of the first (a note says so; e.g. on
+    a steady circle the centripetal acceleration v omega and an accelerometer
+    scale are the same regressor); otherwise the stretch is reported as one the
+    tool cannot explain. Returns (kept terms, [(term, parameters)] dropped).
     """
     if not sel:
         return sel, []
     f = S.fit(prob, sel)
     keep, dropped = [], []
     for i, t in enumerate(sel):
-        params, _ = E.to_params(t, f.betas[i], f.covs[i])
-        spec = E.SPECS[t.effect]
-        bad = [k for k, lim in zip(spec.params, spec.plausible)
-               if np.isfinite(params[k]) and abs(params[k]) > lim]
+        params, bad = _beyond_plausible(t, f.betas[i], f.covs[i])
         if not bad:
             keep.append(t)
+            continue
+        desc = ', '.join(f'{k} = {params[k]:.3g}' for k in bad)
+        alt = next((c for c, cf, _ in S.alternatives(prob, sel, cands, min_len, alt_margin,
+                                                     only=i).get(i, [])
+                    if not _beyond_plausible(c, cf.betas[-1], cf.covs[-1])[1]), None)
+        if alt is not None:
+            keep.append(alt)
+            notes.append(f'{t.channel}: the best {t.effect} fit ({desc}) is far beyond a '
+                         f'physical value; {alt.effect} explains the residual about as well '
+                         'with a physical value and is reported instead')
             continue
         dropped.append((t, params))
         pt = prob.pt
         where = 'the whole recording' if t.window is None else \
             f'{pt.t[t.window[0]]:.1f}-{pt.t[min(t.window[1], prob.n) - 1]:.1f} s'
-        desc = ', '.join(f'{k} = {params[k]:.3g}' for k in bad)
         not_judged.append({'channel': t.channel, 'reason': f'in {where} the real channel does '
                            f'not follow the simulation (the best {t.effect} fit, {desc}, is far '
                            'beyond a physical value; is the simulated signal noise there?)'})
@@ -221,7 +240,8 @@ def _select(prob: S.Problem, cands: list, prm: MismatchParams, edges: np.ndarray
         if unequal and sel:
             sel = S.refine_nonlinear(prob, sel)
     sel = _plain_offsets(prob, sel, prm)
-    sel, implausible = _implausible(prob, sel, not_judged)
+    sel, implausible = _implausible(prob, sel, not_judged, notes, cands, min_len,
+                                    prm.alt_margin)
     bad = _heldout_worse(_heldout(prob, sel, prm.heldout_chunks)[1]) if sel else set()
     for i in sorted(bad):
         notes.append(f'{sel[i].channel}: a candidate {sel[i].effect} did not improve the '
@@ -323,6 +343,9 @@ def _analyse_topic(pt: PairedTopic, sim: Recording, real: Recording, t0: float,
     tests = R.wald(prob, sel, final, edges, prm.alpha, prm.min_block_s) if sel else []
     alts = S.alternatives(prob, sel, cands, _min_len(prob, prm), prm.alt_margin) \
         if sel and prm.mode != 'seed' else {}
+    # an explanation that needs a parameter no working sensor has is no alternative
+    alts = {i: [a for a in lst if not _beyond_plausible(a[0], a[1].betas[-1], a[1].covs[-1])[1]]
+            for i, lst in alts.items()}
     term_findings = [term_finding(prob, final, sel, i, held.get(i, {}), tests[i],
                                   alts.get(i, []), held_w.get(i)) for i in range(len(sel))]
     time_findings = list(findings)

@@ -458,18 +458,21 @@ def refine_nonlinear(prob: Problem, sel: list, iters: int = 8) -> list:
 
 
 def alternatives(prob: Problem, sel: list, cands: list, min_len: int,
-                 alt_margin: float) -> dict:
+                 alt_margin: float, only: Optional[int] = None) -> dict:
     """
     Return {index of selected term: [(candidate, its fit, score difference)]}.
 
     A candidate is an alternative to a selected term when it acts on no
     channel the selected term leaves alone (so it competes for the same
     residual, not for others), names a different effect, and the model with
-    it in place of the selected term scores within ``alt_margin``.
+    it in place of the selected term scores within ``alt_margin``. With
+    ``only``, the alternatives of that selected term alone.
     """
     base = score(prob, fit(prob, sel))
     out: dict = {}
     for i, t in enumerate(sel):
+        if only is not None and i != only:
+            continue
         others = sel[:i] + sel[i + 1:]
         res = _residuals(prob, fit(prob, others))
         chans = set(t.cols)

@@ -26,6 +26,13 @@ from robot_calib.mismatch.locate import noise_level
 from robot_calib.mismatch.problem import held_mask, noise_floor, rmse
 
 
+MOVING_SPREAD = 1.5
+"""A channel takes part in the delay estimate when its simulated motion (standard deviation)
+exceeds this many times its residual noise level. A channel of noise alone stays near 0.2-0.7
+of it (its regressor averages the noise away, the residual holds both sides' noise); the delay
+estimate then integrates the motion over the whole recording and is tested for significance."""
+
+
 def moving_fields(pt: PairedTopic, prob: S.Problem, smooth: float) -> list:
     """
     Return the fields whose simulated signal moves well beyond the channel noise.
@@ -45,17 +52,17 @@ def moving_fields(pt: PairedTopic, prob: S.Problem, smooth: float) -> list:
         if x.size <= 20:
             continue
         spread = float(np.std(x))
-        if spread <= 3.0 * prob.sigma[f] and abs(lag) >= 0.5 * pt.dt:
+        if spread <= MOVING_SPREAD * prob.sigma[f] and abs(lag) >= 0.5 * pt.dt:
             a = delayed(pt.sim[f], lag, pt.dt)
             b = pt.real[f]
             m = prob.mask[f] & np.isfinite(a)
             if m.sum() > 20:
                 res = np.where(m, b - a, 0.0)
                 sigma, _ = noise_level(res, m, pt.dt, smooth)
-                if spread > 3.0 * max(sigma, noise_floor(res, m, a, b)):
+                if spread > MOVING_SPREAD * max(sigma, noise_floor(res, m, a, b)):
                     out.append(f)
             continue
-        if spread > 3.0 * prob.sigma[f]:
+        if spread > MOVING_SPREAD * prob.sigma[f]:
             out.append(f)
     return out
 
