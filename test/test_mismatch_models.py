@@ -214,6 +214,53 @@ def test_a_physical_name_replaces_an_implausible_one_that_fits_the_same():
     assert any('far beyond a physical value' in n for n in out['notes'])
 
 
+def test_a_scale_on_a_steady_turn_is_named_beside_the_offset_it_looks_like():
+    """
+    A 4 % gyro scale acting only during a 40 s turn at a constant rate reads as an offset.
+
+    The recording cannot tell the two apart there; the finding must say so (the
+    scale as its alternative, the confidence halved), even though the simulated
+    rate's own noise makes the scale fit a little worse than the offset.
+    """
+    t, w, a = _tumbling_imu(2)
+    steady = (t >= 40.0) & (t < 80.0)
+    w[steady, 2] = 0.5
+    real = _imu_rec(t, w, a)
+    real['/imu'].fields['angular_velocity.z'] = np.where(steady, 1.04, 1.0) * w[:, 2]
+    out, _ = analyse_recordings(_noisy(_imu_rec(t, w, a), 4), _noisy(real, 3))
+    named = [f for f in out['findings'] + out['weak_findings']
+             if f['channel'].endswith('angular_velocity.z')]
+    assert len(named) == 1 and named[0]['effect'] in ('gyro_bias', 'gyro_scale'), named
+    f = named[0]
+    assert f['window'] == pytest.approx([40.0, 80.0], abs=0.1)
+    alts = {x['effect']: x['parameters'] for x in f.get('alternatives', [])}
+    twin = 'gyro_scale' if f['effect'] == 'gyro_bias' else 'gyro_bias'
+    assert twin in alts, f
+    values = {f['effect']: f['parameters'], twin: alts[twin]}
+    assert values['gyro_bias']['bias'] == pytest.approx(0.02, abs=0.002)
+    assert values['gyro_scale']['scale'] == pytest.approx(0.04, abs=0.004)
+    assert f['confidence'] <= 0.55
+
+
+def test_a_delay_is_shown_on_the_channel_it_explains_best_against_its_noise():
+    """
+    A 20 ms delay shows on the gyros far above their noise and on a noisy accelerometer barely.
+
+    The accelerometer's RMSE falls more in m/s^2 than a gyro's in rad/s; units
+    must not pick the channel the finding shows.
+    """
+    t, w, a = _tumbling_imu(6)
+    w *= 0.1
+    a[:, 0] += 3.0 * np.sin(2 * np.pi * t / 2.0)
+    real = _noisy(_imu_rec(t, w, a), 7, sg=0.002, sa=0.4)['/imu']
+    real = {'/imu': Topic('/imu', IMU_TYPE, real.t + 0.02, real.fields)}
+    out, _ = analyse_recordings(_imu_rec(t, w, a), real)
+    f = [x for x in out['findings'] if x['effect'] == 'time_offset']
+    assert f and f[0]['parameters']['tau'] == pytest.approx(0.02, abs=1e-3)
+    assert '.angular_velocity.' in f[0]['channel']
+    assert f[0]['fit']['heldout_rmse_after'] < 0.5 * f[0]['fit']['heldout_rmse_before']
+
+
 def test_physics_outside_the_library_is_unexplained_not_misnamed():
     """A drag term (speed squared) on the odometry is not a radius error or slip."""
     rng = np.random.default_rng(7)

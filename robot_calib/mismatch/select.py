@@ -306,6 +306,17 @@ def excited(term: E.Term, window: tuple, rel: float = 0.1) -> bool:
     return True
 
 
+def _steady(term: E.Term) -> E.Term:
+    """Return ``term`` with each regressor column held at its mean inside the term's window."""
+    i0, i1 = term.window
+    cols = {}
+    for f, X in term.cols.items():
+        Y = np.array(X, dtype=float)
+        Y[i0:i1] = np.nanmean(Y[i0:i1], axis=0)
+        cols[f] = Y
+    return term.with_cols(cols, term.group)
+
+
 def _model_with(sel: list, cand: E.Term) -> list:
     return [t for t in sel if t.group != cand.group] + [cand]
 
@@ -465,7 +476,8 @@ def alternatives(prob: Problem, sel: list, cands: list, min_len: int,
     A candidate is an alternative to a selected term when it acts on no
     channel the selected term leaves alone (so it competes for the same
     residual, not for others), names a different effect, and the model with
-    it in place of the selected term scores within ``alt_margin``. With
+    it in place of the selected term (in its own window or the selected
+    term's) scores within ``alt_margin``. With
     ``only``, the alternatives of that selected term alone.
     """
     base = score(prob, fit(prob, sel))
@@ -483,11 +495,22 @@ def alternatives(prob: Problem, sel: list, cands: list, min_len: int,
             if any(c.group == o.group for o in others):
                 continue
             g, win = _screen(prob, c, res, min_len, t.window is not None)
-            model = others + [c.with_window(win)]
-            f = fit(prob, model)
-            d = score(prob, f) - base
-            if d < alt_margin:
-                out.setdefault(i, []).append((model[-1], f, float(d)))
+            tried = [c.with_window(win)]
+            # in the selected term's window a gain whose regressor stays constant there (so
+            # never offered as a window of its own, see excited) is the offset's twin: its
+            # regressor read as its mean (what varies is the simulation's own noise)
+            if (t.window is not None and t.window != win and c.windowable
+                    and not excited(c, t.window)):
+                tried.append(_steady(c.with_window(t.window)))
+            best = None
+            for cw in tried:
+                model = others + [cw]
+                f = fit(prob, model)
+                d = float(score(prob, f) - base)
+                if best is None or d < best[2]:
+                    best = (cw, f, d)
+            if best[2] < alt_margin:
+                out.setdefault(i, []).append(best)
         if i in out:
             out[i].sort(key=lambda z: z[2])
     return out

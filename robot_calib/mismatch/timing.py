@@ -201,7 +201,12 @@ def field_taus(te: L.TimeEffect) -> dict:
 
 def _time_fit(pt: PairedTopic, prob: S.Problem, te: L.TimeEffect, prm: Any,
               edges: np.ndarray) -> tuple[str, dict]:
-    """Return (best channel, fit dict): the delay re-estimated without the held-out chunks."""
+    """
+    Return (best channel, fit dict): the delay re-estimated without the held-out chunks.
+
+    The channel reported is the one whose held-out mean square falls most, in
+    units of its noise variance.
+    """
     held = held_mask(prob.n, prm.heldout_chunks)
     refit = L.delays_of(group_data(pt, prob, te.fields, ~held), pt.dt, edges, 1.0, prm.max_lag)
     moved = aligned(pt, field_taus(refit[0] if refit else te))
@@ -213,7 +218,10 @@ def _time_fit(pt: PairedTopic, prob: S.Problem, te: L.TimeEffect, prm: Any,
         fd = {'rmse_before': rmse(r0, m & ~held), 'rmse_after': rmse(r1, m & ~held),
               'heldout_rmse_before': rmse(r0, m & held),
               'heldout_rmse_after': rmse(r1, m & held)}
-        gain = (fd['heldout_rmse_before'] or 0.0) - (fd['heldout_rmse_after'] or 0.0)
+        # the channel where the delay shows most against its own noise (channels differ in
+        # units: an accelerometer's m/s^2 are no more than a gyro's rad/s)
+        gain = ((fd['heldout_rmse_before'] or 0.0) ** 2 -
+                (fd['heldout_rmse_after'] or 0.0) ** 2) / max(prob.sigma[f], 1e-300) ** 2
         if best is None or gain > best:
             best, fitd, channel = gain, fd, f'{pt.name}.{f}'
     return channel, fitd
