@@ -18,6 +18,7 @@ from robot_calib.mismatch import latency as L
 from robot_calib.mismatch import robust as R
 from robot_calib.mismatch.channels import IMU_FIELDS, IMU_TYPE, ODOM_FIELDS, ODOM_TYPE, Topic
 from robot_calib.mismatch.effects import rotate
+from robot_calib.mismatch.findings import evidence, motion_ratio
 
 GYRO, ACC = IMU_FIELDS[:3], IMU_FIELDS[3:]
 
@@ -259,6 +260,27 @@ def test_a_delay_is_shown_on_the_channel_it_explains_best_against_its_noise():
     assert f and f[0]['parameters']['tau'] == pytest.approx(0.02, abs=1e-3)
     assert '.angular_velocity.' in f[0]['channel']
     assert f[0]['fit']['heldout_rmse_after'] < 0.5 * f[0]['fit']['heldout_rmse_before']
+
+
+def test_held_out_time_that_moves_less_is_not_held_against_an_effect():
+    """
+    An effect removes from each part of the recording what its motion puts there.
+
+    Held-out time moving three times less (in mean square) confirms a third of
+    the fitted gain: full credit once the motion is counted, partial without.
+    """
+    fitted = np.arange(3000) < 2000
+    change = np.sin(0.1 * np.arange(3000)) * np.where(fitted, 1.0, np.sqrt(1 / 3))
+    motion = motion_ratio(change, fitted, ~fitted)
+    assert motion == pytest.approx(3.0, rel=0.01)
+    fitd = {'rmse_before': np.sqrt(2.0), 'rmse_after': 1.0,          # gain 1.0 in mean square
+            'heldout_rmse_before': np.sqrt(1.3), 'heldout_rmse_after': 1.0}   # gain 0.3
+    assert evidence(1.0, fitd) == pytest.approx(0.6)
+    assert evidence(1.0, fitd, motion) == pytest.approx(1.0)
+    # a spurious effect makes held-out time worse: no credit, however the motion lies
+    worse = dict(fitd, heldout_rmse_before=1.0, heldout_rmse_after=np.sqrt(1.3))
+    assert evidence(1.0, worse, motion) == 0.0
+    assert motion_ratio(np.zeros(10), np.arange(10) < 5, np.arange(10) >= 5) == 1.0
 
 
 def test_physics_outside_the_library_is_unexplained_not_misnamed():

@@ -18,7 +18,7 @@ from robot_calib.mismatch import select as S
 from robot_calib.mismatch.explain import explain
 
 
-def evidence(strength: float, fitd: dict) -> float:
+def evidence(strength: float, fitd: dict, motion: float = 1.0) -> float:
     """
     Return how strongly (0..1) the data say that a finding is real, whatever its name.
 
@@ -26,14 +26,34 @@ def evidence(strength: float, fitd: dict) -> float:
     (``1 - bar / statistic``) and whether held-out time confirms at least half
     of the in-sample improvement (full credit), less (partial) or none, by the
     RMSEs of ``fitd`` (in-sample and held-out, before and after the effect).
+    ``motion`` is how much more the effect changes the fitted time than the
+    held-out time (the mean squares of its change there, see
+    :func:`motion_ratio`): an effect shows in proportion to the motion that
+    excites it, so held-out time that happens to move less is not held against it.
     """
     s = float(np.clip(strength, 0.0, 1.0))
     hb, ha = fitd.get('heldout_rmse_before'), fitd.get('heldout_rmse_after')
     ib, ia = fitd.get('rmse_before'), fitd.get('rmse_after')
     gen = 1.0
     if None not in (hb, ha, ib, ia) and ib ** 2 - ia ** 2 > 0:
-        gen = float(np.clip(2.0 * (hb ** 2 - ha ** 2) / (ib ** 2 - ia ** 2), 0.0, 1.0))
+        gen = float(np.clip(2.0 * motion * (hb ** 2 - ha ** 2) / (ib ** 2 - ia ** 2), 0.0, 1.0))
     return round(s * gen, 3)
+
+
+def motion_ratio(change: np.ndarray, fitted: np.ndarray, held: np.ndarray) -> float:
+    """
+    Return the mean square of an effect's ``change`` on ``fitted`` samples over ``held`` ones.
+
+    Noise in the change (a noisy simulation shifted or scaled) is alike on both
+    parts and only pulls the ratio towards 1; it is kept within [0.25, 4].
+    """
+    a, b = change[fitted], change[held]
+    if a.size == 0 or b.size == 0:
+        return 1.0
+    ms_held = float(np.mean(b * b))
+    if ms_held <= 0.0:
+        return 1.0
+    return float(np.clip(float(np.mean(a * a)) / ms_held, 0.25, 4.0))
 
 
 def confidence(evidence: float, alt_deltas: list) -> float:
@@ -48,7 +68,8 @@ def confidence(evidence: float, alt_deltas: list) -> float:
 
 
 def term_finding(prob: S.Problem, final: S.Fit, sel: list, i: int, fitd: dict,
-                 test: tuple, alts: list, weighted: Optional[dict] = None) -> dict:
+                 test: tuple, alts: list, weighted: Optional[dict] = None,
+                 motion: float = 1.0) -> dict:
     """
     Return the finding of the selected term ``sel[i]`` (contract keys plus evidence).
 
@@ -58,6 +79,7 @@ def term_finding(prob: S.Problem, final: S.Fit, sel: list, i: int, fitd: dict,
     :param alts: the alternatives ``[(term, fit, delta BIC)]``
     :param weighted: the same RMSEs weighted as the fit weighs each sample, which
         judge the evidence (``fitd`` when None)
+    :param motion: the effect's change on fitted over held-out time (:func:`motion_ratio`)
     """
     pt = prob.pt
     t = sel[i]
@@ -97,6 +119,6 @@ def term_finding(prob: S.Problem, final: S.Fit, sel: list, i: int, fitd: dict,
         fd['explanation'] += f' This recording cannot clearly tell it from {names}; ' \
             f'{fd["alternatives"][0]["separating_motion"]}.'
     fd['evidence_strength'] = evidence(1.0 - thr / max(w, 1e-12),
-                                       fitd if weighted is None else weighted)
+                                       fitd if weighted is None else weighted, motion)
     fd['confidence'] = confidence(fd['evidence_strength'], deltas)
     return fd

@@ -21,7 +21,7 @@ from robot_calib.mismatch import latency as L
 from robot_calib.mismatch import select as S
 from robot_calib.mismatch.channels import IMU_TYPE, PairedTopic
 from robot_calib.mismatch.explain import explain
-from robot_calib.mismatch.findings import confidence, evidence
+from robot_calib.mismatch.findings import confidence, evidence, motion_ratio
 from robot_calib.mismatch.locate import noise_level
 from robot_calib.mismatch.problem import held_mask, noise_floor, rmse
 
@@ -200,17 +200,18 @@ def field_taus(te: L.TimeEffect) -> dict:
 
 
 def _time_fit(pt: PairedTopic, prob: S.Problem, te: L.TimeEffect, prm: Any,
-              edges: np.ndarray) -> tuple[str, dict]:
+              edges: np.ndarray) -> tuple[str, dict, float]:
     """
-    Return (best channel, fit dict): the delay re-estimated without the held-out chunks.
+    Return (best channel, fit dict, motion): the delay re-estimated without the held-out chunks.
 
     The channel reported is the one whose held-out mean square falls most, in
-    units of its noise variance.
+    units of its noise variance; ``motion`` how much more the delay changes it
+    on fitted than on held-out time (``findings.motion_ratio``).
     """
     held = held_mask(prob.n, prm.heldout_chunks)
     refit = L.delays_of(group_data(pt, prob, te.fields, ~held), pt.dt, edges, 1.0, prm.max_lag)
     moved = aligned(pt, field_taus(refit[0] if refit else te))
-    best, fitd, channel = None, {}, f'{pt.name}.{te.fields[0]}'
+    best, fitd, channel, motion = None, {}, f'{pt.name}.{te.fields[0]}', 1.0
     for f in te.fields:
         r0 = prob.r[f]
         r1 = np.where(prob.mask[f], pt.real[f] - moved.sim[f], np.nan)
@@ -224,7 +225,8 @@ def _time_fit(pt: PairedTopic, prob: S.Problem, te: L.TimeEffect, prm: Any,
                 (fd['heldout_rmse_after'] or 0.0) ** 2) / max(prob.sigma[f], 1e-300) ** 2
         if best is None or gain > best:
             best, fitd, channel = gain, fd, f'{pt.name}.{f}'
-    return channel, fitd
+            motion = motion_ratio(np.nan_to_num(r0 - r1), m & ~held, m & held)
+    return channel, fitd, motion
 
 
 def time_findings(pt: PairedTopic, prob: S.Problem, found: list, prm: Any,
@@ -233,7 +235,7 @@ def time_findings(pt: PairedTopic, prob: S.Problem, found: list, prm: Any,
     out = []
     for kind, te, info in found:
         d = te.delay
-        channel, fitd = _time_fit(pt, prob, te, prm, edges)
+        channel, fitd, motion = _time_fit(pt, prob, te, prm, edges)
         tau = d.tau if kind == 'time_offset' else info['lag_tau']
         params, sds = {'tau': float(tau)}, {'tau': float(d.std)}
         z_thr = L.t_quantile(prm.alpha, d.blocks - 1)
@@ -259,7 +261,8 @@ def time_findings(pt: PairedTopic, prob: S.Problem, found: list, prm: Any,
               'per_group': per_group,
               'evidence': {'z': float(d.z), 'z_threshold': z_thr, 'blocks': d.blocks,
                            'band_hz': list(d.band_hz), 'coherence': d.coherence},
-              'evidence_strength': evidence(1.0 - (z_thr / max(d.z, 1e-12)) ** 2, fitd)}
+              'evidence_strength': evidence(1.0 - (z_thr / max(d.z, 1e-12)) ** 2, fitd,
+                                            motion)}
         fd['confidence'] = confidence(fd['evidence_strength'], [a['delta_bic'] for a in alt])
         if alt:
             fd['alternatives'] = alt
