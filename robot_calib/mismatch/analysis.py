@@ -31,7 +31,9 @@ re-fitted on the other chunks only and the RMSE of ``real - sim`` before and
 after applying them is reported on both parts, inside the finding's window.
 An effect is dropped when it makes the held-out residual worse, and its
 evidence counts how much of its in-sample gain held-out time confirms, both
-weighted as the fit weighs each sample (by its local noise level).
+weighted as the fit weighs each sample (by its local noise level), the
+confirmation scaled by how much the effect changes each part (it shows in
+proportion to the motion exciting it).
 """
 
 from __future__ import annotations
@@ -275,10 +277,9 @@ def _heldout(prob: S.Problem, sel: list, chunks: int) -> tuple[dict, dict, dict]
     as the fit weighs each sample (``Problem.sw``, lower where the residual is
     locally noisier), by which a term is judged; and how much more the re-fitted
     terms change the fitted than the held-out time (``findings.motion_ratio``,
-    weighted alike). A plain RMSE
-    lets a noisy stretch that no effect explains outvote the quiet time where an
-    effect shows (a drifting gyro bias measured at rest, under fast turns the
-    simulation does not reproduce).
+    weighted alike). A plain RMSE lets a noisy stretch that no effect explains
+    outvote the quiet time where an effect shows (a drifting gyro bias measured
+    at rest, under fast turns the simulation does not reproduce).
     """
     n = prob.n
     held = held_mask(n, chunks)
