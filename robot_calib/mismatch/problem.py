@@ -24,6 +24,19 @@ def noise_floor(res: np.ndarray, m: np.ndarray, a: np.ndarray, b: np.ndarray) ->
     return max(1e-3 * float(np.sqrt(np.mean(res[m] ** 2))), 1e-9 * scale, 1e-12)
 
 
+def channel_noise(a: np.ndarray, b: np.ndarray, m: np.ndarray, dt: float,
+                  smooth: float) -> tuple[np.ndarray, float, float]:
+    """
+    Return the residual ``b - a`` (0 outside ``m``), its noise level and its variance inflation.
+
+    The noise level of :func:`noise_level` (``smooth``: the moving average
+    removed first, s), never below :func:`noise_floor`; ``dt``: grid period (s).
+    """
+    res = np.where(m, b - a, 0.0)
+    s, ph = noise_level(res, m, dt, smooth)
+    return res, max(s, noise_floor(res, m, a, b)), ph
+
+
 def make_problem(pt: PairedTopic, smooth: float,
                  not_judged: Optional[list]) -> Optional[S.Problem]:
     """
@@ -46,9 +59,7 @@ def make_problem(pt: PairedTopic, smooth: float,
                 not_judged.append({'channel': ch, 'reason': 'the real channel is constant while '
                                    'the simulated one varies (a stuck or unfilled field)'})
             continue
-        res = np.where(m, b - a, 0.0)
-        s, ph = noise_level(res, m, pt.dt, smooth)
-        s = max(s, noise_floor(res, m, a, b))
+        res, s, ph = channel_noise(a, b, m, pt.dt, smooth)
         fields.append(f)
         r[f], mask[f], sigma[f], phi[f] = res, m, s, ph
     if not fields:

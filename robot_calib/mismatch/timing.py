@@ -22,8 +22,7 @@ from robot_calib.mismatch import select as S
 from robot_calib.mismatch.channels import IMU_TYPE, PairedTopic
 from robot_calib.mismatch.explain import explain
 from robot_calib.mismatch.findings import confidence, evidence, motion_ratio
-from robot_calib.mismatch.locate import noise_level
-from robot_calib.mismatch.problem import held_mask, noise_floor, rmse
+from robot_calib.mismatch.problem import channel_noise, held_mask, rmse
 
 
 MOVING_SPREAD = 1.5
@@ -54,13 +53,10 @@ def moving_fields(pt: PairedTopic, prob: S.Problem, smooth: float) -> list:
         spread = float(np.std(x))
         if spread <= MOVING_SPREAD * prob.sigma[f] and abs(lag) >= 0.5 * pt.dt:
             a = delayed(pt.sim[f], lag, pt.dt)
-            b = pt.real[f]
             m = prob.mask[f] & np.isfinite(a)
-            if m.sum() > 20:
-                res = np.where(m, b - a, 0.0)
-                sigma, _ = noise_level(res, m, pt.dt, smooth)
-                if spread > MOVING_SPREAD * max(sigma, noise_floor(res, m, a, b)):
-                    out.append(f)
+            if m.sum() > 20 and spread > MOVING_SPREAD * channel_noise(
+                    a, pt.real[f], m, pt.dt, smooth)[1]:
+                out.append(f)
             continue
         if spread > MOVING_SPREAD * prob.sigma[f]:
             out.append(f)
