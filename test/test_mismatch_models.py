@@ -380,6 +380,29 @@ def test_delay_estimate_unbiased_and_its_error_honest(noisy_sim):
     assert t.size == n
 
 
+
+def test_delay_of_a_drive_ending_in_a_fast_turn():
+    """
+    A sub-sample delay when the recording ends mid-turn (seed 6038 of the suite).
+
+    Shifting such a channel moves a large value across the end of the compared
+    samples, so their correlation alone grows towards one edge of the trial
+    delays and hid a 9 ms odometry delay; least squares does not.
+    """
+    rng = np.random.default_rng(23)
+    dt = 0.02
+    n = 8000
+    turn = 3.0 / (1.0 + np.exp(-(np.arange(n) - 0.93 * n) / 20.0))
+    x = 0.1 * _smooth_noise(rng, n, 15) + turn
+    f = np.fft.rfftfreq(2 * n, dt)
+    mirrored = np.concatenate((x, x[::-1]))
+    tau = 0.0092
+    y = np.fft.irfft(np.fft.rfft(mirrored) * np.exp(-2j * np.pi * f * tau), 2 * n)[:n]
+    r = y + 0.005 * rng.standard_normal(n)
+    d = L.estimate_delay([x], [r], [np.ones(n, bool)], dt, R.block_edges(n, dt))
+    assert d.tau == pytest.approx(tau, abs=1e-3)
+    assert abs(d.tau - tau) < 4.0 * d.std
+
 def test_delay_of_a_single_manoeuvre_is_not_claimed():
     """One turn in a long recording: a delay there is one observation, not forty."""
     rate = 100.0

@@ -254,7 +254,14 @@ def estimate_delay(sims: list, reals: list, oks: list, dt: float, edges: np.ndar
         weights.append(1.0 / max(float(np.sum(e * e)) / max(int(v.sum()), 1), 1e-300))
     rspecs = [np.fft.rfft(r, sh.nfft) for r, sh in zip(rs, shifters)]
     grid = k0 + np.linspace(-2.0, 2.0, 41)
-    k = _parabola_max(grid, _cross(shifters, rspecs, weights, grid))
+    # least squares: the correlation less half the simulated energy inside the compared
+    # samples, which a shift changes by what it moves across their ends (a drive ending in a
+    # fast turn would otherwise pull the correlation's peak to the edge of the grid); the
+    # energy is that of the squared channel shifted, exact at whole samples
+    squares = [Shifter(x * x) for x in smooth]
+    vspecs = [np.fft.rfft(v.astype(float), sh.nfft) for v, sh in zip(valid, squares)]
+    k = _parabola_max(grid, _cross(shifters, rspecs, weights, grid)
+                      - 0.5 * _cross(squares, vspecs, weights, grid))
     for _ in range(3):  # Gauss-Newton on the squared residual
         g, h = _scores(shifters, rs, valid, weights, k, edges)
         step = float(g.sum() / max(float(h.sum()), 1e-300))
