@@ -51,7 +51,7 @@ from robot_calib.mismatch import timing as T
 from robot_calib.mismatch.align import pair_topics
 from robot_calib.mismatch.channels import (ChannelError, IMU_TYPE, ODOM_TYPE, PairedTopic,
                                            Recording, TWIST_TYPES)
-from robot_calib.mismatch.findings import motion_ratio, term_finding
+from robot_calib.mismatch.findings import heldout_support, motion_ratio, term_finding
 from robot_calib.mismatch.locate import active_windows, local_weights, moving_average
 from robot_calib.mismatch.locate import noise_level
 from robot_calib.mismatch.params import MismatchParams
@@ -269,15 +269,16 @@ def _predict(prob: S.Problem, terms: list, betas: list, f: str) -> np.ndarray:
     return out
 
 
-def _heldout(prob: S.Problem, sel: list, chunks: int) -> tuple[dict, dict, dict]:
+def _heldout(prob: S.Problem, sel: list, chunks: int) -> tuple[dict, dict, dict, dict]:
     """
     Re-fit the selected terms on the fitting chunks; RMSE before/after per selected term.
 
-    Returns three dicts per term: the plain RMSE (reported); the RMSE weighted
+    Returns four dicts per term: the plain RMSE (reported); the RMSE weighted
     as the fit weighs each sample (``Problem.sw``, lower where the residual is
-    locally noisier), by which a term is judged; and how much more the re-fitted
+    locally noisier), by which a term is judged; how much more the re-fitted
     terms change the fitted than the held-out time (``findings.motion_ratio``,
-    weighted alike). A plain RMSE lets a noisy stretch that no effect explains
+    weighted alike); and the held-out gain they predict with its standard
+    error (``findings.heldout_support``). A plain RMSE lets a noisy stretch that no effect explains
     outvote the quiet time where an effect shows (a drifting gyro bias measured
     at rest, under fast turns the simulation does not reproduce).
     """
@@ -287,7 +288,7 @@ def _heldout(prob: S.Problem, sel: list, chunks: int) -> tuple[dict, dict, dict]
     pf = S.Problem(prob.pt, prob.fields, prob.r, fit_mask, prob.sigma, prob.phi, n,
                    sw=dict(prob.sw))
     fr = S.fit(pf, sel)
-    plain, weighted, motion = {}, {}, {}
+    plain, weighted, motion, support = {}, {}, {}, {}
     for i, t in enumerate(sel):
         f = t.channel[len(t.topic) + 1:]
         if f not in prob.fields:
@@ -304,7 +305,8 @@ def _heldout(prob: S.Problem, sel: list, chunks: int) -> tuple[dict, dict, dict]
                       'heldout_rmse_before': rmse(x, m & held),
                       'heldout_rmse_after': rmse(y, m & held)}
         motion[i] = motion_ratio(sw * pred, m & ~held, m & held)
-    return plain, weighted, motion
+        support[i] = heldout_support(sw * pred, m & held, sw * (r - pred), prob.phi[f])
+    return plain, weighted, motion, support
 
 
 def _heldout_worse(weighted: dict) -> set:
@@ -342,7 +344,8 @@ def _analyse_topic(pt: PairedTopic, sim: Recording, real: Recording, t0: float,
     cands, cannot = E.candidates(pta, prob.sigma, aux)
     notes.extend(c for c in cannot if c not in notes)
     sel, prob, implausible = _select(prob, cands, prm, edges, notes, not_judged)
-    held, held_w, held_m = _heldout(prob, sel, prm.heldout_chunks) if sel else ({}, {}, {})
+    held, held_w, held_m, held_s = _heldout(prob, sel, prm.heldout_chunks) if sel else \
+        ({}, {}, {}, {})
     final = S.fit(prob, sel, contributions=True)
     tests = R.wald(prob, sel, final, edges, prm.alpha, prm.min_block_s) if sel else []
     alts = S.alternatives(prob, sel, cands, _min_len(prob, prm), prm.alt_margin) \
@@ -351,7 +354,8 @@ def _analyse_topic(pt: PairedTopic, sim: Recording, real: Recording, t0: float,
     alts = {i: [a for a in lst if not _beyond_plausible(a[0], a[1].betas[-1], a[1].covs[-1])[1]]
             for i, lst in alts.items()}
     term_findings = [term_finding(prob, final, sel, i, held.get(i, {}), tests[i],
-                                  alts.get(i, []), held_w.get(i), held_m.get(i, 1.0))
+                                  alts.get(i, []), held_w.get(i), held_m.get(i, 1.0),
+                                  held_s.get(i))
                      for i in range(len(sel))]
     time_findings = list(findings)
     findings.extend(term_findings)

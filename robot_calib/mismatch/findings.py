@@ -18,26 +18,56 @@ from robot_calib.mismatch import select as S
 from robot_calib.mismatch.explain import explain
 
 
-def evidence(strength: float, fitd: dict, motion: float = 1.0) -> float:
+def evidence(strength: float, fitd: dict, motion: float = 1.0,
+             support: Optional[tuple] = None) -> float:
     """
     Return how strongly (0..1) the data say that a finding is real, whatever its name.
 
     The product of how far the robust statistic clears its bar
-    (``1 - bar / statistic``) and whether held-out time confirms at least half
-    of the in-sample improvement (full credit), less (partial) or none, by the
-    RMSEs of ``fitd`` (in-sample and held-out, before and after the effect).
-    ``motion`` is how much more the effect changes the fitted time than the
-    held-out time (the mean squares of its change there, see
+    (``1 - bar / statistic``) and the credit of held-out time, by the RMSEs of
+    ``fitd`` (in-sample and held-out, before and after the effect): full when
+    held-out time confirms at least half of the in-sample improvement, partial
+    below. ``motion`` is how much more the effect changes the fitted time than
+    the held-out time (the mean squares of its change there, see
     :func:`motion_ratio`): an effect shows in proportion to the motion that
-    excites it, so held-out time that happens to move less is not held against it.
+    excites it, so held-out time that happens to move less is not held against
+    it. Held-out time too short or too still to tell is no evidence either way:
+    given ``support`` (:func:`heldout_support`), the credit is at least the
+    probability that the held-out improvement comes from the effect rather
+    than from none (equal priors), which is one half when it cannot tell.
     """
     s = float(np.clip(strength, 0.0, 1.0))
     hb, ha = fitd.get('heldout_rmse_before'), fitd.get('heldout_rmse_after')
     ib, ia = fitd.get('rmse_before'), fitd.get('rmse_after')
     gen = 1.0
     if None not in (hb, ha, ib, ia) and ib ** 2 - ia ** 2 > 0:
-        gen = float(np.clip(2.0 * motion * (hb ** 2 - ha ** 2) / (ib ** 2 - ia ** 2), 0.0, 1.0))
+        gain = hb ** 2 - ha ** 2
+        gen = float(np.clip(2.0 * motion * gain / (ib ** 2 - ia ** 2), 0.0, 1.0))
+        if support is not None and support[1] > 0:
+            expected, se = support
+            # log odds of a held-out gain ~ N(expected, se) against ~ N(0, se)
+            z = float(np.clip(expected * (gain - 0.5 * expected) / se ** 2, -50.0, 50.0))
+            gen = max(gen, 1.0 / (1.0 + float(np.exp(-z))))
     return round(s * gen, 3)
+
+
+def heldout_support(change: np.ndarray, held: np.ndarray, resid: np.ndarray,
+                    phi: float = 1.0) -> tuple[float, float]:
+    """
+    Return what an effect predicts held-out time to gain, and its standard error.
+
+    The expected gain in mean square is the mean square of the effect's
+    ``change`` on the ``held`` samples; the gain measured there varies by
+    ``2 sqrt(phi mean(e^2 c^2) / N)`` with ``e`` the ``resid`` left after the
+    effect (its variance inflated ``phi`` times by the noise's colour).
+    """
+    c, e = change[held], resid[held]
+    ok = np.isfinite(c) & np.isfinite(e)
+    if not ok.any():
+        return 0.0, 0.0
+    c, e = c[ok], e[ok]
+    return (float(np.mean(c * c)),
+            2.0 * float(np.sqrt(max(phi, 1.0) * np.mean((e * c) ** 2) / c.size)))
 
 
 def motion_ratio(change: np.ndarray, fitted: np.ndarray, held: np.ndarray) -> float:
@@ -69,7 +99,7 @@ def confidence(evidence: float, alt_deltas: list) -> float:
 
 def term_finding(prob: S.Problem, final: S.Fit, sel: list, i: int, fitd: dict,
                  test: tuple, alts: list, weighted: Optional[dict] = None,
-                 motion: float = 1.0) -> dict:
+                 motion: float = 1.0, support: Optional[tuple] = None) -> dict:
     """
     Return the finding of the selected term ``sel[i]`` (contract keys plus evidence).
 
@@ -80,6 +110,8 @@ def term_finding(prob: S.Problem, final: S.Fit, sel: list, i: int, fitd: dict,
     :param weighted: the same RMSEs weighted as the fit weighs each sample, which
         judge the evidence (``fitd`` when None)
     :param motion: the effect's change on fitted over held-out time (:func:`motion_ratio`)
+    :param support: what it predicts held-out time to gain, and the error of that gain
+        (:func:`heldout_support`)
     """
     pt = prob.pt
     t = sel[i]
@@ -119,6 +151,6 @@ def term_finding(prob: S.Problem, final: S.Fit, sel: list, i: int, fitd: dict,
         fd['explanation'] += f' This recording cannot clearly tell it from {names}; ' \
             f'{fd["alternatives"][0]["separating_motion"]}.'
     fd['evidence_strength'] = evidence(1.0 - thr / max(w, 1e-12),
-                                       fitd if weighted is None else weighted, motion)
+                                       fitd if weighted is None else weighted, motion, support)
     fd['confidence'] = confidence(fd['evidence_strength'], deltas)
     return fd

@@ -21,7 +21,7 @@ from robot_calib.mismatch import latency as L
 from robot_calib.mismatch import select as S
 from robot_calib.mismatch.channels import IMU_TYPE, PairedTopic
 from robot_calib.mismatch.explain import explain
-from robot_calib.mismatch.findings import confidence, evidence, motion_ratio
+from robot_calib.mismatch.findings import confidence, evidence, heldout_support, motion_ratio
 from robot_calib.mismatch.problem import channel_noise, held_mask, rmse
 
 
@@ -196,18 +196,19 @@ def field_taus(te: L.TimeEffect) -> dict:
 
 
 def _time_fit(pt: PairedTopic, prob: S.Problem, te: L.TimeEffect, prm: Any,
-              edges: np.ndarray) -> tuple[str, dict, float]:
+              edges: np.ndarray) -> tuple[str, dict, float, tuple]:
     """
-    Return (best channel, fit dict, motion): the delay re-estimated without the held-out chunks.
+    Return (best channel, fit dict, motion, support): the delay re-estimated without held-out time.
 
     The channel reported is the one whose held-out mean square falls most, in
     units of its noise variance; ``motion`` how much more the delay changes it
-    on fitted than on held-out time (``findings.motion_ratio``).
+    on fitted than on held-out time (``findings.motion_ratio``), ``support`` the
+    held-out gain it predicts and that gain's error (``findings.heldout_support``).
     """
     held = held_mask(prob.n, prm.heldout_chunks)
     refit = L.delays_of(group_data(pt, prob, te.fields, ~held), pt.dt, edges, 1.0, prm.max_lag)
     moved = aligned(pt, field_taus(refit[0] if refit else te))
-    best, fitd, channel, motion = None, {}, f'{pt.name}.{te.fields[0]}', 1.0
+    best, fitd, channel, motion, support = None, {}, f'{pt.name}.{te.fields[0]}', 1.0, None
     for f in te.fields:
         r0 = prob.r[f]
         r1 = np.where(prob.mask[f], pt.real[f] - moved.sim[f], np.nan)
@@ -221,8 +222,10 @@ def _time_fit(pt: PairedTopic, prob: S.Problem, te: L.TimeEffect, prm: Any,
                 (fd['heldout_rmse_after'] or 0.0) ** 2) / max(prob.sigma[f], 1e-300) ** 2
         if best is None or gain > best:
             best, fitd, channel = gain, fd, f'{pt.name}.{f}'
-            motion = motion_ratio(np.nan_to_num(r0 - r1), m & ~held, m & held)
-    return channel, fitd, motion
+            change = np.nan_to_num(r0 - r1)
+            motion = motion_ratio(change, m & ~held, m & held)
+            support = heldout_support(change, m & held, r1, prob.phi[f])
+    return channel, fitd, motion, support
 
 
 def time_findings(pt: PairedTopic, prob: S.Problem, found: list, prm: Any,
@@ -231,7 +234,7 @@ def time_findings(pt: PairedTopic, prob: S.Problem, found: list, prm: Any,
     out = []
     for kind, te, info in found:
         d = te.delay
-        channel, fitd, motion = _time_fit(pt, prob, te, prm, edges)
+        channel, fitd, motion, support = _time_fit(pt, prob, te, prm, edges)
         tau = d.tau if kind == 'time_offset' else info['lag_tau']
         params, sds = {'tau': float(tau)}, {'tau': float(d.std)}
         z_thr = L.t_quantile(prm.alpha, d.blocks - 1)
@@ -258,7 +261,7 @@ def time_findings(pt: PairedTopic, prob: S.Problem, found: list, prm: Any,
               'evidence': {'z': float(d.z), 'z_threshold': z_thr, 'blocks': d.blocks,
                            'band_hz': list(d.band_hz), 'coherence': d.coherence},
               'evidence_strength': evidence(1.0 - (z_thr / max(d.z, 1e-12)) ** 2, fitd,
-                                            motion)}
+                                            motion, support)}
         fd['confidence'] = confidence(fd['evidence_strength'], [a['delta_bic'] for a in alt])
         if alt:
             fd['alternatives'] = alt
