@@ -19,6 +19,7 @@ from robot_calib.mismatch import robust as R
 from robot_calib.mismatch.channels import IMU_FIELDS, IMU_TYPE, ODOM_FIELDS, ODOM_TYPE, Topic
 from robot_calib.mismatch.effects import rotate
 from robot_calib.mismatch.findings import evidence, heldout_support, motion_ratio
+from robot_calib.mismatch.timing import field_taus
 
 GYRO, ACC = IMU_FIELDS[:3], IMU_FIELDS[3:]
 
@@ -440,6 +441,29 @@ def test_delay_of_a_drive_ending_in_a_fast_turn():
     d = L.estimate_delay([x], [r], [np.ones(n, bool)], dt, R.block_edges(n, dt))
     assert d.tau == pytest.approx(tau, abs=1e-3)
     assert abs(d.tau - tau) < 4.0 * d.std
+
+
+def test_a_delay_shifts_every_channel_of_its_clock():
+    """
+    A delay estimated on the channels that move applies to all channels of that clock.
+
+    A still gyro axis left unaligned showed the delay as a gain on its fast
+    motion and hid a gyro bias there (fresh seed 2091).
+    """
+    gyro = L.Delay(0.03, 0.001, 10, (0.0, 50.0))
+    accel = L.Delay(0.01, 0.001, 10, (0.0, 50.0))
+    both = L.TimeEffect(['angular_velocity.z', 'linear_acceleration.x'], L.pool([gyro, accel]),
+                        {('angular_velocity.z',): gyro, ('linear_acceleration.x',): accel},
+                        consistent=False)
+    taus = field_taus(both, IMU_FIELDS)
+    assert taus['angular_velocity.x'] == taus['angular_velocity.z'] == 0.03
+    assert taus['linear_acceleration.y'] == taus['linear_acceleration.z'] == 0.01
+    one = L.TimeEffect(['angular_velocity.z'], gyro, {('angular_velocity.z',): gyro})
+    assert set(field_taus(one, IMU_FIELDS).values()) == {0.03}
+    assert set(field_taus(one, IMU_FIELDS)) == set(IMU_FIELDS)
+    odom = L.TimeEffect([ODOM_FIELDS[0]], accel, {(ODOM_FIELDS[0],): accel})
+    assert field_taus(odom, ODOM_FIELDS) == {f: 0.01 for f in ODOM_FIELDS}
+    assert field_taus(odom) == {ODOM_FIELDS[0]: 0.01}
 
 
 def test_delay_of_a_single_manoeuvre_is_not_claimed():

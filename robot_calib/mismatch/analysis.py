@@ -329,7 +329,7 @@ def _analyse_topic(pt: PairedTopic, sim: Recording, real: Recording, t0: float,
     taus = {}
     for kind, te, _ in timing:
         if kind == 'time_offset':
-            taus.update(T.field_taus(te))
+            taus.update(T.field_taus(te, list(pt.sim)))
     pta = T.aligned(pt, taus)
     lags = [(te, info) for kind, te, info in timing if kind == 'drive_lag']
     if lags:

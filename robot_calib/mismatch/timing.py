@@ -12,7 +12,7 @@ lag and names whichever fits clearly better. The simulation is then delayed
 from __future__ import annotations
 
 from dataclasses import replace
-from typing import Any
+from typing import Any, Optional
 
 import numpy as np
 
@@ -187,11 +187,25 @@ def _lag_or_delay(pt: PairedTopic, prob: S.Problem, te: L.TimeEffect,
     return ('drive_lag' if better else 'time_offset'), info
 
 
-def field_taus(te: L.TimeEffect) -> dict:
-    """Return the delay applied to each field: the pooled one, or its group's when they differ."""
+def field_taus(te: L.TimeEffect, fields: Optional[list] = None) -> dict:
+    """
+    Return the delay applied to each field: the pooled one, or its group's when they differ.
+
+    Given the topic's ``fields``, every field of a clock group gets the group's
+    delay, not only those that moved enough to take part in its estimate: a
+    sensor's clock delays all its channels (a still gyro axis left unaligned
+    would show the delay as a gain on its fast motion). A clock group with no
+    estimate of its own gets the pooled delay.
+    """
     out = {}
     for group, d in te.groups.items():
         out.update({f: (te.delay.tau if te.consistent else d.tau) for f in group})
+    for f in fields or []:
+        if f not in out:
+            prefix = f.split('.', 1)[0] + '.' if f.startswith(L.CLOCK_PREFIXES) else ''
+            own = [d for g, d in te.groups.items() if g[0].startswith(prefix) and (
+                prefix or not g[0].startswith(L.CLOCK_PREFIXES))]
+            out[f] = own[0].tau if own and not te.consistent else te.delay.tau
     return out
 
 
