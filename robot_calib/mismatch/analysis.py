@@ -91,6 +91,27 @@ def _t_abs_interp(t_src: np.ndarray, x: np.ndarray, t_dst: np.ndarray) -> np.nda
     return y
 
 
+def _command_slope(t_cmd: np.ndarray, v_cmd: np.ndarray, t_dst: np.ndarray) -> np.ndarray:
+    """
+    Return the commanded acceleration (m/s^2) at ``t_dst``: the slope of the command's interval.
+
+    The derivative of the linear interpolant of the commanded speed, as the
+    speeds themselves are read: central differences interpolated again would
+    spread each acceleration over two command periods, and a slip fitted to
+    that smoothed regressor comes out too large (errors in the regressor).
+    NaN outside the commands (beyond half a second).
+    """
+    ok = np.isfinite(v_cmd)
+    t, v = t_cmd[ok], v_cmd[ok]
+    if t.size < 2:
+        return np.full(t_dst.size, np.nan)
+    dt = np.diff(t)
+    slope = np.where(dt > 0, np.diff(v) / np.where(dt > 0, dt, 1.0), 0.0)
+    out = slope[np.clip(np.searchsorted(t, t_dst, side='right') - 1, 0, slope.size - 1)]
+    out[(t_dst < t[0] - 0.5) | (t_dst > t[-1] + 0.5)] = np.nan
+    return out
+
+
 def _aux(sim: Recording, real: Recording, pt: PairedTopic, t0: float, notes: list) -> dict:
     """Return sim regressors on the topic's times: v (m/s), omega (rad/s), acmd (m/s^2)."""
     aux: dict = {}
@@ -107,9 +128,7 @@ def _aux(sim: Recording, real: Recording, pt: PairedTopic, t0: float, notes: lis
     cmds = [tp for rec in (sim, real) for tp in rec.values()
             if tp.msgtype in TWIST_TYPES and len(tp) > 2]
     if cmds:
-        c = cmds[0]
-        a = np.gradient(c.fields['linear.x'], c.t)
-        aux['acmd'] = _t_abs_interp(c.t, a, ta)
+        aux['acmd'] = _command_slope(cmds[0].t, cmds[0].fields['linear.x'], ta)
     elif pt.msgtype == ODOM_TYPE and 'twist.twist.linear.x' in pt.sim:
         v = np.nan_to_num(pt.sim['twist.twist.linear.x'])
         w = max(1, int(round(0.2 / max(pt.dt, 1e-9))))
