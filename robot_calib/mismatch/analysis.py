@@ -344,7 +344,8 @@ def _analyse_topic(pt: PairedTopic, sim: Recording, real: Recording, t0: float,
         return [], None, [], {}
     edges = R.block_edges(prob0.n, pt.dt, prm.blocks, prm.min_block_s)
     timing = T.time_stage(pt, prob0, prm, edges)
-    findings = T.time_findings(pt, prob0, timing, prm, edges)
+    acmd = _aux(sim, real, pt, t0, []).get('acmd') if timing else None
+    findings = T.time_findings(pt, prob0, timing, prm, edges, acmd)
     taus = {}
     for kind, te, _ in timing:
         if kind == 'time_offset':

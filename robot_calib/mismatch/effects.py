@@ -175,6 +175,9 @@ SEPARATE = {
     'separate an offset from a scale error',
     frozenset(('yaw_rate_offset', 'wheel_radius_difference')): 'driving at several speeds '
     '(and standing still) separates a constant turn from one that grows with the speed',
+    frozenset(('time_offset', 'wheel_slip')): 'accelerating from several cruising speeds, and '
+    'turning while accelerating (a clock delays the turn rate too), separate a delay of the '
+    'odometry from slip, which grows with speed times acceleration',
     frozenset(('time_offset', 'drive_lag')): 'sharp steps of the command separate a pure '
     'delay (the response keeps its shape) from a lag (the response is rounded)',
     frozenset(('imu_mounting_rotation', 'gyro_cross_axis')): 'strong specific force on '

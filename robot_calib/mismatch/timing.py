@@ -19,7 +19,7 @@ import numpy as np
 from robot_calib.mismatch import effects as E
 from robot_calib.mismatch import latency as L
 from robot_calib.mismatch import select as S
-from robot_calib.mismatch.channels import IMU_TYPE, PairedTopic
+from robot_calib.mismatch.channels import IMU_TYPE, ODOM_TYPE, PairedTopic
 from robot_calib.mismatch.explain import explain
 from robot_calib.mismatch.findings import confidence, evidence, heldout_support, motion_ratio
 from robot_calib.mismatch.problem import channel_noise, held_mask, rmse
@@ -187,6 +187,38 @@ def _lag_or_delay(pt: PairedTopic, prob: S.Problem, te: L.TimeEffect,
     return ('drive_lag' if better else 'time_offset'), info
 
 
+SLIP_FIELD = 'twist.twist.linear.x'
+
+
+def slip_alternative(pt: PairedTopic, prob: S.Problem, te: L.TimeEffect,
+                     acmd: Optional[np.ndarray]) -> Optional[tuple]:
+    """
+    Return (delta chi2, coefficient s^2/m) of wheel slip instead of an odometry delay, or None.
+
+    On odometry speed a delay and slip under acceleration look alike (``tau a``
+    against ``c v a``): the delay stage, run first, could take a slip for a
+    delay and hide it. The slip is fitted to the unaligned residual and both
+    models are scored alike (:func:`_whitened_chi2` over the delay's fields:
+    slip leaves the turn rate as it is, a clock delays it too); a positive
+    delta means the delay fits better. ``acmd`` is the commanded acceleration
+    on the topic's grid (m/s^2).
+    """
+    if pt.msgtype != ODOM_TYPE or acmd is None or SLIP_FIELD not in te.fields:
+        return None
+    x = np.where(np.isfinite(pt.sim[SLIP_FIELD]), pt.sim[SLIP_FIELD], 0.0) * acmd
+    m = prob.mask[SLIP_FIELD] & np.isfinite(x)
+    if m.sum() < 10 or not np.any(x[m]):
+        return None
+    y = prob.r[SLIP_FIELD][m]
+    X = np.column_stack((np.ones(m.sum()), pt.sim[SLIP_FIELD][m], x[m]))
+    coef = float(np.linalg.lstsq(X, y, rcond=None)[0][2])
+    with_slip = {f: pt.sim[f] for f in te.fields}
+    with_slip[SLIP_FIELD] = pt.sim[SLIP_FIELD] + coef * x
+    delay = {f: delayed(pt.sim[f], te.delay.tau, pt.dt) for f in te.fields}
+    return (_whitened_chi2(prob, te.fields, with_slip) -
+            _whitened_chi2(prob, te.fields, delay), coef)
+
+
 def field_taus(te: L.TimeEffect, fields: Optional[list] = None) -> dict:
     """
     Return the delay applied to each field: the pooled one, or its group's when they differ.
@@ -243,8 +275,13 @@ def _time_fit(pt: PairedTopic, prob: S.Problem, te: L.TimeEffect, prm: Any,
 
 
 def time_findings(pt: PairedTopic, prob: S.Problem, found: list, prm: Any,
-                  edges: np.ndarray) -> list:
-    """Return the findings of the time stage, with held-out fit (delay re-estimated without)."""
+                  edges: np.ndarray, acmd: Optional[np.ndarray] = None) -> list:
+    """
+    Return the findings of the time stage, with held-out fit (delay re-estimated without).
+
+    ``acmd``: the commanded acceleration on the topic's grid (m/s^2), with which
+    an odometry delay is weighed against wheel slip (:func:`slip_alternative`).
+    """
     out = []
     for kind, te, info in found:
         d = te.delay
@@ -261,6 +298,12 @@ def time_findings(pt: PairedTopic, prob: S.Problem, found: list, prm: Any,
                             'parameters': {'tau': float(d.tau if other == 'time_offset'
                                                         else info['lag_tau'])},
                             'separating_motion': E.separating_motion(kind, other)})
+        slip = slip_alternative(pt, prob, te, acmd) if kind == 'time_offset' else None
+        if slip is not None and slip[0] < prm.alt_margin:
+            alt.append({'effect': 'wheel_slip', 'channel': f'{pt.name}.{SLIP_FIELD}',
+                        'delta_bic': float(max(slip[0], 0.0)),
+                        'parameters': {'coefficient': slip[1]},
+                        'separating_motion': E.separating_motion(kind, 'wheel_slip')})
         text = explain(kind, params, None, fitd)
         per_group = {g[0].rsplit('.', 1)[0]: gd.tau for g, gd in te.groups.items()}
         if not te.consistent:
