@@ -297,9 +297,10 @@ def _heldout(prob: S.Problem, sel: list, chunks: int) -> tuple[dict, dict, dict,
     locally noisier), by which a term is judged; how much more the re-fitted
     terms change the fitted than the held-out time (``findings.motion_ratio``,
     weighted alike); and the held-out gain they predict with its standard
-    error (``findings.heldout_support``). A plain RMSE lets a noisy stretch that no effect explains
-    outvote the quiet time where an effect shows (a drifting gyro bias measured
-    at rest, under fast turns the simulation does not reproduce).
+    error (``findings.heldout_support``). A plain RMSE lets a noisy stretch
+    that no effect explains outvote the quiet time where an effect shows (a
+    drifting gyro bias measured at rest, under fast turns the simulation does
+    not reproduce).
     """
     n = prob.n
     held = held_mask(n, chunks)
