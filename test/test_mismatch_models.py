@@ -324,6 +324,16 @@ def test_held_out_support_error_matches_the_spread_of_the_gain():
     assert np.median(ses) == pytest.approx(np.std(gains), rel=0.15)
 
 
+def _commanded_ramps(rng, t, accel):
+    """Return a commanded speed (m/s) ramping at ``accel`` (m/s^2) to a new target every 3 s."""
+    dt = t[1] - t[0]
+    targets = rng.uniform(0.0, 1.0, t.size // 150 + 1)[np.arange(t.size) // 150]
+    v = np.zeros(t.size)
+    for i in range(1, t.size):
+        v[i] = v[i - 1] + np.clip(targets[i] - v[i - 1], -accel * dt, accel * dt)
+    return v
+
+
 def test_commanded_acceleration_is_the_slope_of_each_command_interval():
     """
     The slip regressor on a ramped command sampled at 10 Hz (fresh seeds 2018, 3111, 5082).
@@ -334,13 +344,9 @@ def test_commanded_acceleration_is_the_slope_of_each_command_interval():
     of each command interval, the derivative of the speed as it is
     interpolated, carries the acceleration at its full size.
     """
-    rng = np.random.default_rng(31)
     dt = 0.02
     t = np.arange(0.0, 240.0, dt)
-    targets = rng.uniform(0.0, 1.0, t.size // 150 + 1)[np.arange(t.size) // 150]
-    v = np.zeros(t.size)
-    for i in range(1, t.size):   # the commanded speed ramps to each target at 1 m/s^2
-        v[i] = v[i - 1] + np.clip(targets[i] - v[i - 1], -dt, dt)
+    v = _commanded_ramps(np.random.default_rng(31), t, 1.0)
     a = np.diff(v, append=v[-1]) / dt
     tc = np.arange(0.0, 240.0, 0.1)
     vc = np.interp(tc, t, v)
@@ -358,10 +364,7 @@ def _ramped_drive(rng, slip=0.0, tau=0.0):
     """Return (sim, real): odometry of commanded ramps, real with slip and/or a delay."""
     dt = 0.02
     t = np.arange(0.0, 240.0, dt)
-    targets = rng.uniform(0.0, 1.0, t.size // 150 + 1)[np.arange(t.size) // 150]
-    v = np.zeros(t.size)
-    for i in range(1, t.size):   # the commanded speed ramps to each target at 0.6 m/s^2
-        v[i] = v[i - 1] + np.clip(targets[i] - v[i - 1], -0.6 * dt, 0.6 * dt)
+    v = _commanded_ramps(rng, t, 0.6)
     w = 0.4 * np.sin(2 * np.pi * t / 17.0)
     tc = np.arange(0.0, 240.0, 0.1)
     cmd = Topic('/cmd_vel', 'geometry_msgs/msg/Twist', tc,

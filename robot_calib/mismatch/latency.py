@@ -314,10 +314,6 @@ def lag_response(x: np.ndarray, dt: float, tau: float) -> np.ndarray:
     return y + x[0]
 
 
-CLOCK_PREFIXES = ('angular_velocity.', 'linear_acceleration.')
-"""Field prefixes of an IMU's channels that may sit behind filters of their own delay."""
-
-
 def field_groups(msgtype: str, fields: list) -> list:
     """
     Return the fields of a topic grouped by the clock they may have of their own.
@@ -325,8 +321,9 @@ def field_groups(msgtype: str, fields: list) -> list:
     An IMU's gyro and accelerometer often sit behind different digital
     filters, so each gets its own group; every other message is one group.
     """
-    groups = [[f for f in fields if f.startswith(p)] for p in CLOCK_PREFIXES]
-    rest = [f for f in fields if not f.startswith(CLOCK_PREFIXES)]
+    prefixes = ('angular_velocity.', 'linear_acceleration.')
+    groups = [[f for f in fields if f.startswith(p)] for p in prefixes]
+    rest = [f for f in fields if not f.startswith(prefixes)]
     return [g for g in groups + [rest] if g]
 
 

@@ -232,12 +232,10 @@ def field_taus(te: L.TimeEffect, fields: Optional[list] = None) -> dict:
     out = {}
     for group, d in te.groups.items():
         out.update({f: (te.delay.tau if te.consistent else d.tau) for f in group})
-    for f in fields or []:
-        if f not in out:
-            prefix = f.split('.', 1)[0] + '.' if f.startswith(L.CLOCK_PREFIXES) else ''
-            own = [d for g, d in te.groups.items() if g[0].startswith(prefix) and (
-                prefix or not g[0].startswith(L.CLOCK_PREFIXES))]
-            out[f] = own[0].tau if own and not te.consistent else te.delay.tau
+    for clock in L.field_groups('', list(fields or [])):
+        own = [d for g, d in te.groups.items() if set(g) & set(clock)]
+        tau = own[0].tau if own and not te.consistent else te.delay.tau
+        out.update({f: tau for f in clock if f not in out})
     return out
 
 
