@@ -344,8 +344,8 @@ def _analyse_topic(pt: PairedTopic, sim: Recording, real: Recording, t0: float,
     if prob0 is None:
         return [], None, [], {}
     edges = R.block_edges(prob0.n, pt.dt, prm.blocks, prm.min_block_s)
-    timing = T.time_stage(pt, prob0, prm, edges)
-    acmd = _aux(sim, real, pt, t0, []).get('acmd') if timing else None
+    acmd = _aux(sim, real, pt, t0, []).get('acmd') if pt.msgtype == ODOM_TYPE else None
+    timing = T.time_stage(pt, prob0, prm, edges, acmd)
     findings = T.time_findings(pt, prob0, timing, prm, edges, acmd)
     taus = {}
     for kind, te, _ in timing:

@@ -48,6 +48,8 @@ def evidence(strength: float, fitd: dict, motion: float = 1.0,
             # log odds of a held-out gain ~ N(expected, se) against ~ N(0, se)
             z = float(np.clip(expected * (gain - 0.5 * expected) / se ** 2, -50.0, 50.0))
             gen = max(gen, 1.0 / (1.0 + float(np.exp(-z))))
+        elif support is not None and support[0] == 0.0:
+            gen = max(gen, 0.5)  # the effect does not touch held-out time: it cannot tell
     return round(s * gen, 3)
 
 

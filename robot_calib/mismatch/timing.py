@@ -5,8 +5,10 @@ Stage 1 of the analysis: the time relation of each sensor, and the simulation al
 
 One delay per clock group (:mod:`.latency`), kept when its block error makes
 it significant; a drive (odometry, joint states) also tries a first-order
-lag and names whichever fits clearly better. The simulation is then delayed
-(or lagged) by it, so the amplitude effects are judged on aligned signals.
+lag and names whichever fits clearly better, and an odometry speed is compared
+without the wheel slip fitted jointly with the delay (the two look alike). The
+simulation is then delayed (or lagged) by it, so the amplitude effects are
+judged on aligned signals.
 """
 
 from __future__ import annotations
@@ -19,7 +21,8 @@ import numpy as np
 from robot_calib.mismatch import effects as E
 from robot_calib.mismatch import latency as L
 from robot_calib.mismatch import select as S
-from robot_calib.mismatch.channels import IMU_TYPE, ODOM_TYPE, PairedTopic
+from robot_calib.mismatch.channels import (IMU_TYPE, loo_derivative, ODOM_TYPE, PairedTopic,
+                                           regressor_signal)
 from robot_calib.mismatch.explain import explain
 from robot_calib.mismatch.findings import confidence, evidence, heldout_support, motion_ratio
 from robot_calib.mismatch.problem import channel_noise, held_mask, rmse
@@ -30,6 +33,9 @@ MOVING_SPREAD = 1.5
 exceeds this many times its residual noise level. A channel of noise alone stays near 0.2-0.7
 of it (its regressor averages the noise away, the residual holds both sides' noise); the delay
 estimate then integrates the motion over the whole recording and is tested for significance."""
+
+
+SLIP_FIELD = 'twist.twist.linear.x'
 
 
 def moving_fields(pt: PairedTopic, prob: S.Problem, smooth: float) -> list:
@@ -63,19 +69,66 @@ def moving_fields(pt: PairedTopic, prob: S.Problem, smooth: float) -> list:
     return out
 
 
-def group_data(pt: PairedTopic, prob: S.Problem, fields: list, keep: np.ndarray) -> dict:
+def group_data(pt: PairedTopic, prob: S.Problem, fields: list, keep: np.ndarray,
+               reals: Optional[dict] = None) -> dict:
+    """Return the delay estimate's input per clock group (``reals``: real fields replaced)."""
+    reals_of = {**pt.real, **(reals or {})}
     data = {}
     for i, group in enumerate(L.field_groups(pt.msgtype, fields)):
-        sims, reals, oks = [], [], []
+        sims, real_f, oks = [], [], []
         for f in group:
             # the raw simulated channel: independent noise does not bias the cross-spectral
             # phase, while a smoothed copy would bend it
             ok = prob.mask[f] & keep
             sims.append(np.where(ok, pt.sim[f], 0.0))
-            reals.append(np.where(ok, pt.real[f], 0.0))
+            real_f.append(np.where(ok, reals_of[f], 0.0))
             oks.append(ok)
-        data[f'g{i}'] = (group, sims, reals, oks)
+        data[f'g{i}'] = (group, sims, real_f, oks)
     return data
+
+
+def joint_slip(pt: PairedTopic, prob: S.Problem, acmd: Optional[np.ndarray],
+               tau: float = 0.0) -> Optional[tuple[float, np.ndarray]]:
+    """
+    Return (coefficient s^2/m, regressor ``v a`` delayed by ``tau``) of a slip fitted with a delay.
+
+    On odometry speed a delay and slip under acceleration look alike (``tau a``
+    against ``c v a``: both grow with the acceleration), so a slip fitted alone
+    takes the delay's share and a delay estimated alone takes the slip's. The
+    speed residual against the simulation delayed by ``tau`` (s) is fitted by
+    least squares on an offset, a scale, the slip (delayed alike: the clock
+    delays the slipping speed too) and the linearisation ``ds/dt`` of what
+    delay is left, together, which separates them where the speed differs
+    between accelerations. None when the topic is not odometry or has no
+    commanded acceleration (``acmd``, m/s^2 on the grid).
+    """
+    f = SLIP_FIELD
+    if pt.msgtype != ODOM_TYPE or acmd is None or f not in prob.fields:
+        return None
+    noisy = pt.sim_noisy.get(f)
+    s, slip = pt.sim[f], np.nan_to_num(pt.sim_reg.get(f, pt.sim[f])) * acmd
+    if tau:
+        s, slip = delayed(s, tau, pt.dt), delayed(slip, tau, pt.dt)
+    rate = loo_derivative(s, pt.dt) if noisy else np.gradient(filled(s), pt.dt)
+    level = regressor_signal(s) if noisy else s
+    y = pt.real[f] - s
+    m = prob.mask[f] & np.isfinite(y) & np.isfinite(slip) & np.isfinite(level)
+    if m.sum() < 10 or not np.any(slip[m]):
+        return None
+    X = np.column_stack((np.ones(m.sum()), level[m], slip[m], rate[m]))
+    return float(np.linalg.lstsq(X, y[m], rcond=None)[0][2]), np.nan_to_num(slip)
+
+
+def deslipped(pt: PairedTopic, prob: S.Problem, acmd: Optional[np.ndarray],
+              tau: float = 0.0) -> dict:
+    """
+    Return {speed field: the real odometry speed less the slip of :func:`joint_slip`}, or {}.
+
+    The delay is estimated on it; the amplitude stage finds the slip again on
+    the aligned signals.
+    """
+    js = joint_slip(pt, prob, acmd, tau)
+    return {} if js is None else {SLIP_FIELD: pt.real[SLIP_FIELD] - js[0] * js[1]}
 
 
 def filled(x: np.ndarray) -> np.ndarray:
@@ -116,29 +169,42 @@ def aligned(pt: PairedTopic, taus: dict) -> PairedTopic:
     return replace(pt, sim=sim, sim_reg={}, sim_noisy={})
 
 
-def time_stage(pt: PairedTopic, prob: S.Problem, prm: Any, edges: np.ndarray) -> list:
-    """Return the significant time effects of a topic: [(kind, TimeEffect, lag info)]."""
+def time_stage(pt: PairedTopic, prob: S.Problem, prm: Any, edges: np.ndarray,
+               acmd: Optional[np.ndarray] = None) -> list:
+    """
+    Return the significant time effects of a topic: [(kind, TimeEffect, lag info)].
+
+    ``acmd``: the commanded acceleration on the topic's grid (m/s^2); with it an
+    odometry speed is compared without the wheel slip fitted jointly with a
+    delay (:func:`deslipped`).
+    """
     fields = moving_fields(pt, prob, prm.noise_smooth)
     if not fields:
         return []
     keep = np.ones(prob.n, bool)
-    effects = L.delays_of(group_data(pt, prob, fields, keep), pt.dt, edges, prm.alpha,
+    reals = deslipped(pt, prob, acmd)
+    effects = L.delays_of(group_data(pt, prob, fields, keep, reals), pt.dt, edges, prm.alpha,
                           prm.max_lag)
+    if reals and effects:  # the slip again, delayed by the delay found, and the delay with it
+        reals = deslipped(pt, prob, acmd, effects[0].delay.tau)
+        effects = L.delays_of(group_data(pt, prob, fields, keep, reals), pt.dt, edges,
+                              prm.alpha, prm.max_lag)
     out = []
     for te in effects:
         kind, info = 'time_offset', {}
         if pt.msgtype != IMU_TYPE and te.delay.tau > 0:
-            kind, info = _lag_or_delay(pt, prob, te, prm)
+            kind, info = _lag_or_delay(pt, prob, te, prm, reals)
         out.append((kind, te, info))
     return out
 
 
-def _whitened_chi2(prob: S.Problem, fields: list, pred: dict) -> float:
+def _whitened_chi2(prob: S.Problem, fields: list, pred: dict,
+                   reals: Optional[dict] = None) -> float:
     """Return the chi2 of ``real - pred`` after a per-field offset and scale are fitted."""
     total = 0.0
     for f in fields:
         m = prob.mask[f] & np.isfinite(pred[f])
-        y = prob.pt.real[f][m] - pred[f][m]
+        y = (reals or {}).get(f, prob.pt.real[f])[m] - pred[f][m]
         X = np.column_stack((np.ones(m.sum()), pred[f][m]))
         beta, *_ = np.linalg.lstsq(X, y, rcond=None)
         e = y - X @ beta
@@ -159,35 +225,34 @@ def _golden(fun, lo: float, hi: float, iters: int = 30) -> float:
     return 0.5 * (a + b)
 
 
-def _lag_or_delay(pt: PairedTopic, prob: S.Problem, te: L.TimeEffect,
-                  prm: Any) -> tuple[str, dict]:
+def _lag_or_delay(pt: PairedTopic, prob: S.Problem, te: L.TimeEffect, prm: Any,
+                  reals: dict) -> tuple[str, dict]:
     """
     Compare a pure delay with a first-order lag of the drive; return (effect name, info).
 
     Both are fitted by least squares in time (each with its own time
     constant, after a per-field offset and scale), so neither is favoured by
     the estimator; the lag must fit better by ``alt_margin`` to be named.
+    ``reals``: real fields compared in place of the recorded ones (the speed
+    less its slip, :func:`deslipped`).
     """
     sims = {f: filled(pt.sim[f]) for f in te.fields}
     tau0 = te.delay.tau
 
     def chi_delay(tau: float) -> float:
         return _whitened_chi2(prob, te.fields,
-                              {f: delayed(pt.sim[f], tau, pt.dt) for f in te.fields})
+                              {f: delayed(pt.sim[f], tau, pt.dt) for f in te.fields}, reals)
 
     def chi_lag(log_tau: float) -> float:
         return _whitened_chi2(prob, te.fields, {f: L.lag_response(sims[f], pt.dt,
                                                                   np.exp(log_tau))
-                                                for f in te.fields})
+                                                for f in te.fields}, reals)
     tau_d = _golden(chi_delay, tau0 - 0.5 * abs(tau0) - pt.dt, tau0 + 0.5 * abs(tau0) + pt.dt)
     log_l = _golden(chi_lag, np.log(max(pt.dt, 0.2 * tau0)), np.log(max(5.0 * tau0, 3 * pt.dt)))
     info = {'delay_chi2': chi_delay(tau_d), 'lag_chi2': chi_lag(log_l),
             'lag_tau': float(np.exp(log_l)), 'delay_tau_ls': float(tau_d)}
     better = info['lag_chi2'] < info['delay_chi2'] - prm.alt_margin
     return ('drive_lag' if better else 'time_offset'), info
-
-
-SLIP_FIELD = 'twist.twist.linear.x'
 
 
 def slip_alternative(pt: PairedTopic, prob: S.Problem, te: L.TimeEffect,
@@ -199,9 +264,11 @@ def slip_alternative(pt: PairedTopic, prob: S.Problem, te: L.TimeEffect,
     against ``c v a``): the delay stage, run first, could take a slip for a
     delay and hide it. The slip is fitted to the unaligned residual and both
     models are scored alike (:func:`_whitened_chi2` over the delay's fields:
-    slip leaves the turn rate as it is, a clock delays it too); a positive
-    delta means the delay fits better. ``acmd`` is the commanded acceleration
-    on the topic's grid (m/s^2).
+    slip leaves the turn rate as it is, a clock delays it too), the delay
+    together with the slip fitted jointly with it (:func:`joint_slip`), so a
+    delay beside a slip is weighed by what it adds; a positive delta means the
+    delay fits better. ``acmd`` is the commanded acceleration on the topic's
+    grid (m/s^2).
     """
     if pt.msgtype != ODOM_TYPE or acmd is None or SLIP_FIELD not in te.fields:
         return None
@@ -215,6 +282,9 @@ def slip_alternative(pt: PairedTopic, prob: S.Problem, te: L.TimeEffect,
     with_slip = {f: pt.sim[f] for f in te.fields}
     with_slip[SLIP_FIELD] = pt.sim[SLIP_FIELD] + coef * x
     delay = {f: delayed(pt.sim[f], te.delay.tau, pt.dt) for f in te.fields}
+    js = joint_slip(pt, prob, acmd, te.delay.tau)
+    if js is not None:
+        delay[SLIP_FIELD] = delay[SLIP_FIELD] + js[0] * js[1]
     return (_whitened_chi2(prob, te.fields, with_slip) -
             _whitened_chi2(prob, te.fields, delay), coef)
 
@@ -240,7 +310,7 @@ def field_taus(te: L.TimeEffect, fields: Optional[list] = None) -> dict:
 
 
 def _time_fit(pt: PairedTopic, prob: S.Problem, te: L.TimeEffect, prm: Any,
-              edges: np.ndarray) -> tuple[str, dict, float, tuple]:
+              edges: np.ndarray, reals: dict) -> tuple[str, dict, float, tuple]:
     """
     Return (best channel, fit dict, motion, support): the delay re-estimated without held-out time.
 
@@ -250,7 +320,8 @@ def _time_fit(pt: PairedTopic, prob: S.Problem, te: L.TimeEffect, prm: Any,
     held-out gain it predicts and that gain's error (``findings.heldout_support``).
     """
     held = held_mask(prob.n, prm.heldout_chunks)
-    refit = L.delays_of(group_data(pt, prob, te.fields, ~held), pt.dt, edges, 1.0, prm.max_lag)
+    refit = L.delays_of(group_data(pt, prob, te.fields, ~held, reals), pt.dt, edges, 1.0,
+                        prm.max_lag)
     moved = aligned(pt, field_taus(refit[0] if refit else te))
     best, fitd, channel, motion, support = None, {}, f'{pt.name}.{te.fields[0]}', 1.0, None
     for f in te.fields:
@@ -283,7 +354,8 @@ def time_findings(pt: PairedTopic, prob: S.Problem, found: list, prm: Any,
     out = []
     for kind, te, info in found:
         d = te.delay
-        channel, fitd, motion, support = _time_fit(pt, prob, te, prm, edges)
+        channel, fitd, motion, support = _time_fit(pt, prob, te, prm, edges,
+                                                   deslipped(pt, prob, acmd, d.tau))
         tau = d.tau if kind == 'time_offset' else info['lag_tau']
         params, sds = {'tau': float(tau)}, {'tau': float(d.std)}
         z_thr = L.t_quantile(prm.alpha, d.blocks - 1)
