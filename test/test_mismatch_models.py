@@ -404,7 +404,7 @@ def test_an_odometry_delay_that_slip_explains_as_well_is_not_named_alone():
     assert delay[0]['confidence'] > 0.9 and 'alternatives' not in delay[0]
 
 
-@pytest.mark.parametrize('tau', [-0.02, 0.02])
+@pytest.mark.parametrize('tau', [-0.02, 0.02, 0.2])
 def test_a_slip_and_an_odometry_delay_together_are_both_found(tau):
     """
     The slip and the delay are fitted jointly on the speed, not each alone (fresh seed 4087).
@@ -413,9 +413,12 @@ def test_a_slip_and_an_odometry_delay_together_are_both_found(tau):
     acceleration): the delay stage estimated a -20 ms delay beside a slip as
     -6 +- 3 ms and dropped it, and the slip came out 23 % small. The slip
     fitted jointly with the delay's linearisation is removed before the delay
-    is estimated (and the slip again, delayed by the delay found), a delay
-    beside a slip is weighed by what it adds, and a delay against a lag of the
-    drive is judged on the speed without its slip.
+    is estimated (and again, delayed by the delay found, until the two settle),
+    a delay beside a slip is weighed by what it adds, and a delay against a lag
+    of the drive is judged on the speed without its slip. The slip's regressor
+    (the commanded acceleration, another topic) is read as late as the
+    odometry once aligned: read on time beside a 0.2 s delay the slip came out
+    a third small.
     """
     out, _ = analyse_recordings(*_ramped_drive(np.random.default_rng(32), slip=0.1, tau=tau))
     delay, slip = _named(out, 'time_offset'), _named(out, 'wheel_slip')

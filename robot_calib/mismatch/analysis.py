@@ -112,10 +112,17 @@ def _command_slope(t_cmd: np.ndarray, v_cmd: np.ndarray, t_dst: np.ndarray) -> n
     return out
 
 
-def _aux(sim: Recording, real: Recording, pt: PairedTopic, t0: float, notes: list) -> dict:
-    """Return sim regressors on the topic's times: v (m/s), omega (rad/s), acmd (m/s^2)."""
+def _aux(sim: Recording, real: Recording, pt: PairedTopic, t0: float, notes: list,
+         tau: float = 0.0) -> dict:
+    """
+    Return sim regressors on the topic's times: v (m/s), omega (rad/s), acmd (m/s^2).
+
+    ``tau``: the topic's delay (s); the regressors taken from other topics are
+    read that much earlier, as the topic's own simulated channels are once
+    aligned (a late clock stamps the slip under acceleration late too).
+    """
     aux: dict = {}
-    ta = pt.t + t0
+    ta = pt.t + t0 - tau
     odoms = [tp for tp in sim.values() if tp.msgtype == ODOM_TYPE and len(tp) > 2]
     odoms.sort(key=lambda tp: ('truth' not in tp.name, tp.name))
     if odoms:
@@ -361,7 +368,10 @@ def _analyse_topic(pt: PairedTopic, sim: Recording, real: Recording, t0: float,
     prob = make_problem(pta, prm.noise_smooth, None) if (taus or lags) else prob0
     if prob is None:
         return findings, None, [], {}
-    aux = _aux(sim, real, pta, t0, notes)
+    # the delay of the channel each regressor from another topic serves: the odometry speed
+    # (wheel slip), the accelerometer's lateral axis (centripetal acceleration)
+    aux = _aux(sim, real, pta, t0, notes,
+               taus.get(T.SLIP_FIELD, taus.get('linear_acceleration.y', 0.0)))
     cands, cannot = E.candidates(pta, prob.sigma, aux)
     notes.extend(c for c in cannot if c not in notes)
     sel, prob, implausible = _select(prob, cands, prm, edges, notes, not_judged)

@@ -185,10 +185,17 @@ def time_stage(pt: PairedTopic, prob: S.Problem, prm: Any, edges: np.ndarray,
     reals = deslipped(pt, prob, acmd)
     effects = L.delays_of(group_data(pt, prob, fields, keep, reals), pt.dt, edges, prm.alpha,
                           prm.max_lag)
-    if reals and effects:  # the slip again, delayed by the delay found, and the delay with it
-        reals = deslipped(pt, prob, acmd, effects[0].delay.tau)
+    for _ in range(4 if reals else 0):
+        # the slip again, delayed by the delay found, and the delay with it, until they settle
+        # (alternating least squares)
+        if not effects:
+            break
+        last = effects[0].delay
+        reals = deslipped(pt, prob, acmd, last.tau)
         effects = L.delays_of(group_data(pt, prob, fields, keep, reals), pt.dt, edges,
                               prm.alpha, prm.max_lag)
+        if effects and abs(effects[0].delay.tau - last.tau) < 0.1 * last.std:
+            break
     out = []
     for te in effects:
         kind, info = 'time_offset', {}
