@@ -364,8 +364,8 @@ def test_commanded_acceleration_is_the_slope_of_each_command_interval():
     assert np.isnan(far).all()
 
 
-def _ramped_drive(rng, slip=0.0, tau=0.0):
-    """Return (sim, real): odometry of commanded ramps, real with slip and/or a delay."""
+def _ramped_drive(rng, slip=0.0, tau=0.0, lag=0.0):
+    """Return (sim, real): odometry of commanded ramps, real with slip, a lag and/or a delay."""
     dt = 0.02
     t = np.arange(0.0, 240.0, dt)
     v = _commanded_ramps(rng, t, 0.6)
@@ -376,8 +376,10 @@ def _ramped_drive(rng, slip=0.0, tau=0.0):
     sim = {'/odom': Topic('/odom', ODOM_TYPE, t, dict(zip(ODOM_FIELDS, (v, w)))),
            '/cmd_vel': cmd}
     # slip as the analyser models it: with the commanded acceleration
-    rv = np.interp(t - tau, t, v * (1.0 + slip * _command_slope(tc, cmd.fields['linear.x'], t)))
-    rw = np.interp(t - tau, t, w)
+    rv, rw = v * (1.0 + slip * _command_slope(tc, cmd.fields['linear.x'], t)), w
+    if lag:  # the drive's own filter, on the slipping speed
+        rv, rw = L.lag_response(rv, dt, lag), L.lag_response(rw, dt, lag)
+    rv, rw = np.interp(t - tau, t, rv), np.interp(t - tau, t, rw)
     real = {'/odom': Topic('/odom', ODOM_TYPE, t, dict(zip(ODOM_FIELDS, (
         rv + 0.004 * rng.standard_normal(t.size), rw + 0.004 * rng.standard_normal(t.size))))),
         '/cmd_vel': cmd}
@@ -424,6 +426,14 @@ def test_a_slip_and_an_odometry_delay_together_are_both_found(tau):
     delay, slip = _named(out, 'time_offset'), _named(out, 'wheel_slip')
     assert delay and delay[0]['parameters']['tau'] == pytest.approx(tau, abs=2e-3)
     assert 'alternatives' not in delay[0]
+    assert slip and slip[0]['parameters']['coefficient'] == pytest.approx(0.1, rel=0.08)
+
+
+def test_a_slip_behind_a_drive_lag_is_measured_through_the_lag():
+    """The commanded acceleration (another topic) passes the drive's lag like the speed does."""
+    out, _ = analyse_recordings(*_ramped_drive(np.random.default_rng(7), slip=0.1, lag=0.15))
+    lag, slip = _named(out, 'drive_lag'), _named(out, 'wheel_slip')
+    assert lag and lag[0]['parameters']['tau'] == pytest.approx(0.15, rel=0.05)
     assert slip and slip[0]['parameters']['coefficient'] == pytest.approx(0.1, rel=0.08)
 
 

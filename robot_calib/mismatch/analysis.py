@@ -44,6 +44,7 @@ from typing import Optional
 import numpy as np
 
 from robot_calib.mismatch import effects as E
+from robot_calib.mismatch import latency as L
 from robot_calib.mismatch import residual as U
 from robot_calib.mismatch import robust as R
 from robot_calib.mismatch import select as S
@@ -113,14 +114,19 @@ def _command_slope(t_cmd: np.ndarray, v_cmd: np.ndarray, t_dst: np.ndarray) -> n
 
 
 def _aux(sim: Recording, real: Recording, pt: PairedTopic, t0: float, notes: list,
-         tau: float = 0.0) -> dict:
+         tau: float = 0.0, lag: float = 0.0) -> dict:
     """
     Return sim regressors on the topic's times: v (m/s), omega (rad/s), acmd (m/s^2).
 
     ``tau``: the topic's delay (s); the regressors taken from other topics are
     read that much earlier, as the topic's own simulated channels are once
     aligned (a late clock stamps the slip under acceleration late too).
+    ``lag``: the drive's first-order lag (s), applied to them alike.
     """
+
+    def late(x: np.ndarray) -> np.ndarray:
+        return L.lag_response(T.filled(x), pt.dt, lag) if lag > 0 else x
+
     aux: dict = {}
     ta = pt.t + t0 - tau
     odoms = [tp for tp in sim.values() if tp.msgtype == ODOM_TYPE and len(tp) > 2]
@@ -129,13 +135,13 @@ def _aux(sim: Recording, real: Recording, pt: PairedTopic, t0: float, notes: lis
         o = odoms[0]
         for key, f in (('v', 'twist.twist.linear.x'), ('omega', 'twist.twist.angular.z')):
             if f in o.fields:
-                aux[key] = _t_abs_interp(o.t, o.fields[f], ta)
+                aux[key] = late(_t_abs_interp(o.t, o.fields[f], ta))
     if pt.msgtype == IMU_TYPE and 'angular_velocity.z' in pt.sim:
         aux['omega'] = np.nan_to_num(pt.sim_reg['angular_velocity.z'])
     cmds = [tp for rec in (sim, real) for tp in rec.values()
             if tp.msgtype in TWIST_TYPES and len(tp) > 2]
     if cmds:
-        aux['acmd'] = _command_slope(cmds[0].t, cmds[0].fields['linear.x'], ta)
+        aux['acmd'] = late(_command_slope(cmds[0].t, cmds[0].fields['linear.x'], ta))
     elif pt.msgtype == ODOM_TYPE and 'twist.twist.linear.x' in pt.sim:
         v = np.nan_to_num(pt.sim['twist.twist.linear.x'])
         w = max(1, int(round(0.2 / max(pt.dt, 1e-9))))
@@ -371,7 +377,8 @@ def _analyse_topic(pt: PairedTopic, sim: Recording, real: Recording, t0: float,
     # the delay of the channel each regressor from another topic serves: the odometry speed
     # (wheel slip), the accelerometer's lateral axis (centripetal acceleration)
     aux = _aux(sim, real, pta, t0, notes,
-               taus.get(T.SLIP_FIELD, taus.get('linear_acceleration.y', 0.0)))
+               taus.get(T.SLIP_FIELD, taus.get('linear_acceleration.y', 0.0)),
+               next((info['lag_tau'] for te, info in lags if T.SLIP_FIELD in te.fields), 0.0))
     cands, cannot = E.candidates(pta, prob.sigma, aux)
     notes.extend(c for c in cannot if c not in notes)
     sel, prob, implausible = _select(prob, cands, prm, edges, notes, not_judged)
