@@ -213,11 +213,12 @@ def estimate_delay(sims: list, reals: list, oks: list, dt: float, edges: np.ndar
 
     Least squares in time: the simulated channels are delayed exactly (an
     FFT phase ramp, which keeps their noise as it is, so the noise of neither
-    side can pull the estimate). The delay maximises the weighted correlation
-    ``sum_c w_c sum_t r_c(t) s_c(t - tau)`` (each channel weighted by its
-    residual level), found on a grid of trial delays around the
-    cross-correlation peak (evaluated in the frequency domain) and refined by
-    Gauss-Newton steps. Its error is the block sandwich of the score
+    side can pull the estimate). The delay minimises the weighted squared
+    residual ``sum_c w_c sum_t (r_c(t) - s_c(t - tau))^2`` over the compared
+    samples (each channel weighted by its residual level), found on a grid of
+    trial delays around the cross-correlation peak (the correlation less half
+    the shifted simulated energy, evaluated in the frequency domain) and
+    refined by Gauss-Newton steps. Its error is the block sandwich of the score
     (``sum_b g_b^2 / H^2``, the linearised jackknife), and the blocks that carry
     the curvature ``H`` count as its degrees of freedom.
 

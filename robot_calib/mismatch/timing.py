@@ -88,7 +88,7 @@ def group_data(pt: PairedTopic, prob: S.Problem, fields: list, keep: np.ndarray,
 
 
 def joint_slip(pt: PairedTopic, prob: S.Problem, acmd: Optional[np.ndarray],
-               tau: float = 0.0) -> Optional[tuple[float, np.ndarray]]:
+               tau: float = 0.0, with_delay: bool = True) -> Optional[tuple[float, np.ndarray]]:
     """
     Return (coefficient s^2/m, regressor ``v a`` delayed by ``tau``) of a slip fitted with a delay.
 
@@ -99,8 +99,9 @@ def joint_slip(pt: PairedTopic, prob: S.Problem, acmd: Optional[np.ndarray],
     least squares on an offset, a scale, the slip (delayed alike: the clock
     delays the slipping speed too) and the linearisation ``ds/dt`` of what
     delay is left, together, which separates them where the speed differs
-    between accelerations. None when the topic is not odometry or has no
-    commanded acceleration (``acmd``, m/s^2 on the grid).
+    between accelerations (``with_delay=False``: the slip alone). None when the
+    topic is not odometry or has no commanded acceleration (``acmd``, m/s^2 on
+    the grid).
     """
     f = SLIP_FIELD
     if pt.msgtype != ODOM_TYPE or acmd is None or f not in prob.fields:
@@ -109,26 +110,26 @@ def joint_slip(pt: PairedTopic, prob: S.Problem, acmd: Optional[np.ndarray],
     s, slip = pt.sim[f], np.nan_to_num(pt.sim_reg.get(f, pt.sim[f])) * acmd
     if tau:
         s, slip = delayed(s, tau, pt.dt), delayed(slip, tau, pt.dt)
-    rate = loo_derivative(s, pt.dt) if noisy else np.gradient(filled(s), pt.dt)
     level = regressor_signal(s) if noisy else s
     y = pt.real[f] - s
     m = prob.mask[f] & np.isfinite(y) & np.isfinite(slip) & np.isfinite(level)
     if m.sum() < 10 or not np.any(slip[m]):
         return None
-    X = np.column_stack((np.ones(m.sum()), level[m], slip[m], rate[m]))
-    return float(np.linalg.lstsq(X, y[m], rcond=None)[0][2]), np.nan_to_num(slip)
+    cols = [np.ones(m.sum()), level[m], slip[m]]
+    if with_delay:
+        cols.append((loo_derivative(s, pt.dt) if noisy else np.gradient(filled(s), pt.dt))[m])
+    coef = np.linalg.lstsq(np.column_stack(cols), y[m], rcond=None)[0]
+    return float(coef[2]), np.nan_to_num(slip)
 
 
-def deslipped(pt: PairedTopic, prob: S.Problem, acmd: Optional[np.ndarray],
-              tau: float = 0.0) -> dict:
+def deslipped(pt: PairedTopic, slip: Optional[tuple]) -> dict:
     """
-    Return {speed field: the real odometry speed less the slip of :func:`joint_slip`}, or {}.
+    Return {speed field: the real odometry speed less ``slip`` (:func:`joint_slip`)}, or {}.
 
     The delay is estimated on it; the amplitude stage finds the slip again on
     the aligned signals.
     """
-    js = joint_slip(pt, prob, acmd, tau)
-    return {} if js is None else {SLIP_FIELD: pt.real[SLIP_FIELD] - js[0] * js[1]}
+    return {} if slip is None else {SLIP_FIELD: pt.real[SLIP_FIELD] - slip[0] * slip[1]}
 
 
 def filled(x: np.ndarray) -> np.ndarray:
@@ -176,13 +177,13 @@ def time_stage(pt: PairedTopic, prob: S.Problem, prm: Any, edges: np.ndarray,
 
     ``acmd``: the commanded acceleration on the topic's grid (m/s^2); with it an
     odometry speed is compared without the wheel slip fitted jointly with a
-    delay (:func:`deslipped`).
+    delay (:func:`joint_slip`).
     """
     fields = moving_fields(pt, prob, prm.noise_smooth)
     if not fields:
         return []
     keep = np.ones(prob.n, bool)
-    reals = deslipped(pt, prob, acmd)
+    reals = deslipped(pt, joint_slip(pt, prob, acmd))
     effects = L.delays_of(group_data(pt, prob, fields, keep, reals), pt.dt, edges, prm.alpha,
                           prm.max_lag)
     for _ in range(4 if reals else 0):
@@ -191,7 +192,7 @@ def time_stage(pt: PairedTopic, prob: S.Problem, prm: Any, edges: np.ndarray,
         if not effects:
             break
         last = effects[0].delay
-        reals = deslipped(pt, prob, acmd, last.tau)
+        reals = deslipped(pt, joint_slip(pt, prob, acmd, last.tau))
         effects = L.delays_of(group_data(pt, prob, fields, keep, reals), pt.dt, edges,
                               prm.alpha, prm.max_lag)
         if effects and abs(effects[0].delay.tau - last.tau) < 0.1 * last.std:
@@ -263,37 +264,32 @@ def _lag_or_delay(pt: PairedTopic, prob: S.Problem, te: L.TimeEffect, prm: Any,
 
 
 def slip_alternative(pt: PairedTopic, prob: S.Problem, te: L.TimeEffect,
-                     acmd: Optional[np.ndarray]) -> Optional[tuple]:
+                     acmd: Optional[np.ndarray], joint: Optional[tuple]) -> Optional[tuple]:
     """
     Return (delta chi2, coefficient s^2/m) of wheel slip instead of an odometry delay, or None.
 
     On odometry speed a delay and slip under acceleration look alike (``tau a``
     against ``c v a``): the delay stage, run first, could take a slip for a
-    delay and hide it. The slip is fitted to the unaligned residual and both
-    models are scored alike (:func:`_whitened_chi2` over the delay's fields:
-    slip leaves the turn rate as it is, a clock delays it too), the delay
-    together with the slip fitted jointly with it (:func:`joint_slip`), so a
-    delay beside a slip is weighed by what it adds; a positive delta means the
-    delay fits better. ``acmd`` is the commanded acceleration on the topic's
-    grid (m/s^2).
+    delay and hide it. The slip is fitted alone to the unaligned residual and
+    both models are scored alike (:func:`_whitened_chi2` over the delay's
+    fields: slip leaves the turn rate as it is, a clock delays it too), the
+    delay together with ``joint``, the slip fitted jointly with it
+    (:func:`joint_slip` at the delay), so a delay beside a slip is weighed by
+    what it adds; a positive delta means the delay fits better. ``acmd`` is the
+    commanded acceleration on the topic's grid (m/s^2).
     """
-    if pt.msgtype != ODOM_TYPE or acmd is None or SLIP_FIELD not in te.fields:
+    if SLIP_FIELD not in te.fields:
         return None
-    x = np.where(np.isfinite(pt.sim[SLIP_FIELD]), pt.sim[SLIP_FIELD], 0.0) * acmd
-    m = prob.mask[SLIP_FIELD] & np.isfinite(x)
-    if m.sum() < 10 or not np.any(x[m]):
+    alone = joint_slip(pt, prob, acmd, with_delay=False)
+    if alone is None:
         return None
-    y = prob.r[SLIP_FIELD][m]
-    X = np.column_stack((np.ones(m.sum()), pt.sim[SLIP_FIELD][m], x[m]))
-    coef = float(np.linalg.lstsq(X, y, rcond=None)[0][2])
     with_slip = {f: pt.sim[f] for f in te.fields}
-    with_slip[SLIP_FIELD] = pt.sim[SLIP_FIELD] + coef * x
+    with_slip[SLIP_FIELD] = pt.sim[SLIP_FIELD] + alone[0] * alone[1]
     delay = {f: delayed(pt.sim[f], te.delay.tau, pt.dt) for f in te.fields}
-    js = joint_slip(pt, prob, acmd, te.delay.tau)
-    if js is not None:
-        delay[SLIP_FIELD] = delay[SLIP_FIELD] + js[0] * js[1]
+    if joint is not None:
+        delay[SLIP_FIELD] = delay[SLIP_FIELD] + joint[0] * joint[1]
     return (_whitened_chi2(prob, te.fields, with_slip) -
-            _whitened_chi2(prob, te.fields, delay), coef)
+            _whitened_chi2(prob, te.fields, delay), alone[0])
 
 
 def field_taus(te: L.TimeEffect, fields: Optional[list] = None) -> dict:
@@ -361,8 +357,9 @@ def time_findings(pt: PairedTopic, prob: S.Problem, found: list, prm: Any,
     out = []
     for kind, te, info in found:
         d = te.delay
+        joint = joint_slip(pt, prob, acmd, d.tau)
         channel, fitd, motion, support = _time_fit(pt, prob, te, prm, edges,
-                                                   deslipped(pt, prob, acmd, d.tau))
+                                                   deslipped(pt, joint))
         tau = d.tau if kind == 'time_offset' else info['lag_tau']
         params, sds = {'tau': float(tau)}, {'tau': float(d.std)}
         z_thr = L.t_quantile(prm.alpha, d.blocks - 1)
@@ -375,7 +372,7 @@ def time_findings(pt: PairedTopic, prob: S.Problem, found: list, prm: Any,
                             'parameters': {'tau': float(d.tau if other == 'time_offset'
                                                         else info['lag_tau'])},
                             'separating_motion': E.separating_motion(kind, other)})
-        slip = slip_alternative(pt, prob, te, acmd) if kind == 'time_offset' else None
+        slip = slip_alternative(pt, prob, te, acmd, joint) if kind == 'time_offset' else None
         if slip is not None and slip[0] < prm.alt_margin:
             alt.append({'effect': 'wheel_slip', 'channel': f'{pt.name}.{SLIP_FIELD}',
                         'delta_bic': float(max(slip[0], 0.0)),
