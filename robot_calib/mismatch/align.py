@@ -407,4 +407,5 @@ def _pair_one(a: Topic, b: Topic, t0: float, shift: float, max_lag: float,
                      f'simulated ones ({used})')
     tau, gain = xcorr_lag(sim_f, real_f, dt, max_lag)
     return PairedTopic(a.name, a.msgtype, grid - t0, sim_f, real_f, dt, tau, gain, notes,
-                       sim_src=(a.t - t0, a.fields), kernels=kernels)
+                       sim_src=(a.t - t0, a.fields), kernels=kernels, dt_sim=float(dta),
+                       dt_real=float(dtb))

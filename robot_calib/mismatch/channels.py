@@ -245,7 +245,8 @@ class PairedTopic:
 
     ``sim`` and ``real`` map field -> array (NaN where a side has no value);
     ``tau_xcorr`` is the lag (s, positive: real lags) of the cross-correlation
-    peak, ``xcorr_gain`` the correlation gained over lag 0.
+    peak, ``xcorr_gain`` the correlation gained over lag 0; ``dt_sim`` and
+    ``dt_real`` are each recording's own median sample period (s; 0 unknown).
     """
 
     name: str
@@ -261,6 +262,8 @@ class PairedTopic:
     sim_noisy: dict = field(default_factory=dict)
     sim_src: Optional[tuple] = None
     kernels: dict = field(default_factory=dict)
+    dt_sim: float = 0.0
+    dt_real: float = 0.0
 
     def __post_init__(self) -> None:
         """Build the regressor copies of the simulated channels (see :func:`regressor_signal`)."""

@@ -119,6 +119,10 @@ SPECS = {s.name: s for s in (
     EffectSpec('lever_arm', ('x', 'y', 'z'), ('m', 'm', 'm'), (0.5, 0.5, 0.5), False,
                'the IMU is away from the point the simulation measured, so it feels '
                'centripetal and tangential acceleration when turning', 0.02),
+    # beyond the contract table: two time lines that drift apart (a clock rate, a closed-loop
+    # run that did not keep the simulated timeline); no constant latency explains it
+    EffectSpec('timing_drift', ('tau_start', 'tau_end'), ('s', 's'), (np.inf, np.inf), False,
+               'the delay between the recordings changes along the run', 0.001),
     EffectSpec('drive_lag', ('tau',), ('s',), (1.0,), False,
                'the real drive follows its command with a first-order lag', 0.005),
     EffectSpec('steering_offset', ('offset',), ('rad',), (0.2,), True,

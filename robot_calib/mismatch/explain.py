@@ -39,6 +39,23 @@ def _sentence(effect: str, params: dict, where: str, meta: dict) -> str:
         tau = p['tau']
         return f'The real recording {"lags" if tau > 0 else "leads"} the simulation by ' \
             f'{abs(tau) * 1000:.1f} ms (a latency the simulation does not have).'
+    if effect == 'timing_drift':
+        most = meta.get('max_lag', np.inf)
+
+        def part(d) -> str:
+            if d is None:
+                return 'not measured'
+            if d.at_edge:
+                return f'beyond {np.sign(d.tau) * most * 1000:+.0f} ms'
+            return f'{d.tau * 1000:+.0f} ms'
+        parts = '; '.join(f'{a:.0f}-{b:.0f} s: {part(d)}' for a, b, d in meta.get('parts', []))
+        return 'The delay between the recordings is not one constant within the ' \
+            f'+-{most * 1000:.0f} ms searched ({parts}; positive: real lags). No latency ' \
+            'explains it: a clock of another ' \
+            'rate, or a run that did not keep the simulated timeline (closed-loop driving ' \
+            'reaching its goals at other times), so the two compare motions that are not ' \
+            f'simultaneous; aligned by its run-wide {meta.get("tau", 0.0) * 1000:.0f} ms ' \
+            'for the rest of the analysis.'
     if effect == 'drive_lag':
         return f'The real drive follows its command with a first-order lag of ' \
             f'{p["tau"] * 1000:.0f} ms that the simulation does not model.'
@@ -94,7 +111,10 @@ def explain(effect: str, params: dict, window: Optional[list], fitd: dict,
     s = _sentence(effect, params, where, meta or {})
     hb, ha = fitd.get('heldout_rmse_before'), fitd.get('heldout_rmse_after')
     if hb and ha is not None and hb > 0:
-        s += f' Modelling it cuts the held-out residual from {hb:.3g} to {ha:.3g}.'
+        s += f' Modelling it cuts the held-out residual from {hb:.3g} to {ha:.3g}.' \
+            if ha < hb else ' It does not lower the held-out residual as plainly measured ' \
+            f'({hb:.3g} before, {ha:.3g} after): it improves only the fit that weighs quiet ' \
+            'samples more.'
     for name, lim in zip(spec.params, spec.plausible):
         if abs(params.get(name, 0.0)) > lim:
             s += f' The {name} is beyond the plausible {lim:g}: check units and the pairing.'

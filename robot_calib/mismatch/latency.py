@@ -39,7 +39,8 @@ class Delay:
 
     ``blocks`` is the effective number of blocks that carry the estimate
     (``(sum w)^2 / sum w^2`` of their coherent information): the degrees of
-    freedom of its error.
+    freedom of its error. ``at_edge`` is True when the correlation peaked at
+    the largest lag searched (the delay may be larger than measured).
     """
 
     tau: float
@@ -48,6 +49,7 @@ class Delay:
     band_hz: tuple
     per_block: np.ndarray = field(default_factory=lambda: np.zeros(0))
     coherence: float = 0.0
+    at_edge: bool = False
 
     @property
     def z(self) -> float:
@@ -274,7 +276,8 @@ def estimate_delay(sims: list, reals: list, oks: list, dt: float, edges: np.ndar
     H = max(float(h.sum()), 1e-300)
     std = float(np.sqrt(np.sum(g * g) * nblk / max(nblk - 1, 1))) / H * dt
     k_eff = float(h.sum() ** 2 / max(float(np.sum(h * h)), 1e-300))
-    return Delay(k * dt, std, int(max(1, math.floor(k_eff))), (0.0, 0.5 / dt))
+    return Delay(k * dt, std, int(max(1, math.floor(k_eff))), (0.0, 0.5 / dt),
+                 at_edge=abs(k0) >= int(max_lag_s / dt))
 
 
 def _scores(shifters: list, rs: list, valid: list, weights: list, k: float,
@@ -342,12 +345,15 @@ class TimeEffect:
     ``groups`` maps each group's fields (a tuple) to its own :class:`Delay`;
     ``consistent`` is False when the groups differ beyond their errors (e.g.
     an IMU whose gyro and accelerometer sit behind different filters).
+    ``drift`` lists ``(start s, end s, Delay or None)`` per part of the run when
+    the delay is not one constant (:func:`drift_of`), else it is empty.
     """
 
     fields: list
     delay: Delay
     groups: dict = field(default_factory=dict)
     consistent: bool = True
+    drift: list = field(default_factory=list)
 
 
 def pool(delays: list) -> Delay:
@@ -357,7 +363,8 @@ def pool(delays: list) -> Delay:
     std = float(1.0 / np.sqrt(np.sum(w)))
     band = (min(d.band_hz[0] for d in delays), max(d.band_hz[1] for d in delays))
     return Delay(tau, std, sum(d.blocks for d in delays), band,
-                 coherence=float(np.mean([d.coherence for d in delays])))
+                 coherence=float(np.mean([d.coherence for d in delays])),
+                 at_edge=any(d.at_edge for d in delays))
 
 
 def delays_of(group_data: dict, dt: float, edges: np.ndarray, alpha: float,
@@ -393,4 +400,66 @@ def delays_of(group_data: dict, dt: float, edges: np.ndarray, alpha: float,
     fields = [f for g in groups for f in g]
     if pooled.z <= t_quantile(alpha, pooled.blocks - 1):
         return []
-    return [TimeEffect(fields, pooled, groups, consistent)]
+    drift = drift_of(group_data, dt, edges, alpha, max_lag_s, pooled) if alpha < 1.0 else []
+    return [TimeEffect(fields, pooled, groups, consistent, drift)]
+
+
+PARTS = 3
+"""Parts of the run whose delays must agree for one constant delay (:func:`drift_of`)."""
+
+
+def drift_of(group_data: dict, dt: float, edges: np.ndarray, alpha: float, max_lag_s: float,
+             pooled: Delay) -> list:
+    """
+    Return the delay per part of the run when it is not the constant ``pooled``, else [].
+
+    A latency is one number for the whole run; a clock running at another rate,
+    or a closed-loop run that reaches its goals at other times than the
+    simulated one, shifts the two time lines by an amount that changes along
+    the run, and a constant fitted to it is a confident wrong answer. The run
+    is cut into :data:`PARTS` parts (whole blocks), the delay estimated in each
+    as over the whole run, and the delay is not constant when either
+
+    - the parts' delays differ beyond their errors (a chi-square test of
+      homogeneity at ``alpha``) by more than a quarter of the delay and three
+      grid periods (so a delay that is constant up to rounding stays one), or
+    - the whole run's delay or a part's lies at the edge of the searched range
+      (the time lines are further apart than searched there: no delay is
+      measured, and a constant fitted to it says nothing).
+
+    :returns: ``[(start s, end s, Delay or None)]`` from the run's start, or []
+    """
+    nb = edges.size - 1
+    if nb < PARTS * MIN_BLOCKS:
+        return []
+    cuts = np.linspace(0, nb, PARTS + 1).astype(int)
+    parts, at_edge = [], pooled.at_edge
+    for p in range(PARTS):
+        e = edges[cuts[p]:cuts[p + 1] + 1]
+        inside = np.zeros(edges[-1], bool)
+        inside[e[0]:e[-1]] = True
+        ds = []
+        for _, sims, reals, oks in group_data.values():
+            d = estimate_delay(sims, reals, [ok & inside[:ok.size] for ok in oks], dt, e,
+                               max_lag_s)
+            if d is None or not math.isfinite(d.tau):
+                continue
+            at_edge |= d.at_edge
+            if d.std > 0 and math.isfinite(d.std) and d.blocks >= MIN_BLOCKS:
+                ds.append(d)
+        parts.append((float(e[0] * dt), float(e[-1] * dt), pool(ds) if ds else None))
+    if at_edge:
+        return parts
+    known = [d for _, _, d in parts if d is not None]
+    if len(known) < 2:
+        return []
+    taus = np.array([d.tau for d in known])
+    w = np.array([1.0 / d.std ** 2 for d in known])
+    mean = float(np.sum(w * taus) / np.sum(w))
+    chi2 = float(np.sum(w * (taus - mean) ** 2))
+    from scipy import special
+    spread = float(taus.max() - taus.min())
+    if chi2 > float(special.chdtri(len(known) - 1, alpha)) and \
+            spread > max(0.25 * abs(pooled.tau), 3.0 * dt):
+        return parts
+    return []

@@ -200,7 +200,9 @@ def time_stage(pt: PairedTopic, prob: S.Problem, prm: Any, edges: np.ndarray,
     out = []
     for te in effects:
         kind, info = 'time_offset', {}
-        if pt.msgtype != IMU_TYPE and te.delay.tau > 0:
+        if te.drift:
+            kind = 'timing_drift'
+        elif pt.msgtype != IMU_TYPE and te.delay.tau > 0:
             kind, info = _lag_or_delay(pt, prob, te, prm, reals)
         out.append((kind, te, info))
     return out
@@ -360,8 +362,10 @@ def time_findings(pt: PairedTopic, prob: S.Problem, found: list, prm: Any,
         joint = joint_slip(pt, prob, acmd, d.tau)
         channel, fitd, motion, support = _time_fit(pt, prob, te, prm, edges,
                                                    deslipped(pt, joint))
-        tau = d.tau if kind == 'time_offset' else info['lag_tau']
+        tau = info['lag_tau'] if kind == 'drive_lag' else d.tau
         params, sds = {'tau': float(tau)}, {'tau': float(d.std)}
+        if kind == 'timing_drift':
+            params, sds = drift_parameters(te)
         z_thr = L.t_quantile(prm.alpha, d.blocks - 1)
         alt = []
         if info:
@@ -378,7 +382,10 @@ def time_findings(pt: PairedTopic, prob: S.Problem, found: list, prm: Any,
                         'delta_bic': float(max(slip[0], 0.0)),
                         'parameters': {'coefficient': slip[1]},
                         'separating_motion': E.separating_motion(kind, 'wheel_slip')})
-        text = explain(kind, params, None, fitd)
+        text = explain(kind, params, None, fitd, {'parts': te.drift, 'tau': d.tau,
+                                                  'max_lag': prm.max_lag})
+        if kind == 'time_offset':
+            text += rate_note(pt, d)
         per_group = {g[0].rsplit('.', 1)[0]: gd.tau for g, gd in te.groups.items()}
         if not te.consistent:
             text += ' Its channels do not share one delay: ' + ', '.join(
@@ -386,8 +393,10 @@ def time_findings(pt: PairedTopic, prob: S.Problem, found: list, prm: Any,
                 ' (filters of different delay inside the sensor, or in the reference).'
         fd = {'channel': channel, 'effect': kind, 'parameters': params, 'window': None,
               'fit': fitd, 'explanation': text,
-              'std': sds, 'ci95': {'tau': [tau - 1.96 * d.std, tau + 1.96 * d.std]},
-              'units': {'tau': 's'}, 'channels': [f'{pt.name}.{f}' for f in te.fields],
+              'std': sds, 'ci95': {k: [v - 1.96 * sds[k], v + 1.96 * sds[k]]
+                                   for k, v in params.items()},
+              'units': {k: 's' for k in params},
+              'channels': [f'{pt.name}.{f}' for f in te.fields],
               'per_group': per_group,
               'evidence': {'z': float(d.z), 'z_threshold': z_thr, 'blocks': d.blocks,
                            'band_hz': list(d.band_hz), 'coherence': d.coherence},
@@ -398,6 +407,35 @@ def time_findings(pt: PairedTopic, prob: S.Problem, found: list, prm: Any,
             fd['alternatives'] = alt
         out.append(fd)
     return out
+
+
+def drift_parameters(te: L.TimeEffect) -> tuple[dict, dict]:
+    """Return the parameters of a ``timing_drift`` (delays of the first and last parts, s)."""
+    known = [d for _, _, d in te.drift if d is not None] or [te.delay]
+    first, last = known[0], known[-1]
+    return ({'tau_start': float(first.tau), 'tau_end': float(last.tau)},
+            {'tau_start': float(first.std), 'tau_end': float(last.std)})
+
+
+def rate_note(pt: PairedTopic, d: L.Delay) -> str:
+    """
+    Return a sentence when a delay is what a different sample rate alone makes, else ''.
+
+    A speed or rate differenced over one sample period (odometry, joint
+    velocities) stands for the middle of that period, so it trails its stamp
+    by half a period: sampled at different rates, the two recordings differ by
+    half the difference of their periods with no latency at all.
+    """
+    if pt.msgtype == IMU_TYPE or not (pt.dt_sim > 0 and pt.dt_real > 0):
+        return ''
+    half = 0.5 * (pt.dt_real - pt.dt_sim)
+    if abs(pt.dt_real - pt.dt_sim) <= 0.05 * min(pt.dt_real, pt.dt_sim) or \
+            abs(d.tau - half) > max(3.0 * d.std, 0.25 * abs(half)):
+        return ''
+    return f' It equals half the difference of the two sample periods ({half * 1000:.1f} ms; ' \
+        f'sim {1 / pt.dt_sim:.0f} Hz, real {1 / pt.dt_real:.0f} Hz): a speed differenced over ' \
+        'one period trails its stamp by half of it, so the rate alone may make this delay; ' \
+        'simulate at the real rate to tell.'
 
 
 def lagged(pt: PairedTopic, f: str, tau: float) -> np.ndarray:
