@@ -57,6 +57,7 @@ from robot_calib.mismatch.locate import active_windows, local_weights, moving_av
 from robot_calib.mismatch.locate import noise_level
 from robot_calib.mismatch.params import MismatchParams
 from robot_calib.mismatch.problem import held_mask, make_problem, noise_floor, rmse
+from robot_calib.mismatch.reconcile import reconcile
 
 __all__ = ['MismatchParams', 'TopicDetail', 'analyse_recordings']
 
@@ -362,7 +363,8 @@ def _analyse_topic(pt: PairedTopic, sim: Recording, real: Recording, t0: float,
     findings = T.time_findings(pt, prob0, timing, prm, edges, acmd)
     taus = {}
     for kind, te, _ in timing:
-        if kind == 'time_offset':
+        if kind in ('time_offset', 'timing_drift'):
+            # a drifting delay too: its run-wide value is the best single alignment
             taus.update(T.field_taus(te, list(pt.sim)))
     pta = T.aligned(pt, taus)
     lags = [(te, info) for kind, te, info in timing if kind == 'drive_lag']
@@ -442,6 +444,7 @@ def analyse_recordings(sim: Recording, real: Recording,
         findings.extend(fs)
         if 'detail' in info:
             details.append(info['detail'])
+    findings = reconcile(findings, notes)
     if not channel_info:
         raise ChannelError('no channel can be compared (' + '; '.join(
             f'{d["channel"]}: {d["reason"]}' for d in not_judged) + ')')

@@ -157,9 +157,15 @@ def summary_paragraph(findings: dict) -> str:
     """Return one plain paragraph: what the simulation left out, and what stays unexplained."""
     named = [f for f in findings['findings'] if f['effect'] != 'unexplained']
     left = [f for f in findings['findings'] if f['effect'] == 'unexplained']
-    if not named and not left:
+    minor = findings.get('minor_findings', [])
+    if not named and not left and not minor:
         return ('The real recording follows the simulation within its noise on every compared '
                 'channel: nothing is missing that this recording can show.')
+    if not named and not left:
+        return ('Nothing the simulation left out is large enough to matter for a ground robot. '
+                'Smaller differences are significant, below the size worth naming: ' +
+                '; '.join(f'{f["effect"].replace("_", " ")} on `{f["channel"]}` '
+                          f'({_fmt_params(f["parameters"])})' for f in minor) + '.')
     parts = []
     for f in named:
         where = f' between {f["window"][0]:.0f} and {f["window"][1]:.0f} s' if f['window'] \
@@ -175,7 +181,6 @@ def summary_paragraph(findings: dict) -> str:
                 f' that follows {f["parameters"]["correlates_with"]}'
                 if f['parameters'].get('correlates_with') not in (None, 'none') else '') + \
             ': no effect of the library accounts for it.'
-    minor = findings.get('minor_findings', [])
     if minor:
         text += f' {len(minor)} smaller effect(s) are significant but below the size worth ' \
             'naming (listed as minor).'
