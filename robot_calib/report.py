@@ -154,7 +154,13 @@ def render(summary: dict, generic: list[str], node_plots: dict[str, list[str]]) 
         results = {k: v for k, v in node.items() if k not in _STANDARD}
         if results:
             lines += ['', '| result | value |', '|---|---|']
-            lines += [f'| {k} | {_brief(v)} |' for k, v in results.items()]
+            for k, v in results.items():
+                # a result of a few dozen plain values (a calibration) is shown, not counted
+                if isinstance(v, dict) and 8 < len(v) <= 32 and all(
+                        isinstance(x, (str, int, float, bool, type(None))) for x in v.values()):
+                    lines += [f'| {k}.{s} | {_brief(x)} |' for s, x in v.items()]
+                else:
+                    lines.append(f'| {k} | {_brief(v)} |')
         for plot in node_plots.get(name, []):
             lines += ['', f'![{name}]({plot})']
     if summary.get('skipped'):

@@ -70,11 +70,24 @@ def test_pipeline_odom_only_and_bad_joint_names():
     counts = pipe.summary()['inputs']['joint_states']
     assert counts['rejected_missing_joints'] == counts['read']
     assert 'no wheel data' in pipe.result.verdict.lower()
-    # odom instead of joint_states: virtual wheel rotations from the nominal geometry
-    pipe = WheelCalibrationPipeline(WheelCalibParams(drive_type='differential'))
+    assert pipe.summary()['wheel_source'] == 'none'
+    assert not pipe.artifacts()['wheel_calibration.yaml'].startswith('# NOTE')
+    # odom instead of joint_states: virtual wheel rotations from the nominal geometry, so
+    # the result is relative to it, and the YAML a user pastes says so above the values
+    logged = []
+    pipe = WheelCalibrationPipeline(WheelCalibParams(drive_type='differential', track_width=0.8),
+                                    log=lambda level, msg: logged.append((level, msg)))
     _feed(pipe, res.messages, topics=('odom', 'scan', 'tf_static'))
     assert pipe.result.segments > 5
     assert 'no wheel data' not in pipe.result.verdict.lower()
+    method = pipe.summary()
+    assert method['wheel_source'] == 'odometry' and 'track_width 0.8' in \
+        method['wheel_source_caveat']
+    text = pipe.artifacts()['wheel_calibration.yaml']
+    assert text.startswith('# NOTE: wheel turns from odometry') and 'track_width 0.8' in text
+    assert 'odometry cannot check' in text   # the drive type was configured
+    assert yaml.safe_load(text)['drive_type'] == 'differential'
+    assert [m for level, m in logged if level == 'warn' and 'relative to' in m]
 
 
 def test_node_in_process_publishes_status_and_writes_yaml(tmp_path):
@@ -146,6 +159,13 @@ def test_replay_of_simulated_agv_through_the_cli(tmp_path):
     if d['verdict'] == 'converged':
         assert abs(d['steering_offset'] - truth['steering_offset']) < 4 * d['steering_offset_std']
     assert math.isfinite(d['wheel_radius'])
+    # the summary counts every status the output bag holds, the final one included
+    import json
+    summary = json.loads((out / 'summary.json').read_text())
+    counted = summary['nodes']['wheel_odometry_calibration']['outputs']['status']
+    assert counted == summary['output']['topics']['/wheel_calibration/status']
+    report = (out / 'report.md').read_text()
+    assert f'| result.verdict | {d["verdict"]}' in report
     import json
     summary = json.loads((out / 'summary.json').read_text())
     node = summary['nodes']['wheel_odometry_calibration']

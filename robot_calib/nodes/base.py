@@ -228,7 +228,7 @@ class PipelineNode(Node):
         artifacts are written in any case, each atomically.
         """
         try:
-            final = self.pipeline.finish()
+            final = self.pipeline.close()
         except Exception as exc:  # noqa: B902 - shutting down; report and go on
             self.log('error', f'finish failed: {type(exc).__name__}: {exc}')
             final = []

@@ -312,6 +312,13 @@ class Pipeline(abc.ABC):
         """Flush at the end of a recording or at shutdown; return final outputs."""
         return []
 
+    def close(self) -> list[Output]:
+        """Return :meth:`finish`'s final outputs, counted with the others in the summary."""
+        outs = self.finish()
+        for out_key, _ in outs:
+            self.n_outputs[out_key] += 1
+        return outs
+
     def method_summary(self) -> dict[str, Any]:
         """Return method-specific results for ``summary.json`` (estimates, corrections...)."""
         return {}

@@ -285,7 +285,7 @@ def _finish(plan: Plan, emit: _Emitter, stats: RunStats) -> None:
     for run in plan.runs:
         t0 = time.perf_counter()
         try:
-            emit(run, run.pipeline.finish())
+            emit(run, run.pipeline.close())
         except Exception as exc:  # noqa: B902 - counted, never fatal
             run.error('finish', exc)
         stats.finish_times[run.name] = time.perf_counter() - t0

@@ -81,7 +81,39 @@ class WheelCalibrationPipeline(Pipeline):
         self.result = self.estimator.result()
         if not math.isfinite(self._latest_t):
             return []
+        caveat = self.odometry_caveat()
+        if caveat:
+            self.log('warn', caveat)
         return self._both(self._status(self.result))
+
+    def wheel_source(self) -> str:
+        """Return where the wheel turns came from: 'joint_states', 'odometry' or 'none'."""
+        front = self.estimator.front
+        if front.uses_joints:
+            return 'joint_states'
+        return 'odometry' if front.counts['wheel_samples'] else 'none'
+
+    def odometry_caveat(self) -> str:
+        """
+        Return what the result is relative to when wheel turns came from odometry, else ''.
+
+        Odometry is turned back into wheel turns with the nominal geometry of
+        the parameters, so the estimates scale with it: they are the robot's
+        only if its odometry was computed with those same values.
+        """
+        front = self.estimator.front
+        if self.wheel_source() != 'odometry':
+            return ''
+        n = self.params.nominal()
+        used = ', '.join(f'{k} {n[k]:g}' for k in
+                         (('left_wheel_radius', 'right_wheel_radius', 'track_width')
+                          if front.drive == 'differential' else
+                          ('wheel_radius', 'wheel_base', 'steering_offset', 'steering_scale')))
+        checked = '' if front.drive_source != 'configured' else \
+            f'; the drive type ({front.drive}) is as configured, which odometry cannot check'
+        return ('wheel turns from odometry (no joint states): the estimates are relative to '
+                f"the nominal geometry given ({used}); they are the robot's only if its "
+                f'odometry uses those same values{checked}')
 
     @staticmethod
     def _both(status: T.DiagnosticSample) -> list[Output]:
@@ -114,7 +146,10 @@ class WheelCalibrationPipeline(Pipeline):
         """Return the result, the drive content and the front end's counters."""
         res = self.result or self.estimator.result()
         out = {'result': res.to_dict(), 'counts': dict(res.counts),
-               'drive_type_source': res.drive_source}
+               'drive_type_source': res.drive_source,
+               'wheel_source': self.wheel_source()}
+        if out['wheel_source'] == 'odometry':
+            out['wheel_source_caveat'] = self.odometry_caveat()
         for k in ('content', 'outliers', 'sigma', 'seed_stages_needed'):
             if k in res.details:
                 out[k] = res.details[k]
@@ -123,7 +158,9 @@ class WheelCalibrationPipeline(Pipeline):
     def artifacts(self) -> dict[str, str]:
         """Return ``{'wheel_calibration.yaml': text}`` (the contract's flat YAML)."""
         res = self.result or self.estimator.result()
-        return {'wheel_calibration.yaml': res.to_yaml()}
+        caveat = self.odometry_caveat()
+        return {'wheel_calibration.yaml': (f'# NOTE: {caveat}.\n' if caveat else '') +
+                res.to_yaml()}
 
 
 PIPELINE = WheelCalibrationPipeline
