@@ -431,6 +431,13 @@ def test_time_window(bag, tmp_path):
         replay(bag, tmp_path / 'p', nodes=ECHO, start_offset=-1.0, progress=False)
     with pytest.raises(ReplayError, match='time window'):
         replay(bag, tmp_path / 'p', nodes=ECHO, duration=0.0, progress=False)
+    # a window past the end of the recording, or too short to hold a message: nothing read,
+    # every output written all the same (it crashed on the empty timing sample)
+    for start, length in ((10.0, None), (0.5005, 0.0001)):
+        out = tmp_path / f'empty{start}'
+        s = replay(bag, out, nodes=ECHO, start_offset=start, duration=length, progress=False)
+        assert sum(c['read'] for c in s['nodes']['echo']['inputs'].values()) == 0
+        assert (out / 'summary.json').is_file() and (out / 'report.md').is_file()
 
 
 class CollidingPipeline(EchoPipeline):

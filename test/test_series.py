@@ -88,6 +88,15 @@ def test_reservoir_extend_keeps_what_appending_one_by_one_keeps():
         assert many.total == pytest.approx(one.total, rel=1e-12)
 
 
+def test_reservoir_extend_with_nothing_changes_nothing():
+    for r in (Reservoir(4, seed=1), Reservoir(0, seed=1)):
+        r.extend([])
+        assert r.values == [] and r.count == 0
+        r.extend([1.0, 2.0])
+        r.extend([])
+        assert r.count == 2 and r.total == 3.0
+
+
 def test_rows_read_like_a_list_of_arrays():
     rows = Rows(3)
     data = np.arange(30, dtype=float).reshape(10, 3) * 0.5

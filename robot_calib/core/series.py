@@ -128,6 +128,8 @@ class Reservoir:
 
     def extend(self, values: Sequence[float]) -> None:
         """Add many values: the same sample as appending them one by one, with fewer steps."""
+        if not len(values):
+            return
         start = self.count
         self.count += len(values)
         self.total += math.fsum(values)
