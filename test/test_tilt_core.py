@@ -153,6 +153,27 @@ def test_improved_at_rest_estimates_gyro_bias():
     np.testing.assert_allclose(out['bias'][-1], bias, atol=math.radians(0.05))
 
 
+@pytest.mark.parametrize('spin', [0.3, 1.0])
+def test_a_steady_spin_is_not_rest_and_its_rate_is_not_bias(spin):
+    """
+    Turning in place at a steady rate is steady, but not still (an audit's spin at 1 rad/s).
+
+    Rest was rates near their own mean: a steady spin passed, and the rest
+    update learned the turn rate as gyro bias (held at its 2 deg/s clip).
+    """
+    bias = np.array([0.002, -0.001, 0.002])
+    t, gyro, acc, q = synth(lambda t: (0.0, 0.0, spin if t < 40.0 else 0.0), 50.0,
+                            gyro_bias=bias)
+    rng = np.random.default_rng(1)
+    gyro = gyro + rng.normal(0, 0.002, gyro.shape)
+    acc = acc + rng.normal(0, 0.02, acc.shape)
+    out = track(t, gyro, acc)
+    spinning = (t > 2.0) & (t < 40.0)
+    assert not np.any(np.asarray(out['rest'])[spinning])
+    assert np.max(np.abs(np.asarray(out['bias'])[spinning, 2] - bias[2])) < math.radians(0.2)
+    assert np.any(np.asarray(out['rest'])[t > 45.0])   # still again: rest found
+
+
 def test_improved_rejects_linear_acceleration():
     # level robot braking/accelerating at 3 m/s^2 back and forth, with turns
     def lin(t):

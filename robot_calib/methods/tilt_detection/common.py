@@ -356,10 +356,11 @@ def outputs_as_arrays(outputs: list[TiltState]) -> dict[str, np.ndarray]:
     Return per-sample outputs as arrays (e.g. the ``outputs`` of ``run_batch``).
 
     ``quat`` (N, 4) base_link-to-earth (w, x, y, z), ``tilt`` (N,) rad,
-    ``alert`` (N,) bool, ``bias`` (N, 3) rad/s.
+    ``alert`` (N,) bool, ``bias`` (N, 3) rad/s, ``rest`` (N,) bool.
     """
     n = len(outputs)
     return {'quat': np.array([o.quat for o in outputs]).reshape(n, 4),
             'tilt': np.array([o.tilt for o in outputs], dtype=float),
             'alert': np.array([o.alert for o in outputs], dtype=bool),
+            'rest': np.array([o.rest for o in outputs], dtype=bool),
             'bias': np.array([o.bias for o in outputs], dtype=float).reshape(n, 3)}

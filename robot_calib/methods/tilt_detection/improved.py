@@ -55,6 +55,8 @@ class AttitudeEstimator:
         th_g = p.rest_gyro_threshold * self._deg
         self._rest_gyr2 = th_g * th_g
         self._rest_acc2 = p.rest_accel_threshold ** 2
+        # a mean rate beyond the largest bias accepted is a turn, however steady
+        self._rest_mean2 = (max(p.bias_clip, p.rest_gyro_threshold) * self._deg) ** 2
         self._snap_on = p.rest_snap_angle > 0.0
         self._snap_cos = math.cos(p.rest_snap_angle * self._deg)
         self._bias_on = p.motion_bias or p.rest_bias
@@ -185,12 +187,19 @@ class AttitudeEstimator:
 
     def _rest_detection(self, gx: float, gy: float, gz: float, ax: float, ay: float,
                         az: float, dt: float) -> None:
-        """Count the time the IMU has been still (rates and force near their low-pass means)."""
+        """
+        Count the time the IMU has been still.
+
+        Still: rates and force near their low-pass means, and the mean rate no
+        larger than a gyro bias can be (a steady spin is steady too, but its
+        rate is motion, not bias).
+        """
         g0, g1, g2 = self.rest_gyr_lp.step(gx, gy, gz)
         a0, a1, a2 = self.rest_acc_lp.step(ax, ay, az)
         dg = (gx - g0) ** 2 + (gy - g1) ** 2 + (gz - g2) ** 2
         da = (ax - a0) ** 2 + (ay - a1) ** 2 + (az - a2) ** 2
-        if dg < self._rest_gyr2 and da < self._rest_acc2:
+        if dg < self._rest_gyr2 and da < self._rest_acc2 and \
+                g0 * g0 + g1 * g1 + g2 * g2 <= self._rest_mean2:
             self.rest_time += dt
             self.rest = self.rest_time >= self.p.rest_min_time
             self.rest_gyr = (g0, g1, g2)
