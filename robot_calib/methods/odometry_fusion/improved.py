@@ -270,6 +270,11 @@ class ImprovedFusion(FusionFilter):
             abs(w) < p.zero_velocity_threshold
         gz_avg = self._gz_sum / self._gz_n if self._gz_n else self.gz
         self._gz_sum, self._gz_n = 0.0, 0
+        if still and not self.imu_stale and self._gyro_turning(t, gz_avg):
+            # late odometry (or wheels held while the robot is pushed round) still reads
+            # zero while the gyro already turns: pinning the bias there teaches it the turn
+            still = False
+            self.count('standstill_refused_gyro_turning')
         # nominal variances of the two channels
         r_v = (p.odom_speed_noise + p.odom_speed_noise_rel * abs(v)) ** 2
         r_w = (p.odom_yaw_rate_noise + p.odom_yaw_rate_noise_rel * abs(w)) ** 2
@@ -294,6 +299,13 @@ class ImprovedFusion(FusionFilter):
         if rejected:
             return None if dof else 'gated_' + rejected[0]
         return None
+
+    def _gyro_turning(self, t: float, gz_avg: float) -> bool:
+        """Return True when the gyro, less its bias, turns beyond its noise and bias error."""
+        interval = t - self._last_upd_t if self._last_upd_t is not None else 0.1
+        innov = gz_avg - self.x[IBG]
+        var = float(self.P[IBG, IBG]) + self.p.gyro_noise ** 2 / max(interval, 1e-3) + 1e-6
+        return innov * innov / var > self._gate
 
     @property
     def _still_consider(self) -> Optional[int]:
