@@ -337,6 +337,18 @@ def test_tf_static_through_the_pipeline_and_diagnostics():
     assert summ['imu_extrinsic'] == 'tf' and summ['nis']['updates'] > 0
 
 
+def test_the_extrinsic_log_names_the_frame_used():
+    """A lidar's transform arriving after the IMU's is not the one the log names."""
+    samples, _ = drive(duration=5.0, seed=5, imu_rpy=HUSKY_RPY)
+    logged = []
+    pipe = FusionPipeline(log=lambda level, msg: logged.append(msg))
+    laser = T.StaticTransform('base_link', 'laser', np.zeros(3), (1.0, 0.0, 0.0, 0.0))
+    pipe.process('tf_static', samples[0][1])
+    pipe.process('tf_static', laser)
+    told = [m for m in logged if 'IMU extrinsic' in m]
+    assert told and all('imu_link' in m and 'laser' not in m for m in told)
+
+
 def test_joint_states_input():
     samples, truth = drive(duration=60.0, seed=6, radius_err=0.0, yaw_scale=1.0)
     r, b = 0.1, 0.5

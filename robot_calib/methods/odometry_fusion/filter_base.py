@@ -135,8 +135,10 @@ class FusionFilter(abc.ABC):
             return
         self.front.set_rotation(rot, 'tf')
         if announce and self._log is not None:
-            self._log('info', f'IMU extrinsic from /tf_static ({self.p.base_frame} -> '
-                      f'{self._imu_frame or transform.child})')
+            # before the IMU's own frame is known, the first frame named like 'imu' was used
+            frame = self._imu_frame or next(
+                (tf.child for tf in self._mountings if 'imu' in tf.child.lower()), '?')
+            self._log('info', f'IMU extrinsic from /tf_static ({self.p.base_frame} -> {frame})')
 
     # -- input adapters --------------------------------------------------------------------
     def _update_imu(self, s: T.ImuSample) -> Optional[Union[FusionOutput, Rejected]]:
