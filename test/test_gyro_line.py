@@ -145,6 +145,23 @@ def test_parallel_walls_are_ambiguous_when_position_is_uncertain():
     assert c.counts.get('lines_ambiguous', 0) == 0
 
 
+def test_facets_of_a_round_wall_are_ambiguous_when_heading_is_uncertain():
+    """
+    Two facets of a many-sided round room, 5.6 deg apart and end to end (an audit's room).
+
+    Both gate while the heading is uncertain, at one distance: the line seen
+    between them could be either, and taking the nearer in angle corrected the
+    heading by a facet's angle (a perfect gyro ended 6 deg off after 3 min).
+    """
+    a = _line(0.0, 3.5, 0.0, 0.34)
+    b = _rotated(_line(0.34, 3.5, 0.0, 0.34), 5.6, (0.17, 3.5))
+    c = _improved_with([a, b], heading_sigma=3.0 * DEG)
+    seen = _rotated(_line(0.17, 3.5, 0.0, 0.5), 2.0, (0.17, 3.5))
+    assert c._improved_step([seen], 1.0) == []
+    assert c._improved_step([seen], 1.6) == []               # seen again: still either facet
+    assert c.counts['lines_ambiguous'] == 2 and not c.corrections
+
+
 def test_symmetric_room_never_aliases_by_90_degrees():
     square = [_line(2.0, 0.0, 0.0, 4.0), _line(4.0, 2.0, 90.0, 4.0), _line(2.0, 4.0, 0.0, 4.0),
               _line(0.0, 2.0, 90.0, 4.0)]

@@ -14,9 +14,9 @@ matching the wrong wall (:mod:`.improved_gate`): the reference must overlap
 the new line along its length (within the position uncertainty); the
 innovation (angle AND perpendicular distance) must pass a chi-square gate
 built from the current pose covariance; a line that could belong to two
-references at different distances (parallel walls, shelves) is ambiguous and
-skipped; lines of one scan must agree on the heading correction (the outliers
-are dropped and their references marked; a reference that keeps disagreeing,
+references at different distances (parallel walls, shelves) or angles (the
+facets of a round wall) is ambiguous and skipped; lines of one scan must agree
+on the heading correction (the outliers are dropped and their references marked; a reference that keeps disagreeing,
 such as moved furniture, is retired); a correction needs support from two
 distinct references, or from the same one in two scans that agree over time.
 A 90-degree symmetric room cannot alias because the heading uncertainty keeps
@@ -117,8 +117,11 @@ class ImprovedGyroLine(GyroLineBase):
                     self.count('lines_outside_gate')
                     continue
                 rhos = [g[2][1] for g in gated]
-                if max(rhos) - min(rhos) > ip.ambiguity_distance + 1e-9 and len(gated) > 1:
-                    # two references within reach at different distances: parallel walls
+                angles = [g[2][0] for g in gated]
+                if len(gated) > 1 and (max(rhos) - min(rhos) > ip.ambiguity_distance + 1e-9 or
+                                       max(angles) - min(angles) > ip.ambiguity_angle + 1e-12):
+                    # two references within reach at different distances (parallel walls) or
+                    # at different angles (the facets of a curved wall): either could be meant
                     self.count('lines_ambiguous')
                     continue
                 nis, ref, y, H, R = min(close, key=lambda g: g[0])

@@ -79,6 +79,9 @@ class ImprovedParams:
                                   'this plus 3 sigma of position.', minimum=0.0)
     ambiguity_distance: float = param(0.1, 'm', 'Two gated references farther apart than this '
                                       'make a line ambiguous.', minimum=0.0)
+    ambiguity_angle: float = param(1.0 * _DEG, 'rad', 'Two gated references whose angles differ '
+                                   'by more than this make a line ambiguous (facets of a curved '
+                                   'wall).', minimum=0.0)
     consistency_sigma: float = param(3.0, '', 'Lines of one scan must agree within this many '
                                      'sigma.', minimum=0.0)
     min_support: int = param(2, '', 'Distinct references (or agreeing scans) a correction '
