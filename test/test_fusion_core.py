@@ -295,6 +295,29 @@ def test_slip_episodes_are_gated_and_counted():
         0.5 * (raw_ate(samples, truth) - raw_ate(clean, truth))
 
 
+def test_diagnostics_warn_while_wheel_data_is_rejected_not_when_cautious():
+    """
+    While the wheels are rejected the fused estimate runs on the IMU alone: WARN says so.
+
+    An audit's ramp leaked gravity into the acceleration and the wheel speed
+    was rejected for seconds while the level stayed 'ok'; and the NIS warning
+    fired on half the periods of healthy drives, mostly for a NIS below its
+    band (a cautious filter), so WARN told nothing.
+    """
+    samples, _ = drive(duration=120.0, seed=3, slip=[(40.0, 44.0, 0.5)], radius_err=0.0)
+    pipe = FusionPipeline()
+    diags = []
+    for k, s in samples:
+        diags += [(o.t, o.statuses[0]) for key, o in pipe.process(k, s) if key == 'diagnostics']
+    during = [st for t, st in diags if 40.5 < t <= 42.0]
+    assert during and all(st.level == 1 and 'wheel speed rejected' in st.message
+                          for st in during)
+    quiet = [st for t, st in diags if 60.0 <= t <= 85.0]
+    cautious = [st for st in quiet if dict(st.values)['nis_avg'] != 'nan' and
+                float(dict(st.values)['nis_avg']) < float(dict(st.values)['nis_band_low'])]
+    assert all(st.level == 0 for st in cautious)
+
+
 @pytest.mark.parametrize('how', ['param', 'tf', 'gravity'])
 def test_rotated_imu_mounting(how):
     samples, truth = drive(duration=60.0, seed=4, imu_rpy=HUSKY_RPY)

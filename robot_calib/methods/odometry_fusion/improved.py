@@ -49,6 +49,10 @@ _CONSIDER_W = 6
 """States the wheel yaw rate does not correct by default: the first 6 (all but k_w, k_v)."""
 _CONSIDER_POSE = 3
 """States a standstill update leaves alone with ``continuous_pose``: the first 3 (pose)."""
+
+REJECTION_TOLD = 0.5
+"""Seconds of continuously rejected wheel data after which a warning says so (s)."""
+
 _outer = np.multiply.outer
 _add_reduce = np.add.reduce
 
@@ -77,6 +81,7 @@ class ImprovedFusion(FusionFilter):
         self.noise = NoiseAdapter(p, self._gate)
         self.nis = NisMonitor(p.nis_window)
         self._rej_since: dict = {'slip_speed': None, 'slip_yaw_rate': None}
+        self._rej_told: dict = {'slip_speed': False, 'slip_yaw_rate': False}
         self.imu_stale = True
         self._cov_acc = [0.0, 0.0, 0.0, 0.0, 0.0]
         self._cov_mode = (True, False)
@@ -412,7 +417,14 @@ class ImprovedFusion(FusionFilter):
             since = self._rej_since[channel]
             if since is None:
                 self._rej_since[channel] = t
+                self._rej_told[channel] = False
                 continue
+            if not self._rej_told[channel] and t - since > REJECTION_TOLD:
+                # said once per episode: the fused estimate runs on the IMU alone meanwhile
+                self._rej_told[channel] = True
+                self.warn(t, f'wheel {channel[5:].replace("_", " ")} rejected for '
+                          f'{t - since:.1f} s: wheel slip, or a wrong IMU-propagated '
+                          'estimate (a slope leaks gravity into the acceleration)')
             if t - since <= p.reinit_after:
                 continue
             self._rej_since[channel] = None

@@ -21,6 +21,10 @@ from robot_calib.methods.odometry_fusion.common import FusionResult
 from robot_calib.methods.odometry_fusion.params import FusionParams
 
 
+RECENT = 3.0
+"""A filter warning this recent (s of filter time) sets the diagnostic level to WARN."""
+
+
 def diagnostic_status(r: FusionResult, params: FusionParams,
                       input_counts: Mapping[str, Mapping[str, int]]) -> T.DiagnosticStatus:
     """
@@ -45,8 +49,11 @@ def diagnostic_status(r: FusionResult, params: FusionParams,
                     f'{math.nan if wfrac is None else wfrac:.3f}')]
         values += [(k, f'{v:.6g}') for k, v in r.estimates.items()]
         values.append(('imu_stale', str(r.imu_stale)))
-        if not nis.average_in_band:
-            level, msg = 1, 'NIS outside its 95% band'
+        if math.isfinite(nis.average) and nis.average > nis.band[1]:
+            # innovations larger than the filter expects: it is over-confident. (Below the
+            # band it is cautious, which time-correlated wheel noise makes it on healthy
+            # drives half the time: no warning.)
+            level, msg = 1, 'NIS above its 95% band: the filter is over-confident'
         if r.imu_stale:
             level, msg = 1, 'IMU stale: wheel odometry only'
     for k, v in sorted(r.counts.items()):
@@ -63,6 +70,10 @@ def diagnostic_status(r: FusionResult, params: FusionParams,
         msg = msg if level else f'ok ({r.counts["reinitialisations"]} re-initialisations)'
     if r.warnings:
         values.append(('last_warning', r.warnings[-1][1]))
+        t_warn, text = r.warnings[-1]
+        if r.t is not None and r.t - t_warn <= RECENT:
+            # a re-initialisation or wheel data rejected just now outranks the NIS
+            level, msg = 1, text
     return T.DiagnosticStatus('odometry_fusion: filter', level, msg, 'odometry_fusion',
                               tuple(values))
 
