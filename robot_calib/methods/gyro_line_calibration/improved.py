@@ -16,8 +16,9 @@ innovation (angle AND perpendicular distance) must pass a chi-square gate
 built from the current pose covariance; a line that could belong to two
 references at different distances (parallel walls, shelves) or angles (the
 facets of a round wall) is ambiguous and skipped; lines of one scan must agree
-on the heading correction (the outliers are dropped and their references marked; a reference that keeps disagreeing,
-such as moved furniture, is retired); a correction needs support from two
+on the heading correction (the outliers are dropped and their references
+marked; a reference that keeps disagreeing, such as moved furniture, is
+retired); a correction needs support from two
 distinct references, or from the same one in two scans that agree over time.
 A 90-degree symmetric room cannot alias because the heading uncertainty keeps
 the angle gate far below 90 degrees.
