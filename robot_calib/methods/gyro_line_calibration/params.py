@@ -63,10 +63,15 @@ class ImprovedParams:
                               'consumer MEMS gyro has 1e-4 to 3e-4).', minimum=0.0)
     odom_yaw_noise: float = param(0.005, 'rad/sqrt(s)', 'Random walk of the odometry yaw when it '
                                   'stands in for the gyro (wheel slip).', minimum=0.0)
-    bias_sigma0: float = param(60.0 * _DEG / 3600.0, 'rad/s', 'Initial gyro bias uncertainty.',
-                               minimum=0.0)
+    bias_sigma0: float = param(60.0 * _DEG / 3600.0, 'rad/s', 'Initial gyro bias uncertainty '
+                               "(60 deg/h). Set your gyro's turn-on bias when it is larger "
+                               '(0.0087 = 0.5 deg/s for many consumer parts): with a bias far '
+                               'beyond this the heading drifts while the filter reports it '
+                               'certain.', minimum=0.0)
     bias_walk: float = param(2.0e-5, 'rad/s/sqrt(s)', 'Gyro bias random walk.', minimum=0.0)
-    scale_sigma0: float = param(0.01, '', 'Initial gyro scale-error uncertainty.', minimum=0.0)
+    scale_sigma0: float = param(0.01, '', 'Initial gyro scale-error uncertainty (set the '
+                                "gyro's specified sensitivity tolerance when larger, e.g. 0.03).",
+                                minimum=0.0)
     odom_noise: float = param(0.02, 'm/sqrt(m)', 'Odometry position noise per sqrt(metre).',
                               minimum=0.0)
     line_sigma: float = param(0.03, 'm', 'Extra 1-sigma distance noise of a fitted line.',
