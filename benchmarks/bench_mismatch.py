@@ -305,6 +305,8 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.strip().splitlines()[0])
     ap.add_argument('--pairs', type=int, default=120)
     ap.add_argument('--no-speed', action='store_true')
+    ap.add_argument('--no-scenarios', action='store_true',
+                    help="skip the pairs from the simulator's scenarios")
     ap.add_argument('--seed0', type=int, default=1000,
                     help='first generator seed (another range checks that nothing was tuned '
                          'to the default one; write it elsewhere with --out)')
@@ -385,6 +387,9 @@ def main(argv=None) -> int:
         lines += ['Failures (seed, kind, details):', '']
         lines += [f'- {f}' for f in fails]
         lines.append('')
+    if not args.no_scenarios:
+        import mismatch_scenarios
+        lines += mismatch_scenarios.section(mismatch_scenarios.run())
     print('\n'.join(lines))
     if not args.no_speed:
         with tempfile.TemporaryDirectory() as td:

@@ -16,14 +16,19 @@ Per sensor (topic) the analysis runs in three stages:
 1. time: one delay per clock group (an IMU's gyro and accelerometer may
    differ), by least squares with exact shifts, kept when its block error
    makes it significant; a drive (odometry, joint states) also tries a
-   first-order lag (:mod:`.timing`, :mod:`.latency`). The simulation is then
-   delayed by it.
+   first-order lag (:mod:`.timing`, :mod:`.latency`). A delay must hold on
+   each third of the run too, else it is a ``timing_drift`` (time lines that
+   drift apart), not a latency. The simulation is then delayed by it.
 2. amplitude: forward selection of the library's effects on the aligned
    residual (:mod:`.select`), kept only when they pass a block-robust test
    (:mod:`.robust`) and improve held-out time.
 3. what is left: structure beyond noise that no effect explains becomes one
    ``unexplained`` finding (where, how large, what it follows), never a
    forced wrong name (:mod:`.residual`).
+
+Across sensors, one change of how the robot moved is one finding: the same
+scale on a speed and a yaw rate, or on a gyro and another topic's yaw rate,
+is named once (:mod:`.reconcile`).
 
 Held-out evaluation: the common time line is cut into ``heldout_chunks``
 equal chunks; every third chunk is held out. The selected effects are
