@@ -16,8 +16,9 @@ what the change does physically:
 - a real sensor fault beside them (a gyro scale with the motion unchanged).
 
 The first six cases reproduce an audit of issue 18 (the analyser was
-corrected against them); the last three were written after the corrections
-and run once.
+corrected against them); the next three were written after the corrections;
+the last two reproduce a second audit of those corrections (corrected
+against them).
 """
 
 from __future__ import annotations
@@ -71,6 +72,13 @@ CASES = (
     ('vacuum, wheels both +2 %', 'vacuum', 180.0, 8, 8,
      ['wheels.left_radius_error=0.02', 'wheels.right_radius_error=0.02'],
      [('wheel_radius_scale', None, None, None, None)], ('gyro_scale', 'time_offset')),
+    ('open loop, track 2 % wider and gyro z 3 % high', 'fusion_drive', 180.0, 13, 13,
+     ['wheels.track_width_error=0.06', 'imu.gyro_scale=[0,0,0.03]'],
+     [('track_width_scale', '/ground_truth/odom', None, None, None),
+      ('gyro_scale', '/imu', None, None, None)], ('wheel_radius_scale',)),
+    ('open loop, constant slip 10 %', 'fusion_drive', 180.0, 13, 13, ['wheels.slip_ratio=0.1'],
+     [('wheel_radius_scale', GT_V, 'scale', -0.1, 0.003)],
+     ('gyro_scale', 'track_width_scale', 'centripetal_acceleration')),
 )
 
 
@@ -124,8 +132,9 @@ def section(rows: list) -> list:
              'the real run with the change shown (simulator parameters); passed when every '
              'expected effect is named (within the tolerance where a size is checked) and no '
              'effect the change cannot cause is named. The first six cases reproduce an audit '
-             '(the analyser was corrected against them); the last three were written after '
-             'the corrections.', '',
+             '(the analyser was corrected against them); the next three were written after '
+             'the corrections; the last two reproduce a second audit (corrected against '
+             'them).', '',
              f'Passed: {n_ok} of {len(rows)}.', '',
              '| case | scenario (seeds) | real run | named | as expected | CPU s |',
              '|---|---|---|---|---|---|']

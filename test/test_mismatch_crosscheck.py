@@ -128,6 +128,21 @@ def test_a_gyro_that_disagrees_with_the_ground_truth_keeps_its_scale():
     assert gyro and gyro[0]['parameters']['scale'] == pytest.approx(0.03, abs=0.002)
 
 
+def test_a_gyro_fault_beside_a_motion_change_is_kept_with_its_own_part():
+    """
+    The robot turns 5 % faster and the gyro also reads 2 % high: the gyro shows +7.1 %.
+
+    Scales within 10 % of each other were merged, so a gyro fault up to a tenth
+    of the motion change vanished (an audit: +0.8 % beside -9.6 %). Now only
+    scales within their errors or 0.2 % are one, and a gyro kept beside a
+    motion change says what its own part is if the other topic is the truth.
+    """
+    out, _ = analyse_recordings(*_wheels_pair(3, 1.05, 1.02))
+    gyro = [f for f in out['findings'] if f['effect'] == 'gyro_scale']
+    assert gyro and gyro[0]['parameters']['scale'] == pytest.approx(1.05 * 1.02 - 1, abs=0.003)
+    assert "the gyro's own scale error is +2.0" in gyro[0]['explanation']
+
+
 def test_reconcile_keeps_scales_that_differ():
     """A track width and a wheel radius of different sizes are two effects, both kept."""
     def finding(effect, channel, scale):
@@ -138,6 +153,26 @@ def test_reconcile_keeps_scales_that_differ():
              finding('gyro_scale', '/imu.angular_velocity.z', 0.02)]
     notes = []
     assert reconcile(found, notes) == found and not notes
+    # a speed change of -10 % and a yaw-rate change of -10.9 % (a wider track besides): two
+    # effects, though within 10 % of each other
+    found = [finding('wheel_radius_scale', '/gt.twist.twist.linear.x', -0.1),
+             finding('track_width_scale', '/gt.twist.twist.angular.z', 0.1222)]
+    assert reconcile(found, notes) == found and not notes
+    assert "the track width's own part is -0.99%" in found[1]['explanation']   # 1/1.1222/0.9
+
+
+def test_a_slower_robot_is_not_a_missing_centripetal_term():
+    """A 10 % slip slows speed and turn rate alike: v * omega is 19 % smaller, nothing missing."""
+    def finding(effect, channel, key, value):
+        return {'effect': effect, 'channel': channel, 'window': None, 'explanation': '',
+                'parameters': {key: value}, 'std': {key: 1e-4}}
+    found = [finding('wheel_radius_scale', '/gt.twist.twist.linear.x', 'scale', -0.1),
+             finding('track_width_scale', '/gt.twist.twist.angular.z', 'scale', 1 / 0.9 - 1),
+             finding('centripetal_acceleration', '/imu.linear_acceleration.y', 'gain', -0.191)]
+    notes = []
+    left = reconcile(found, notes)
+    assert [f['effect'] for f in left] == ['wheel_radius_scale']
+    assert any('centripetal gain' in n for n in notes)
 
 
 def test_a_delay_that_the_sampling_rates_make_says_so():

@@ -23,13 +23,16 @@ import numpy as np
 
 SPEED, YAW = 'twist.twist.linear.x', 'twist.twist.angular.z'
 GYRO_Z = 'angular_velocity.z'
-REL_TOL = 0.1
-"""Relative difference within which two scales are the same one (10 % of the larger)."""
+ACC_Y = 'linear_acceleration.y'
+ABS_TOL = 0.002
+"""Scales this close are one (0.2 %: below the smallest scale worth naming, 0.5 %)."""
+GAIN_TOL = 0.02
+"""Centripetal gains this close are one (a fifth of the smallest worth naming, 0.1)."""
 
 
-def _same(a: float, sa: float, b: float, sb: float) -> bool:
-    """Return True when two scales agree within their errors or ``REL_TOL``."""
-    return abs(a - b) <= max(3.0 * float(np.hypot(sa, sb)), REL_TOL * max(abs(a), abs(b)))
+def _same(a: float, sa: float, b: float, sb: float, tol: float = ABS_TOL) -> bool:
+    """Return True when two scales agree within their errors (3 sigma) or ``tol``."""
+    return abs(a - b) <= max(3.0 * float(np.hypot(sa, sb)), tol)
 
 
 def _whole(findings: list, effect: str, channel: str) -> dict | None:
@@ -42,25 +45,35 @@ def _yaw_scale(f: dict) -> tuple[float, float]:
     if f['effect'] == 'track_width_scale':
         k, sk = f['parameters']['scale'], f['std']['scale']
         return 1.0 / (1.0 + k) - 1.0, sk / (1.0 + k) ** 2
-    key = 'scale'
-    return f['parameters'][key], f['std'][key]
+    return f['parameters']['scale'], f['std']['scale']
+
+
+def _own(this: float, other: float) -> float:
+    """Return what is left of relative change ``this`` once ``other`` is taken out."""
+    return (1.0 + this) / (1.0 + other) - 1.0
 
 
 def reconcile(findings: list, notes: list) -> list:
-    """Return ``findings`` with the scale findings of one cause merged (notes say which)."""
+    """Return ``findings`` with the findings of one cause merged (notes say which)."""
     out = list(findings)
-    yaw = []  # (topic channel of a yaw rate, its scale, error, finding)
+    yaw = []     # (yaw-rate channel, relative change, its error)
+    motion = []  # (topic, speed change, yaw-rate change): how the robot moved differently
     for f in findings:
         if f['effect'] != 'wheel_radius_scale' or f['window'] is not None or \
                 not f['channel'].endswith('.' + SPEED):
             continue
         topic = f['channel'][:-len(SPEED) - 1]
+        k, sk = f['parameters']['scale'], f['std']['scale']
         tw = _whole(out, 'track_width_scale', f'{topic}.{YAW}')
         if tw is None:
+            motion.append((topic, k, 0.0))
             continue
-        k, sk = f['parameters']['scale'], f['std']['scale']
         s, ss = _yaw_scale(tw)
+        motion.append((topic, k, s))
         if not _same(k, sk, s, ss):
+            tw['explanation'] += f' Wheels of another size change the yaw rate of {topic} as ' \
+                f"much as its speed ({k * 100:+.2f}%); the track width's own part is " \
+                f'{_own(s, k) * 100:+.2f}% of the yaw rate.'
             continue
         out.remove(tw)
         f['channels'] = [f['channel'], tw['channel']]
@@ -77,13 +90,30 @@ def reconcile(findings: list, notes: list) -> list:
               f['channel'].endswith('.' + GYRO_Z)]:
         s, ss = _yaw_scale(g)
         topic = g['channel'].rsplit('.', 2)[0]
-        match = next((y for y in yaw if not y[0].startswith(topic + '.') and
-                      _same(s, ss, y[1], y[2])), None)
+        others = [y for y in yaw if not y[0].startswith(topic + '.')]
+        match = next((y for y in others if _same(s, ss, y[1], y[2])), None)
         if match is None:
+            for y in others[:1]:
+                g['explanation'] += f' The yaw rate of {y[0]} changed too ({y[1] * 100:+.2f}%): ' \
+                    "if that topic measures the true motion, the gyro's own scale error is " \
+                    f'{_own(s, y[1]) * 100:+.2f}%.'
             continue
         out.remove(g)
         notes.append(f'{g["channel"]} reads {s * 100:+.2f}% against the simulation, as the yaw '
                      f'rate of {match[0]} does ({match[1] * 100:+.2f}%): the real robot turned '
-                     'that much faster than simulated, which both sensors agree on; not a gyro '
-                     'scale error, so not reported as one')
+                     f'that much {"faster" if match[1] > 0 else "slower"} than simulated, which '
+                     'both sensors agree on; not a gyro scale error, so not reported as one')
+    for c in [f for f in out if f['effect'] == 'centripetal_acceleration' and
+              f['window'] is None and f['channel'].endswith('.' + ACC_Y)]:
+        gain, sg = c['parameters']['gain'], c['std']['gain']
+        for topic, kv, kw in motion:
+            if kv == 0.0 or kw == 0.0:
+                continue
+            want = (1.0 + kv) * (1.0 + kw) - 1.0   # v * omega of the real robot
+            if _same(gain, sg, want, 0.0, GAIN_TOL):
+                out.remove(c)
+                notes.append(f'{c["channel"]}: the centripetal gain {gain:.3g} is the real '
+                             f"robot's v*omega, {want * 100:+.1f}% of the simulated one as "
+                             f'{topic} moved; not a missing centripetal term')
+                break
     return out
