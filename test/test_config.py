@@ -31,3 +31,12 @@ def test_every_node_has_a_section_and_every_key_a_comment_with_default():
         stripped = line.strip()
         if stripped and not stripped.startswith('#') and not stripped.endswith(':'):
             assert lines[i - 1].strip().startswith('#') and '(default' in lines[i - 1], line
+
+
+def test_replay_reads_the_shipped_file_as_the_readme_says():
+    """`robot-calib replay BAG --params config/robot_calib.yaml` (it refused output_dir)."""
+    from robot_calib.replay.config import load_params_file, params_for
+    loaded = load_params_file(CONFIG)
+    for name in pipelines.available():
+        params = params_for(name, pipelines.load(name), loaded, {})
+        assert params == pipelines.load(name).params_type()   # the file holds the defaults

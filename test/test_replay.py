@@ -291,6 +291,13 @@ def test_params_file_then_set(bag, tmp_path):
     params.write_text('echo: [1, 2]\n')
     with pytest.raises(ReplayError, match='ros__parameters'):
         replay(bag, tmp_path / 'p', nodes=ECHO, params_file=params, progress=False)
+    # typos that would silently set nothing: the section's key, one of our node names
+    params.write_text('echo:\n  ros_parameters:\n    gain: 3.0\n')
+    with pytest.raises(ReplayError, match="found \\['ros_parameters'\\]"):
+        replay(bag, tmp_path / 'p', nodes=ECHO, params_file=params, progress=False)
+    params.write_text('/**/tilt_detecton:\n  ros__parameters:\n    fall_angle: 40.0\n')
+    with pytest.raises(ReplayError, match="did you mean 'tilt_detection'"):
+        replay(bag, tmp_path / 'p', nodes=ECHO, params_file=params, progress=False)
     params.write_text('echo: {ros__parameters: {gain: [1,\n')
     with pytest.raises(ReplayError, match='cannot read'):
         replay(bag, tmp_path / 'p', nodes=ECHO, params_file=params, progress=False)

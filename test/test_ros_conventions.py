@@ -55,7 +55,8 @@ def test_replay_reads_namespaced_and_wildcard_keys(tmp_path):
     params.write_text('/**:\n  ros__parameters:\n    output_dir: x\n'
                       '/**/tilt_detection:\n  ros__parameters:\n    fall_angle: 1.0\n'
                       '/robot1/tilt_detection:\n  ros__parameters:\n    clear_duration: 2.0\n')
-    assert load_params_file(params) == {'/**': {'output_dir': 'x'},
+    # output_dir is the live node's (where it writes): nothing to set offline
+    assert load_params_file(params) == {'/**': {},
                                         'tilt_detection': {'fall_angle': 1.0,
                                                            'clear_duration': 2.0}}
 

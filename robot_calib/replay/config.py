@@ -11,6 +11,7 @@ from __future__ import annotations
 
 from collections import defaultdict
 import dataclasses
+import difflib
 import importlib
 import os
 from pathlib import Path
@@ -126,12 +127,28 @@ def load_params_file(path: Union[str, os.PathLike, None]) -> dict[str, dict[str,
     out: dict[str, dict[str, Any]] = {}
     for node, section in data.items():
         if not isinstance(section, dict) or not isinstance(
-                section.get('ros__parameters', {}), dict):
+                section.get('ros__parameters', {}), dict) or \
+                (section and 'ros__parameters' not in section):
+            found = f' (found {sorted(map(str, section))})' if isinstance(section, dict) else ''
             raise ReplayError(f'parameter file {p}: node {node!r} must map to '
-                              '{ros__parameters: {...}}')
+                              f'{{ros__parameters: {{...}}}}{found}')
+        name = node_of_key(node)
+        # a section for another package's node is fine (one file may serve a whole robot);
+        # one a letter or two away from ours is a typo that would silently do nothing
+        close = difflib.get_close_matches(name, list(pipelines.REGISTRY), 1, 0.85)
+        if close and close[0] != name:
+            raise ReplayError(f'parameter file {p}: node {node!r} is not a node of ours; '
+                              f'did you mean {close[0]!r}?')
         flat = flatten_nested(section.get('ros__parameters') or {})
-        out.setdefault(node_of_key(node), {}).update(flat)
+        # parameters of the live node only (where it writes, the ROS clock): nothing to set
+        # offline, so the file a live node reads serves a replay as it is
+        flat = {k: v for k, v in flat.items() if k not in NODE_ONLY}
+        out.setdefault(name, {}).update(flat)
     return out
+
+
+NODE_ONLY = ('output_dir', 'use_sim_time')
+"""Parameters a live node has besides its method's (ignored by replay)."""
 
 
 def _node_name(cls: type) -> str:
