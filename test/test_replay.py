@@ -304,6 +304,20 @@ def test_params_file_then_set(bag, tmp_path):
     assert not (tmp_path / 'p').exists()
 
 
+def test_a_sample_the_method_turns_down_is_rejected_not_also_accepted():
+    """read = accepted + rejected: a rejection inside handle() was counted as both."""
+    class Picky(EchoPipeline):
+        def handle(self, key, sample):
+            if key == 'imu' and round(sample.t * 100) % 2:
+                return self.reject(key, 'odd')
+            return super().handle(key, sample)
+    pipe = Picky()
+    for i in range(10):
+        pipe.process('imu', _imu(10**9 + i * 10**7))
+    c = pipe.summary()['inputs']['imu']
+    assert (c['accepted'], c['rejected'], c['rejected_odd']) == (5, 5, 5)
+
+
 def test_pipeline_errors_are_counted_not_fatal(bag, tmp_path):
     s = replay(bag, tmp_path / 'o', nodes=[ECHO, f'{__name__}:BrokenPipeline'],
                progress=False)

@@ -204,8 +204,11 @@ class Pipeline(abc.ABC):
         if not guard.allow(t):
             return self.reject(key, 'implausible_rate')
         self._last_t[key] = t
+        c = self.counts[key] if counts is None else counts
+        rejected = c['rejected']
         outs = self.handle(key, sample)
-        (self.counts[key] if counts is None else counts)['accepted'] += 1
+        if c['rejected'] == rejected:  # the method did not turn it down either
+            c['accepted'] += 1
         if outs:
             n_outputs = self.n_outputs
             for out_key, _ in outs:
