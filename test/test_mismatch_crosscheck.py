@@ -213,3 +213,22 @@ def test_a_consistent_verdict_with_minor_effects_does_not_claim_noise_only():
     text = summary_paragraph({'findings': [], 'minor_findings': [minor]})
     assert 'within its noise' not in text and 'gyro scale on `/imu.angular_velocity.z`' in text
     assert 'within its noise' in summary_paragraph({'findings': [], 'minor_findings': []})
+
+
+def test_a_channel_that_does_not_follow_the_simulation_carries_no_finding():
+    """
+    The real gyro z reads 0.3 times the simulated rate (and 0.01 rad/s more).
+
+    Its gyro scale fit (-0.7) is far beyond a working sensor, so the channel is
+    listed as not following the simulation; an offset fitted beside it (0.037,
+    not the 0.01 added) was still listed as a gyro bias (an audit, on another
+    trajectory: 0.04 rad/s at confidence 0.82 against a true 0.003).
+    """
+    t, v, w = _motion(1)
+    rng = np.random.default_rng(2)
+    real = _imu(t, w, v, rng, scale=0.3)
+    real.fields['angular_velocity.z'] += 0.01
+    out, _ = analyse_recordings({'/imu': _imu(t, w, v, rng)}, {'/imu': real})
+    z = [f for f in _all(out) + out['weak_findings'] if f['channel'] == '/imu.angular_velocity.z']
+    assert not [f for f in z if f['effect'] != 'unexplained'], z
+    assert any(d['channel'] == '/imu.angular_velocity.z' for d in out['not_judged'])

@@ -206,6 +206,13 @@ def _implausible(prob: S.Problem, sel: list, not_judged: list, notes: list, cand
         not_judged.append({'channel': t.channel, 'reason': f'in {where} the real channel does '
                            f'not follow the simulation (the best {t.effect} fit, {desc}, is far '
                            'beyond a physical value; is the simulated signal noise there?)'})
+    # a channel that does not follow the simulation over the whole recording carries no
+    # other finding either (an offset fitted to unrelated motion is no gyro bias)
+    lost = {f for t, _ in dropped if t.window is None and len(t.cols) == 1 for f in t.cols}
+    for t in [t for t in keep if lost & set(t.cols)]:
+        keep.remove(t)
+        notes.append(f'{t.channel}: {t.effect} not reported: the channel does not follow the '
+                     'simulation over the whole recording')
     if len(keep) < len(sel):
         keep = S.refine_nonlinear(prob, keep)
     return keep, dropped
