@@ -217,7 +217,7 @@ def play(bags: Union[str, os.PathLike, Sequence[Union[str, os.PathLike]]], rate:
         chosen, skipped = _choose(bagset, rename, wanted, message_class)
         own_context = not rclpy.ok()
         if own_context:
-            rclpy.init()
+            rclpy.init(args=[])   # not sys.argv: its --remap are ours, not rcl's
         node = player = None
         span: list[int] = []
         wall0 = time.monotonic()

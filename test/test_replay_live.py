@@ -192,3 +192,27 @@ def test_live_offers_every_static_transform_to_a_late_subscriber(tmp_path):
     assert skipped == {} and player.counts == {'/tf_static': 3}
     assert sorted(m.transforms[0].child_frame_id for m in got) == [
         'camera_link', 'imu_link', 'laser']
+
+
+def test_live_does_not_hand_the_command_line_to_rcl(tmp_path, monkeypatch):
+    """rclpy.init() read sys.argv: the CLI's own --remap ran again inside rcl (an audit)."""
+    import sys
+    import rclpy
+    from robot_calib import live
+    path = tmp_path / 'bag'
+    _write(path, n=5)
+    seen = []
+
+    class Stop(Exception):
+        pass
+
+    def init(args=None, **kw):
+        seen.append(args)
+        raise Stop
+    monkeypatch.setattr(sys, 'argv', ['robot-calib', 'replay', str(path), '--live',
+                                      '--remap', '/odom:=/imu_b', '--remap', '/imu:=/odom'])
+    monkeypatch.setattr(rclpy, 'ok', lambda *a, **k: False)
+    monkeypatch.setattr(rclpy, 'init', init)
+    with pytest.raises(Stop):
+        live.play(path)
+    assert seen == [[]]
