@@ -167,6 +167,26 @@ def test_bad_fleet_arguments_are_one_line_errors(tmp_path, capsys):
         run_fleet(tmp_path / 'empty', tmp_path / 'o', workers=0, progress=False)
 
 
+def test_settings_that_would_fail_every_bag_are_refused_first(fleet, tmp_path, capsys):
+    """A typo in --set or --nodes gave a fleet whose every bag failed, and exit 0 (an audit)."""
+    for extra, words in ((['--set', 'tilt_detection.fall_angel=1'], 'fall_angel'),
+                         (['--nodes', 'tilt_detectin'], 'tilt_detectin'),
+                         (['--nodes', 'tilt_detection', '--set', 'odometry_fusion.mode=seed'],
+                          'not among the nodes run')):
+        out = tmp_path / 'o'
+        assert main(['fleet', str(fleet), '--out', str(out), '--no-progress'] + extra) == 2
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and words in err[0]
+        assert not out.exists()
+    # every bag failing (here: the broken robot alone) is an error too
+    only_broken = tmp_path / 'broken'
+    (only_broken / 'r3').mkdir(parents=True)
+    (only_broken / 'r3' / 'broken.mcap').write_bytes((fleet / 'r3' / 'broken.mcap').read_bytes())
+    assert main(['fleet', str(only_broken), '--out', str(tmp_path / 'b'), '--workers', '1',
+                 '--no-progress']) == 1
+    assert 'every bag failed' in capsys.readouterr().err
+
+
 def test_ray_executor_gives_the_same_rows(fleet, tmp_path):
     """A local Ray (the optional extra) runs the same jobs into the same table."""
     pytest.importorskip('ray')

@@ -144,6 +144,30 @@ class _Ray(_InProcess):
             self.ray.shutdown()
 
 
+def check_settings(nodes: Optional[Iterable[str]], params_file: Any,
+                   overrides: Iterable[str]) -> None:
+    """
+    Refuse node names, a parameter file and ``--set`` items that would fail every bag.
+
+    The same checks a replay makes before it reads a bag, made once: a typo
+    gives one line and exit 2 instead of a fleet whose every bag failed.
+    """
+    from robot_calib import pipelines
+    from robot_calib.replay.config import load_params_file, params_for, parse_overrides, \
+        resolve_node
+    chosen = [resolve_node(n) for n in nodes] if nodes else \
+        [resolve_node(n) for n in pipelines.available()]
+    file_params = load_params_file(params_file)
+    by_node = parse_overrides(list(overrides))
+    names = {name for name, _ in chosen}
+    unknown = sorted(set(by_node) - names)
+    if unknown:
+        raise FleetError(f'--set for {", ".join(unknown)}: not among the nodes run '
+                         f'({", ".join(sorted(names))})')
+    for name, cls in chosen:
+        params_for(name, cls, file_params, by_node.get(name, {}))
+
+
 def run_fleet(source: Union[str, os.PathLike], out: Union[str, os.PathLike],
               nodes: Optional[Iterable[str]] = None, workers: Optional[int] = None,
               force: bool = False, params_file: Optional[Union[str, os.PathLike]] = None,
@@ -173,6 +197,7 @@ def run_fleet(source: Union[str, os.PathLike], out: Union[str, os.PathLike],
     workers = (os.cpu_count() or 1) if workers is None else int(workers)
     if workers < 1:
         raise FleetError(f'bad --workers {workers}: expected 1 or more')
+    check_settings(nodes, params_file, overrides)
     jobs = discover(Path(source))
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
