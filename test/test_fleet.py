@@ -187,6 +187,28 @@ def test_settings_that_would_fail_every_bag_are_refused_first(fleet, tmp_path, c
     assert 'every bag failed' in capsys.readouterr().err
 
 
+def test_the_output_folder_is_never_a_robot_nor_someone_elses(fleet, tmp_path, capsys):
+    """--out inside the source read itself as a robot on the second run; a replay's folder was
+    overwritten (an audit)."""
+    src = tmp_path / 'src'
+    (src / 'r1').mkdir(parents=True)
+    import shutil
+    shutil.copytree(fleet / 'r1' / 'bags' / 'day1', src / 'r1' / 'day1')
+    out = src / 'out'
+    for _ in range(2):
+        assert main(['fleet', str(src), '--out', str(out), '--nodes', 'tilt_detection',
+                     '--workers', '1', '--no-progress']) == 0
+        with open(out / 'results.csv', newline='') as f:
+            assert {r['robot'] for r in csv.DictReader(f)} == {'r1'}
+    other = tmp_path / 'replay_out'
+    other.mkdir()
+    (other / 'report.md').write_text('mine')
+    assert main(['fleet', str(src), '--out', str(other), '--nodes', 'tilt_detection',
+                 '--no-progress']) == 2
+    assert 'previous fleet output' in capsys.readouterr().err
+    assert (other / 'report.md').read_text() == 'mine'
+
+
 def test_ray_executor_gives_the_same_rows(fleet, tmp_path):
     """A local Ray (the optional extra) runs the same jobs into the same table."""
     pytest.importorskip('ray')

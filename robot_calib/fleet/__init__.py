@@ -198,8 +198,12 @@ def run_fleet(source: Union[str, os.PathLike], out: Union[str, os.PathLike],
     if workers < 1:
         raise FleetError(f'bad --workers {workers}: expected 1 or more')
     check_settings(nodes, params_file, overrides)
-    jobs = discover(Path(source))
     out = Path(out)
+    jobs = discover(Path(source), out)
+    if out.exists() and (not out.is_dir() or (any(out.iterdir()) and not (
+            (out / 'results.csv').is_file() or (out / 'bags').is_dir()))):
+        raise FleetError(f'output {out} exists and is not an empty folder or a previous fleet '
+                         'output; give a new or empty folder')
     out.mkdir(parents=True, exist_ok=True)
     settings = Settings(out.resolve(), tuple(nodes) if nodes else None,
                         Path(params_file).resolve() if params_file else None,

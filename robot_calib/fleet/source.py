@@ -53,8 +53,9 @@ def _bags_below(folder: Path) -> list[Path]:
     return found
 
 
-def _from_folder(root: Path) -> list[Job]:
-    robots = sorted(p for p in root.iterdir() if p.is_dir() and not p.name.startswith('.'))
+def _from_folder(root: Path, skip: Optional[Path] = None) -> list[Job]:
+    robots = sorted(p for p in root.iterdir() if p.is_dir() and not p.name.startswith('.')
+                    and (skip is None or p.resolve() != skip))
     return [Job(robot.name, bag) for robot in robots for bag in _bags_below(robot)]
 
 
@@ -81,11 +82,16 @@ def _from_manifest(path: Path) -> list[Job]:
     return jobs
 
 
-def discover(source: Path) -> list[Job]:
-    """Return the jobs of ``source`` (a folder tree or a manifest), robot by robot."""
+def discover(source: Path, out: Optional[Path] = None) -> list[Job]:
+    """
+    Return the jobs of ``source`` (a folder tree or a manifest), robot by robot.
+
+    ``out``: the fleet's output folder, never taken for a robot when it lies
+    in ``source`` (a second run would read its own results as bags).
+    """
     source = Path(source)
     if source.is_dir():
-        jobs = _from_folder(source)
+        jobs = _from_folder(source, Path(out).resolve() if out is not None else None)
     elif source.is_file() and source.suffix in ('.csv', '.yaml', '.yml'):
         jobs = _from_manifest(source)
     else:
