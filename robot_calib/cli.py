@@ -235,6 +235,12 @@ def _replay(args: argparse.Namespace) -> int:
           f'summary.json, report.md')
     for name, why in summary['skipped'].items():
         print(f'skipped {name}: {why}')
+    if summary['nodes'] and not summary['timing']['messages'] and summary.get('window'):
+        start, length = summary['window']
+        print(f'robot-calib replay: warning: no message in the time window from {start:g} s'
+              + (f' for {length:g} s' if length is not None else '') +
+              f' of the {summary["duration"]:.1f} s recording; the outputs are empty',
+              file=sys.stderr)
     _warn_corrupt(summary['corrupt_chunks'])
     for name, node in summary['nodes'].items():
         errors = node.get('errors') if isinstance(node.get('errors'), dict) else \

@@ -55,6 +55,14 @@ def test_replay_success(bag, tmp_path, capsys):
     assert (out / 'report.md').is_file() and (out / 'output.mcap').is_file()
 
 
+def test_a_window_past_the_end_says_the_outputs_are_empty(bag, tmp_path, capsys):
+    """Exit 0 and empty results with no word was an audit's finding: now a warning line."""
+    code = main(['replay', str(bag), '--out', str(tmp_path / 'out'), '--nodes', ECHO,
+                 '--start-offset', '100', '--no-progress'])
+    err = capsys.readouterr().err
+    assert code == 0 and 'no message in the time window from 100 s' in err
+
+
 def test_replay_without_plots(tmp_path, capsys):
     from robot_calib import sim
     bag = tmp_path / 'drive'
