@@ -40,7 +40,8 @@ def _add_simulate(sub: Any) -> None:
                                    '<out>.truth.json.')
     p.add_argument('scenario', help='scenario name (e.g. drive, vacuum, revisit, tip_over), '
                                     'or fleet: a folder of robots with drifting parameters '
-                                    '(--set fleet.robots=N, ...; see docs/fleet.md)')
+                                    '(--set fleet.robots=N, ...: the keys of '
+                                    'robot_calib/sim/fleet.py; README, "Offline")')
     p.add_argument('--out', required=True, help='output bag folder')
     p.add_argument('--seed', type=int, default=0, help='random seed (default 0)')
     p.add_argument('--duration', type=float, default=None, help='duration in s')
