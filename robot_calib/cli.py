@@ -72,7 +72,7 @@ def _add_replay(sub: Any) -> None:
                    metavar='NODE.PARAM=VALUE', help='override one node parameter (repeatable)')
     p.add_argument('--live', action='store_true',
                    help='publish the bag through rclpy at the recorded rate with /clock')
-    p.add_argument('--rate', type=float, default=1.0,
+    p.add_argument('--rate', type=float, default=None,
                    help='--live playback rate factor (default 1.0)')
     p.add_argument('--loop', action='store_true',
                    help='--live: play the recording again and again until interrupted')
@@ -208,9 +208,17 @@ def _warn_corrupt(chunks: list) -> None:
 def _replay(args: argparse.Namespace) -> int:
     if args.live:
         from robot_calib import live
-        if args.rate <= 0 or args.rate != args.rate:
-            raise ValueError(f'bad --rate {args.rate}: expected a positive factor')
-        stats = live.play(args.bags, rate=args.rate, remaps=args.remap, topics=args.topics,
+        offline = [flag for flag, given in (('--out', args.out), ('--nodes', args.nodes),
+                                            ('--set', args.overrides), ('--params', args.params))
+                   if given]
+        if offline:
+            raise ValueError(f'{", ".join(offline)} belong to offline replay (--live only '
+                             'publishes the bag; run the nodes with ros2 run); drop them or '
+                             '--live')
+        rate = 1.0 if args.rate is None else args.rate
+        if rate <= 0 or rate != rate:
+            raise ValueError(f'bad --rate {rate}: expected a positive factor')
+        stats = live.play(args.bags, rate=rate, remaps=args.remap, topics=args.topics,
                           start_offset=args.start_offset, duration=args.duration,
                           loops=0 if args.loop else 1)
         print(f'published {stats["messages"]} messages on {len(stats["topics"])} topics '
@@ -219,9 +227,10 @@ def _replay(args: argparse.Namespace) -> int:
             print(f'not published {topic}: {why}')
         _warn_corrupt(stats['corrupt_chunks'])
         return 0
-    if args.loop or args.topics is not None:
-        raise ValueError('--loop and --topics belong to --live (offline replay reads the '
-                         'topics its nodes need); add --live or drop them')
+    if args.loop or args.topics is not None or args.rate is not None:
+        raise ValueError('--loop, --topics and --rate belong to --live (offline replay reads '
+                         'the topics its nodes need, as fast as it can); add --live or drop '
+                         'them')
     if not args.out:
         raise ValueError('replay needs --out DIR (or --live)')
     from robot_calib.replay import replay

@@ -230,9 +230,14 @@ def test_pipeline_errors_are_reported_but_not_fatal(bag, tmp_path, capsys):
 
 
 def test_live_only_flags_without_live(bag, tmp_path, capsys):
-    """--loop and --topics belong to --live: one line, exit 2, nothing written."""
+    """--loop, --topics and --rate belong to --live, --out and the like to offline replay."""
     out = tmp_path / 'o'
-    for extra in (['--loop'], ['--topics', '/imu']):
+    for extra in (['--loop'], ['--topics', '/imu'], ['--rate', '2']):
         _one_line_error(capsys, main(['replay', str(bag), '--out', str(out)] + extra),
                         '--live')
+        assert not out.exists()
+    for extra in (['--out', str(out)], ['--nodes', 'tilt_detection'],
+                  ['--set', 'tilt_detection.fall_angle=40']):
+        _one_line_error(capsys, main(['replay', str(bag), '--live'] + extra),
+                        'belong to offline replay')
         assert not out.exists()
