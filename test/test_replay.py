@@ -266,6 +266,13 @@ def test_remaps_both_ways(tmp_path):
     with pytest.raises(ReplayError, match='needs /imu'):
         replay(path, tmp_path / 'c', nodes=ECHO, progress=False)
     assert not (tmp_path / 'c').exists()
+    # onto a topic the bag already holds: two odometry streams silently merged (an audit)
+    both = tmp_path / 'both'
+    write_test_bag(both)
+    with pytest.raises(ReplayError, match='would be merged'):
+        replay(both, tmp_path / 'd', nodes=ECHO, remaps=['/ground_truth/odom:=/odom'],
+               progress=False)
+    assert not (tmp_path / 'd').exists()
 
 
 def test_params_file_then_set(bag, tmp_path):

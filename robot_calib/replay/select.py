@@ -111,6 +111,13 @@ def _split_remaps(rules: list[tuple[str, str]], candidates: list, raw_topics: An
                 f'--remap {src}:={dst}: {src} is neither a topic of the nodes '
                 f'({", ".join(sorted(node_topics)) or "none"}) nor a topic in the bag(s) '
                 f'({", ".join(sorted(raw_topics)) or "none"})')
+    for src, dst in bag_map.items():
+        # two recorded streams poured into one topic: only static transforms add up
+        if dst in raw_topics and dst not in bag_map and \
+                raw_topics[dst][0] != 'tf2_msgs/msg/TFMessage':
+            raise ReplayError(f'--remap {src}:={dst}: the bag(s) already hold {dst}; its '
+                              f'messages and those of {src} would be merged into one stream '
+                              f'(remap {dst} elsewhere too, or drop this remap)')
     return node_map, bag_map
 
 
