@@ -266,6 +266,13 @@ def test_remaps_both_ways(tmp_path):
     with pytest.raises(ReplayError, match='needs /imu'):
         replay(path, tmp_path / 'c', nodes=ECHO, progress=False)
     assert not (tmp_path / 'c').exists()
+    # the node's static transforms remapped away: none delivered (it was silently ignored)
+    tf = replay(path, tmp_path / 'e', nodes=ECHO, remaps=['imu:=/imu/data',
+                                                          '/tf_static:=/nothing'],
+                progress=False)
+    assert tf['nodes']['echo']['static_at_first'] == 0
+    tf = replay(path, tmp_path / 'f', nodes=ECHO, remaps=['imu:=/imu/data'], progress=False)
+    assert tf['nodes']['echo']['static_at_first'] == 1
     # onto a topic the bag already holds: two odometry streams silently merged (an audit)
     both = tmp_path / 'both'
     write_test_bag(both)

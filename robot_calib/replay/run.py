@@ -31,7 +31,6 @@ from robot_calib.replay.config import OUTPUT_BAG
 from robot_calib.replay.select import NodeRun, Plan
 
 GROUND_TRUTH = '/ground_truth/odom'
-TF_STATIC = '/tf_static'
 _ODOM_TYPE = codec.KINDS['odom'].msgtype
 
 
@@ -75,19 +74,23 @@ def _flush_times(times: list) -> None:
 
 
 def _deliver_static(bagset: BagSet, plan: Plan, stats: RunStats) -> None:
-    """Hand every static transform of ``/tf_static`` to every node before anything else."""
-    static = [s for s in bagset.streams if plan.topic_of_stream[id(s)] == TF_STATIC
+    """Hand every static transform to every node before anything else (its own topic)."""
+    wanted = {run.tf_topic for run in plan.runs}   # /tf_static unless a node's is remapped
+    static = [s for s in bagset.streams if plan.topic_of_stream[id(s)] in wanted
               and s.msgtype == codec.KINDS['tf_static'].msgtype]
     for stream, time_ns, raw in bagset.messages(static) if static else ():
+        topic = plan.topic_of_stream[id(stream)]
         try:
             samples = stream.decode(raw, time_ns)
         except Exception:  # noqa: B902 - counted, never fatal
-            stats.undecodable[TF_STATIC] += 1
+            stats.undecodable[topic] += 1
             continue
-        stats.read[TF_STATIC] += 1
+        stats.read[topic] += 1
         for tf in samples:
             stats.n_static += 1
             for run in plan.runs:
+                if run.tf_topic != topic:
+                    continue
                 try:
                     run.pipeline.process(run.tf_key, tf)
                 except Exception as exc:  # noqa: B902 - counted, never fatal

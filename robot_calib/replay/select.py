@@ -43,6 +43,7 @@ class NodeRun:
         self.errors: dict[str, int] = defaultdict(int)
         self.first_errors: list[str] = []
         self.tf_key = 'tf_static'
+        self.tf_topic = '/tf_static'  # where its static transforms come from (remaps applied)
         self.errors_key = 'errors'
 
     def _log(self, level: str, message: str) -> None:
@@ -189,6 +190,7 @@ def _make_run(name: str, cls: type, present: dict[str, str], notes: list[str], p
     for spec in cls.inputs:
         if spec.kind == 'tf_static':
             run.tf_key = spec.key
+            run.tf_topic = topic_of(spec.topic)
     for spec in cls.outputs:
         run.outputs[spec.key] = (topic_of(spec.topic), codec.KINDS[spec.kind].msgtype,
                                  spec.qos == 'latched')
