@@ -120,6 +120,14 @@ def render(summary: dict, generic: list[str], node_plots: dict[str, list[str]]) 
     if summary.get('remaps'):
         lines.append('Remaps: ' + ', '.join(f'`{a}:={b}`' for a, b in summary['remaps'].items())
                      + '  ')
+    if summary.get('window'):
+        start, length = summary['window']
+        lines.append(f'Window: from {start:g} s' + (f' for {length:g} s' if length is not None
+                                                    else ' to the end') + '  ')
+    if summary.get('corrupt_chunks'):
+        lines.append(f'**Corrupt:** {len(summary["corrupt_chunks"])} chunk(s) of the bag(s) '
+                     'failed their check and were skipped whole (their messages are missing; '
+                     'see `corrupt_chunks` in summary.json).  ')
     lines += ['', '## Topics', '', '| topic | type | in bag | read | undecodable |',
               '|---|---|---:|---:|---:|']
     for topic, info in summary['topics'].items():

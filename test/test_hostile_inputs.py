@@ -389,6 +389,7 @@ def test_a_corrupt_chunk_is_skipped_whole_and_reported(tmp_path, compress, capsy
     summary = json.loads((out / 'summary.json').read_text())
     [bad] = summary['corrupt_chunks']
     assert bad['offset'] == chunk.chunk_start_offset and bad['messages']['/imu'] > 100
+    assert '**Corrupt:** 1 chunk(s)' in (out / 'report.md').read_text()
     lost = bad['messages']['/imu']
     imu = summary['nodes']['tilt_detection']['inputs']['imu']
     assert imu['read'] == imu['accepted'] == summary['topics']['/imu']['count'] - lost
