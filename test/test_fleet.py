@@ -188,8 +188,12 @@ def test_settings_that_would_fail_every_bag_are_refused_first(fleet, tmp_path, c
 
 
 def test_the_output_folder_is_never_a_robot_nor_someone_elses(fleet, tmp_path, capsys):
-    """--out inside the source read itself as a robot on the second run; a replay's folder was
-    overwritten (an audit)."""
+    """
+    The output is skipped when it lies in the source, and a replay's folder is refused.
+
+    --out inside the source read itself as a robot on the second run; a
+    replay's folder given as --out was overwritten (an audit).
+    """
     src = tmp_path / 'src'
     (src / 'r1').mkdir(parents=True)
     import shutil

@@ -319,7 +319,7 @@ def test_params_file_then_set(bag, tmp_path):
 
 
 def test_a_sample_the_method_turns_down_is_rejected_not_also_accepted():
-    """read = accepted + rejected: a rejection inside handle() was counted as both."""
+    """Read = accepted + rejected: a rejection inside handle() was counted as both."""
     class Picky(EchoPipeline):
         def handle(self, key, sample):
             if key == 'imu' and round(sample.t * 100) % 2:
