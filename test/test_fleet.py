@@ -154,6 +154,12 @@ def test_manifest_names_bags_and_dates(fleet, tmp_path):
     res = run_fleet(manifest, tmp_path / 'out', nodes=NODES, workers=1, progress=False)
     assert [r['date'] for r in res['rows']] == ['2026-11-01', '2026-11-02']
     assert res['flags'] == 0
+    # a misspelt column or a date bags cannot be ordered by: refused, not ignored (an audit)
+    for header, date, words in (('robot,bag,parms', 'x.yaml', 'unknown column'),
+                                ('robot,bag,date', '02/11/2026', 'ISO date')):
+        manifest.write_text(f'{header}\nr2,{fleet / "r2" / "bags" / "day1"},{date}\n')
+        with pytest.raises(FleetError, match=words):
+            run_fleet(manifest, tmp_path / 'bad', nodes=NODES, workers=1, progress=False)
 
 
 def test_bad_fleet_arguments_are_one_line_errors(tmp_path, capsys):

@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import csv
 from dataclasses import dataclass
+import datetime
 from pathlib import Path
 import re
 from typing import Optional
@@ -59,6 +60,10 @@ def _from_folder(root: Path, skip: Optional[Path] = None) -> list[Job]:
     return [Job(robot.name, bag) for robot in robots for bag in _bags_below(robot)]
 
 
+COLUMNS = ('robot', 'bag', 'date', 'params')
+"""The columns of a fleet manifest (robot and bag required)."""
+
+
 def _from_manifest(path: Path) -> list[Job]:
     try:
         if path.suffix == '.csv':
@@ -72,11 +77,22 @@ def _from_manifest(path: Path) -> list[Job]:
         raise FleetError(f'manifest {path}: expected rows with columns robot, bag')
     jobs = []
     for i, row in enumerate(rows, 1):
+        unknown = sorted(str(k) for k in row if k not in COLUMNS)
+        if unknown:
+            # a misspelt column (parms) would silently drop what it was meant to set
+            raise FleetError(f'manifest {path} row {i}: unknown column(s) '
+                             f'{", ".join(unknown)}; expected {", ".join(COLUMNS)}')
         robot, bag = str(row.get('robot') or '').strip(), str(row.get('bag') or '').strip()
         if not robot or not bag:
             raise FleetError(f'manifest {path} row {i}: robot and bag are required')
         params = str(row.get('params') or '').strip()
         date = str(row.get('date') or '').strip() or None
+        if date is not None:
+            try:
+                datetime.date.fromisoformat(date[:10])
+            except ValueError:
+                raise FleetError(f'manifest {path} row {i}: date {date!r} is not an ISO date '
+                                 '(YYYY-MM-DD); bags are ordered by it') from None
         jobs.append(Job(robot, (path.parent / bag).resolve(), date,
                         (path.parent / params).resolve() if params else None))
     return jobs
