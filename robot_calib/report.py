@@ -82,9 +82,12 @@ def _style(topic: str, kind: str) -> dict:
     return {'ls': '-' if kind == 'output' else '--', 'lw': 1.2, 'label': f'{topic} ({kind})'}
 
 
+_SCALAR = (str, int, float, bool, type(None))
+
+
 def _brief(value: Any) -> str:
     """Return a one-cell rendering of a result: scalars, short lists/maps, else a count."""
-    scalar = (str, int, float, bool, type(None))
+    scalar = _SCALAR
     if isinstance(value, scalar):
         return _fmt(value).replace('|', '/')
     if isinstance(value, list):
@@ -165,7 +168,7 @@ def render(summary: dict, generic: list[str], node_plots: dict[str, list[str]]) 
             for k, v in results.items():
                 # a result of a few dozen plain values (a calibration) is shown, not counted
                 if isinstance(v, dict) and 8 < len(v) <= 32 and all(
-                        isinstance(x, (str, int, float, bool, type(None))) for x in v.values()):
+                        isinstance(x, _SCALAR) for x in v.values()):
                     lines += [f'| {k}.{s} | {_brief(x)} |' for s, x in v.items()]
                 else:
                     lines.append(f'| {k} | {_brief(v)} |')

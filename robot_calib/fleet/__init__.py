@@ -153,17 +153,13 @@ def check_settings(nodes: Optional[Iterable[str]], params_file: Any,
     gives one line and exit 2 instead of a fleet whose every bag failed.
     """
     from robot_calib import pipelines
-    from robot_calib.replay.config import load_params_file, params_for, parse_overrides, \
-        resolve_node
+    from robot_calib.replay.config import check_override_nodes, load_params_file, params_for, \
+        parse_overrides, resolve_node
     chosen = [resolve_node(n) for n in nodes] if nodes else \
         [resolve_node(n) for n in pipelines.available()]
     file_params = load_params_file(params_file)
     by_node = parse_overrides(list(overrides))
-    names = {name for name, _ in chosen}
-    unknown = sorted(set(by_node) - names)
-    if unknown:
-        raise FleetError(f'--set for {", ".join(unknown)}: not among the nodes run '
-                         f'({", ".join(sorted(names))})')
+    check_override_nodes(by_node, {name for name, _ in chosen})
     for name, cls in chosen:
         params_for(name, cls, file_params, by_node.get(name, {}))
 

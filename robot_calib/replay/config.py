@@ -151,6 +151,14 @@ NODE_ONLY = ('output_dir', 'use_sim_time')
 """Parameters a live node has besides its method's (ignored by replay)."""
 
 
+def check_override_nodes(by_node: dict[str, Any], names: set[str]) -> None:
+    """Raise ReplayError for ``--set`` items of nodes that are not run (they would do nothing)."""
+    for node in by_node:
+        if node not in names:
+            raise ReplayError(f'--set {node}.*: {node} is not among the nodes run '
+                              f'({", ".join(sorted(names))})')
+
+
 def _node_name(cls: type) -> str:
     return getattr(cls, 'name', '') or cls.__name__
 

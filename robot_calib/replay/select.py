@@ -19,7 +19,8 @@ from robot_calib import codec, pipelines
 from robot_calib.core.series import Reservoir
 from robot_calib.io.bags import BagError, BagSet, normalize_topic
 from robot_calib.pipelines.base import Pipeline
-from robot_calib.replay.config import NodeSpec, params_for, ReplayError, resolve_node
+from robot_calib.replay.config import (check_override_nodes, NodeSpec, params_for, ReplayError,
+                                       resolve_node)
 
 BagTopics = dict[str, tuple[str, int]]
 """Topic (after bag-side remaps) -> (message type, message count)."""
@@ -210,11 +211,7 @@ def plan(bagset: BagSet, nodes: Optional[Sequence[NodeSpec]], rules: list[tuple[
         return node_map.get(t, t)
 
     selected = _select(candidates, topic_of, bag_topics, nodes is not None, skipped, bag_names)
-    names = {n for n, *_ in selected}
-    for node in by_node:
-        if node not in names:
-            raise ReplayError(f'--set {node}.*: {node} is not among the replayed nodes '
-                              f'({", ".join(sorted(names))})')
+    check_override_nodes(by_node, {n for n, *_ in selected})
     runs = [_make_run(name, cls, present, notes,
                       params_for(name, cls, file_params, by_node.get(name, {})), topic_of)
             for name, cls, present, notes in selected]

@@ -305,11 +305,18 @@ class ImprovedFusion(FusionFilter):
             return None if dof else 'gated_' + rejected[0]
         return None
 
+    def _interval(self, t: float) -> float:
+        """Return the time (s) the gyro was averaged over since the last odometry update."""
+        return t - self._last_upd_t if self._last_upd_t is not None else 0.1
+
+    def _still_gyro_variance(self, t: float) -> float:
+        """Return the nominal variance of the gyro averaged over the interval ((rad/s)^2)."""
+        return (self.p.gyro_noise ** 2) / max(self._interval(t), 1e-3) + 1e-6
+
     def _gyro_turning(self, t: float, gz_avg: float) -> bool:
         """Return True when the gyro, less its bias, turns beyond its noise and bias error."""
-        interval = t - self._last_upd_t if self._last_upd_t is not None else 0.1
         innov = gz_avg - self.x[IBG]
-        var = float(self.P[IBG, IBG]) + self.p.gyro_noise ** 2 / max(interval, 1e-3) + 1e-6
+        var = float(self.P[IBG, IBG]) + self._still_gyro_variance(t)
         return innov * innov / var > self._gate
 
     @property
@@ -367,8 +374,7 @@ class ImprovedFusion(FusionFilter):
         _, _, _, _, Ph4, _, Ph6, Ph7 = Ph.tolist()
         res_w = w - kw * w_imu - x[IKV] * v
         # variance of the gyro averaged over the odometry interval: sigma^2 / T
-        interval = t - self._last_upd_t if self._last_upd_t is not None else 0.1
-        r_gyro = (kw ** 2) * (p.gyro_noise ** 2) / max(interval, 1e-3)
+        r_gyro = (kw ** 2) * (p.gyro_noise ** 2) / max(self._interval(t), 1e-3)
         s_pred = h4 * Ph4 + h6 * Ph6 + h7 * Ph7
         if p.adaptation == 'nis':
             r_gyro *= self.noise.scales[1]
@@ -384,8 +390,7 @@ class ImprovedFusion(FusionFilter):
             # nominal gyro noise of the average over the interval (not adapted: the
             # yaw-rate channel's scale also carries wheel noise; an adapted-down value
             # here made the bias over-confident)
-            self._unit_update(IBG, -1.0, 0.0 - (gz_avg - x[IBG]),
-                              (p.gyro_noise ** 2) / max(interval, 1e-3) + 1e-6,
+            self._unit_update(IBG, -1.0, 0.0 - (gz_avg - x[IBG]), self._still_gyro_variance(t),
                               self._still_consider)
         return nis_w if used else None
 
