@@ -183,7 +183,7 @@ def _simulate(args: argparse.Namespace) -> int:
     if args.scenario == 'fleet':
         from robot_calib.sim.fleet import simulate_fleet
         rows = simulate_fleet(args.out, seed=args.seed, duration=args.duration,
-                              overrides=args.overrides or None)
+                              overrides=args.overrides or None, storage=args.storage)
         robots = len({r['robot'] for r in rows})
         drifts = sorted({f'{r["robot"]} {r["drift"]}' for r in rows if r['drift'] != 'unchanged'})
         print(f'wrote {len(rows)} bags of {robots} robots into {args.out} '

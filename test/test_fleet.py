@@ -291,3 +291,18 @@ def test_simulated_fleet_drifts_as_its_truth_says(tmp_path):
     with pytest.raises(F.SimError, match='unknown --set key'):
         F.split_overrides(['fleet.robot=3'])
     assert main(['simulate', 'fleet', '--out', str(tmp_path / 'f')]) == 2    # exists
+
+
+def test_simulated_fleet_is_written_in_the_storage_asked(tmp_path, capsys):
+    """``simulate fleet --storage sqlite3`` wrote mcap bags all the same (an audit)."""
+    from robot_calib.io import bags
+    out = tmp_path / 'f'
+    assert main(['simulate', 'fleet', '--out', str(out), '--duration', '2', '--storage',
+                 'sqlite3', '--set', 'fleet.robots=1', '--set', 'fleet.recordings=2']) == 0, \
+        capsys.readouterr().err
+    folders = sorted(p for p in (out / 'robot000').iterdir() if p.is_dir())
+    assert len(folders) == 2
+    for folder in folders:
+        assert [p.suffix for p in folder.iterdir() if p.name != 'metadata.yaml'] == ['.db3']
+        with bags.BagSet([folder]) as bag:
+            assert '/imu' in bag.topics()

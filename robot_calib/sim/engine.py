@@ -376,6 +376,12 @@ def truth_path(out: Union[str, os.PathLike]) -> Path:
     return path.with_name(path.name + '.truth.json')
 
 
+def check_storage(storage: str) -> None:
+    """Raise SimError unless ``storage`` is a bag storage the simulator writes."""
+    if storage not in ('mcap', 'sqlite3'):
+        raise SimError(f'unknown storage {storage!r}; expected mcap or sqlite3')
+
+
 def simulate(scenario: str, out: Union[str, os.PathLike], seed: int = 0,
              duration: Optional[float] = None,
              overrides: Union[None, Mapping[str, Any], Iterable[str]] = None,
@@ -388,8 +394,7 @@ def simulate(scenario: str, out: Union[str, os.PathLike], seed: int = 0,
     override, an existing or unwritable output.
     """
     from robot_calib.io.bags import BagError, BagWriter
-    if storage not in ('mcap', 'sqlite3'):
-        raise SimError(f'unknown storage {storage!r}; expected mcap or sqlite3')
+    check_storage(storage)
     result = run_scenario(scenario, seed, duration, overrides)
     tpath = truth_path(out)
     try:

@@ -3,10 +3,10 @@
 """
 A simulated fleet: robots recording a bag every few days while their true parameters drift.
 
-``robot-calib simulate fleet --out DIR [--seed N] [--duration S] [--set fleet.KEY=VALUE]
-[--set SIM.KEY=VALUE]`` writes ``DIR/<robot>/<date>/`` (one ROS 2 bag per robot and
-recording day, with ``<date>.truth.json`` beside it), the folder layout that
-``robot-calib fleet`` reads, and ``DIR/fleet_truth.csv``: per bag the true
+``robot-calib simulate fleet --out DIR [--seed N] [--duration S] [--storage mcap|sqlite3]
+[--set fleet.KEY=VALUE] [--set SIM.KEY=VALUE]`` writes ``DIR/<robot>/<date>/`` (one ROS 2
+bag per robot and recording day, with ``<date>.truth.json`` beside it), the folder
+layout that ``robot-calib fleet`` reads, and ``DIR/fleet_truth.csv``: per bag the true
 parameters and the drift injected, to score a fleet run's flags against.
 
 Every robot is built with its own manufacturing errors (wheel radii, track
@@ -160,19 +160,19 @@ def plan(params: FleetParams, seed: int, sim_overrides: Mapping[str, str]) -> li
     return out
 
 
-def _simulate_one(args: tuple[str, Path, Recording, Optional[float]]) -> None:
+def _simulate_one(args: tuple[str, Path, Recording, Optional[float], str]) -> None:
     from robot_calib.sim.engine import simulate
-    scenario, out, rec, duration = args
+    scenario, out, rec, duration, storage = args
     folder = out / rec.robot
     folder.mkdir(parents=True, exist_ok=True)
     simulate(scenario, folder / rec.day, seed=rec.seed, duration=duration,
-             overrides=dict(rec.overrides))
+             overrides=dict(rec.overrides), storage=storage)
 
 
 def simulate_fleet(out: Union[str, os.PathLike], seed: int = 0, duration: Optional[float] = None,
                    overrides: Union[None, Mapping[str, Any], Iterable[str]] = None,
-                   workers: Optional[int] = None, progress: Optional[bool] = None
-                   ) -> list[dict[str, Any]]:
+                   workers: Optional[int] = None, progress: Optional[bool] = None,
+                   storage: str = 'mcap') -> list[dict[str, Any]]:
     """
     Write the fleet into ``out`` (which must not exist); return the rows of its truth table.
 
@@ -180,15 +180,16 @@ def simulate_fleet(out: Union[str, os.PathLike], seed: int = 0, duration: Option
     :param overrides: ``fleet.KEY=VALUE`` (see :class:`FleetParams`) and simulator keys applied
         to every bag
     :param workers: processes simulating bags (default: the CPU count)
+    :param storage: storage of every bag: 'mcap' or 'sqlite3'
     """
     out = Path(out)
     params, sim_overrides = split_overrides(overrides)
     if out.exists():
         raise SimError(f'output {out} exists; remove it or choose another')
     recordings = plan(params, seed, sim_overrides)
-    _check_first(params.scenario, recordings[0], duration)
+    _check_first(params.scenario, recordings[0], duration, storage)
     out.mkdir(parents=True)
-    jobs = [(params.scenario, out, rec, duration) for rec in recordings]
+    jobs = [(params.scenario, out, rec, duration, storage) for rec in recordings]
     workers = min(len(jobs), (os.cpu_count() or 1) if workers is None else max(1, workers))
     bar = _bar(len(jobs), progress)
     try:
@@ -213,9 +214,11 @@ def simulate_fleet(out: Union[str, os.PathLike], seed: int = 0, duration: Option
     return rows
 
 
-def _check_first(scenario: str, rec: Recording, duration: Optional[float]) -> None:
-    """Raise SimError now, not in a worker, when the scenario or an override is wrong."""
-    from robot_calib.sim.engine import get_scenario, make_params
+def _check_first(scenario: str, rec: Recording, duration: Optional[float],
+                 storage: str) -> None:
+    """Raise SimError now, not in a worker, when the scenario, an override or storage is wrong."""
+    from robot_calib.sim.engine import check_storage, get_scenario, make_params
+    check_storage(storage)
     make_params(get_scenario(scenario), dict(rec.overrides))
     if duration is not None and not duration > 0:
         raise SimError(f'bad duration {duration}: expected seconds > 0')
