@@ -306,3 +306,22 @@ def test_simulated_fleet_is_written_in_the_storage_asked(tmp_path, capsys):
         assert [p.suffix for p in folder.iterdir() if p.name != 'metadata.yaml'] == ['.db3']
         with bags.BagSet([folder]) as bag:
             assert '/imu' in bag.topics()
+
+
+def test_a_simulator_key_the_fleet_draws_is_refused(tmp_path, capsys):
+    """``--set imu.gyro_bias`` was silently replaced by each robot's drawn bias (an audit)."""
+    from robot_calib.sim import fleet as F
+    out = tmp_path / 'f'
+    small = ['--duration', '1', '--set', 'fleet.robots=1', '--set', 'fleet.recordings=1']
+    for key, value, fleet_key in (('imu.gyro_bias', '0,0,0.01', 'fleet.gyro_bias_sigma'),
+                                  ('wheels.track_width_error', '0.01',
+                                   'fleet.track_width_error_sigma')):
+        assert main(['simulate', 'fleet', '--out', str(out), '--set', f'{key}={value}']
+                    + small) == 2
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and key in err[0] and fleet_key in err[0], err
+        assert not out.exists()
+    # the refused keys are exactly those the plan sets for every recording
+    params, sim_keys = F.split_overrides(['fleet.robots=1', 'fleet.recordings=1'])
+    [rec] = F.plan(params, 0, sim_keys)
+    assert set(dict(rec.overrides)) == set(F.DRAWN)

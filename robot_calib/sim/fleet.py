@@ -16,7 +16,8 @@ robots drift (chosen by the seed): ``wear`` robots' tyres wear, both wheel radii
 shrinking by ``wear_per_week`` (relative) per week; ``gyro_step`` robots' gyro
 z bias jumps by ``gyro_step`` (rad/s) from their ``step_bag``-th recording on (a
 knock, a firmware change). The rest are ``unchanged``: a fleet job must not flag
-them.
+them. The simulator keys these draws set (:data:`DRAWN`) are the fleet's: a
+``--set`` of one of them is refused, naming the ``fleet.`` keys that decide it.
 """
 
 from __future__ import annotations
@@ -39,6 +40,13 @@ PREFIX = 'fleet.'
 TRUTH_FILE = 'fleet_truth.csv'
 TRUTH_COLUMNS = ('robot', 'bag', 'date', 'recording', 'drift', 'seed', 'left_radius_error',
                  'right_radius_error', 'track_width_error', 'gyro_bias_z')
+_GYRO = 'fleet.gyro_bias_sigma, fleet.gyro_repeatability, fleet.gyro_step'
+DRAWN = {'wheels.left_radius_error': 'fleet.radius_error_sigma, fleet.wear_per_week',
+         'wheels.right_radius_error': 'fleet.radius_error_sigma, fleet.wear_per_week',
+         'wheels.track_width_error': 'fleet.track_width_error_sigma',
+         'imu.gyro_bias': _GYRO, 'imu.gyro_bias_sigma': _GYRO,
+         'start_time': 'fleet.start_date, fleet.interval_days'}
+"""Simulator keys set per recording by :func:`plan` -> the fleet keys that decide them."""
 
 
 @dataclass
@@ -112,6 +120,9 @@ def split_overrides(overrides: Union[None, Mapping[str, Any], Iterable[str]]
                 raise SimError(f'unknown --set key {key!r}; fleet keys: '
                                f'{", ".join(PREFIX + k for k in to_flat(FleetParams()))}')
             fleet[name] = value.strip()
+        elif key in DRAWN:
+            raise SimError(f'--set {key} cannot be given to a fleet: it is drawn per robot and '
+                           f'recording (and written to {TRUTH_FILE}); set {DRAWN[key]} instead')
         else:
             sim[key] = value.strip()
     try:
