@@ -132,6 +132,25 @@ def test_bad_inputs(bag, tmp_path, capsys):
         _no_leftovers(tmp_path, out)
 
 
+def test_two_outputs_remapped_onto_one_topic_are_refused(bag, tmp_path, capsys):
+    """One of them was lost with a warning only, and exit 0 (an audit)."""
+    out = tmp_path / 'out'
+    for remaps in (['echo/alert:=/echo/odom'], ['echo/alert:=/x', 'echo/odom:=/x']):
+        argv = ['replay', str(bag), '--out', str(out), '--nodes', ECHO, '--no-progress']
+        for rule in remaps:
+            argv += ['--remap', rule]
+        line = _one_line_error(capsys, main(argv), 'two outputs on')
+        assert 'echo alert' in line and 'echo odom' in line
+        _no_leftovers(tmp_path, out)
+    # outputs that share a topic anyway (every node's /diagnostics) may move together
+    code = main(['replay', str(bag), '--out', str(out), '--nodes',
+                 f'{ECHO},tilt_detection,odometry_fusion', '--remap', '/diagnostics:=/diag',
+                 '--no-progress', '--no-plots'])
+    assert code == 0, capsys.readouterr().err
+    topics = json.loads((out / 'summary.json').read_text())['output']['topics']
+    assert topics['/diag'] > 0 and '/diagnostics' not in topics
+
+
 def test_unknown_type_on_topic(tmp_path, capsys):
     path = tmp_path / 'in'
     with bags.BagWriter(path) as w:

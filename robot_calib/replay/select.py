@@ -183,6 +183,26 @@ def _select(candidates: list, topic_of: Callable[[str], str], bag_topics: BagTop
     return selected
 
 
+def _check_output_topics(selected: list[tuple], topic_of: Callable[[str], str]) -> None:
+    """
+    Refuse remaps that put outputs of different topics on one topic (ReplayError).
+
+    A bag topic holds one stream of one type: one of them would be lost or the
+    two merged. Outputs that share a topic without the remaps (``/diagnostics``,
+    ``/tf``) may still share it.
+    """
+    first: dict[str, tuple[str, str]] = {}  # topic -> (node output, its topic before remaps)
+    for name, cls, *_ in selected:
+        for spec in cls.outputs:
+            own = normalize_topic(spec.topic)
+            topic = topic_of(spec.topic)
+            other, other_own = first.setdefault(topic, (f'{name} {spec.key}', own))
+            if other_own != own:
+                raise ReplayError(f'--remap puts two outputs on {topic}: {other} '
+                                  f'({other_own}) and {name} {spec.key} ({own}); one would '
+                                  'be lost or both merged; remap them to different topics')
+
+
 def _make_run(name: str, cls: type, present: dict[str, str], notes: list[str], params: Any,
               topic_of: Callable[[str], str]) -> NodeRun:
     run = NodeRun(name, cls, params)
@@ -212,6 +232,7 @@ def plan(bagset: BagSet, nodes: Optional[Sequence[NodeSpec]], rules: list[tuple[
 
     selected = _select(candidates, topic_of, bag_topics, nodes is not None, skipped, bag_names)
     check_override_nodes(by_node, {n for n, *_ in selected})
+    _check_output_topics(selected, topic_of)
     runs = [_make_run(name, cls, present, notes,
                       params_for(name, cls, file_params, by_node.get(name, {})), topic_of)
             for name, cls, present, notes in selected]
