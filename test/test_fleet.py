@@ -325,3 +325,25 @@ def test_a_simulator_key_the_fleet_draws_is_refused(tmp_path, capsys):
     params, sim_keys = F.split_overrides(['fleet.robots=1', 'fleet.recordings=1'])
     [rec] = F.plan(params, 0, sim_keys)
     assert set(dict(rec.overrides)) == set(F.DRAWN)
+
+
+def test_a_bag_with_a_corrupt_chunk_is_flagged_incomplete(tmp_path):
+    """A corrupt mcap chunk skipped in a fleet bag left no trace in the fleet's results."""
+    import shutil
+    from robot_calib import sim
+    from test_hostile_inputs import corrupt_chunk  # noqa: I100 - the test helper module
+    src = tmp_path / 'src' / 'r1'
+    src.mkdir(parents=True)
+    sim.simulate('drive', src / 'day1', seed=1, duration=8.0)
+    shutil.copytree(src / 'day1', src / 'day2')
+    corrupt_chunk(src / 'day2')
+    out = tmp_path / 'out'
+    rows = run_fleet(src.parent, out, nodes=['tilt_detection'], workers=1, progress=False)['rows']
+    assert {Path(r['bag']).name: r['corrupt_chunks'] for r in rows} == {'day1': 0, 'day2': 1}
+    with open(out / 'results.csv', newline='') as f:
+        assert [r['corrupt_chunks'] for r in csv.DictReader(f)] == ['0', '1']
+    with open(out / 'flags.csv', newline='') as f:
+        [flag] = list(csv.DictReader(f))
+    assert Path(flag['bag']).name == 'day2' and flag['parameter'] == 'corrupt_chunks'
+    assert '1 corrupt mcap chunk(s) skipped' in flag['reason']
+    assert flag['reason'] in (out / 'report.md').read_text()

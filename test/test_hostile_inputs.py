@@ -353,6 +353,16 @@ def _chunks(bag):
         return list(mcap.chunks)
 
 
+def corrupt_chunk(bag, index=1):
+    """Flip one bit inside chunk ``index`` of a one-file mcap bag (its CRC fails); return it."""
+    mcap = next(bag.glob('*.mcap'))
+    chunk = _chunks(bag)[index]
+    data = bytearray(mcap.read_bytes())
+    data[chunk.chunk_start_offset + 49 + len(chunk.compression) + chunk.compressed_size // 10] ^= 4
+    mcap.write_bytes(bytes(data))
+    return chunk
+
+
 @pytest.mark.parametrize('compress', [False, True])
 def test_every_chunk_we_write_carries_its_crc(tmp_path, compress):
     simulate('drive', tmp_path / 'bag', seed=1, duration=8.0, compress=compress)
@@ -376,11 +386,7 @@ def test_every_chunk_we_write_carries_its_crc(tmp_path, compress):
 @pytest.mark.parametrize('compress', [False, True])
 def test_a_corrupt_chunk_is_skipped_whole_and_reported(tmp_path, compress, capsys):
     simulate('fusion_drive', tmp_path / 'bag', seed=1, duration=30.0, compress=compress)
-    mcap = next((tmp_path / 'bag').glob('*.mcap'))
-    chunk = _chunks(tmp_path / 'bag')[1]
-    data = bytearray(mcap.read_bytes())
-    data[chunk.chunk_start_offset + 49 + len(chunk.compression) + chunk.compressed_size // 10] ^= 4
-    mcap.write_bytes(bytes(data))
+    chunk = corrupt_chunk(tmp_path / 'bag')
     out = tmp_path / 'out'
     code = main(['replay', str(tmp_path / 'bag'), '--out', str(out), '--nodes',
                  'odometry_fusion,tilt_detection', '--no-progress'])

@@ -17,6 +17,8 @@ Flags, per robot and node, in date order:
   estimate whose stated uncertainty is too small is not flagged for its noise;
 - ``stopped_converging``: a verdict other than ``converged`` after a converged one;
 - ``alert``: a method raised alerts (a fall);
+- ``corrupt_chunks``: corrupt mcap chunks of the bag were skipped, so its
+  estimates come from incomplete data (one flag a bag, node empty);
 - ``failed``: the bag could not be processed (the reason is the evidence).
 """
 
@@ -32,7 +34,8 @@ from typing import Any, Optional
 
 import numpy as np
 
-FIRST = ('robot', 'date', 'bag', 'node', 'status', 'reason', 'runtime_s', 'peak_rss_mb')
+FIRST = ('robot', 'date', 'bag', 'node', 'status', 'reason', 'corrupt_chunks', 'runtime_s',
+         'peak_rss_mb')
 TREND_MIN_BAGS = 4
 """Fewest bags of a robot for a trend flag: a line and the scatter about it need four."""
 FLAG_COLUMNS = ('robot', 'date', 'bag', 'node', 'parameter', 'reason')
@@ -152,11 +155,17 @@ def flags(rows: list[dict[str, Any]], k: float = 4.0) -> list[dict[str, Any]]:
     history: dict[tuple, list[float]] = {}
     series: dict[tuple, list] = {}
     converged: set[tuple] = set()
+    corrupt: set[str] = set()
     for r in sort_rows(rows):
         where = {c: r[c] for c in ('robot', 'date', 'bag', 'node')}
         if r['status'] == 'failed':
             out.append({**where, 'parameter': '', 'reason': f'failed: {r["reason"]}'})
             continue
+        if _number(r.get('corrupt_chunks')) > 0 and r['bag'] not in corrupt:
+            corrupt.add(r['bag'])
+            out.append({**where, 'node': '', 'parameter': 'corrupt_chunks',
+                        'reason': f'{int(r["corrupt_chunks"])} corrupt mcap chunk(s) skipped: '
+                                  "the bag's data are incomplete"})
         for col, value in r.items():
             if not col.startswith(f'{r["node"]}.') or col.endswith('_std'):
                 continue

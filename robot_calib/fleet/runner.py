@@ -28,6 +28,8 @@ from robot_calib import __version__, pipelines
 from robot_calib.fleet.source import Job
 
 FLEET_FILE = 'fleet.json'
+ROW_FORMAT = 2
+"""Format of the rows kept in ``fleet.json`` (2: ``corrupt_chunks``); other formats are redone."""
 
 
 @dataclass(frozen=True)
@@ -43,9 +45,9 @@ class Settings:
 
 
 def fingerprint(settings: Settings, job: Job) -> str:
-    """Return a digest of what determines a bag's results: code version, nodes, parameters."""
+    """Return a digest of what determines a bag's rows: code and row version, nodes, parameters."""
     h = hashlib.sha256()
-    for part in (__version__, repr(settings.nodes), repr(settings.overrides)):
+    for part in (__version__, str(ROW_FORMAT), repr(settings.nodes), repr(settings.overrides)):
         h.update(part.encode())
     if settings.plots:
         h.update(b'plots')   # a bag done without its plots is redone when they are asked
@@ -69,9 +71,14 @@ def peak_rss_mb() -> float:
 
 
 def _rows(job: Job, summary: dict, seconds: float) -> list[dict[str, Any]]:
-    """Return one row per node of a finished replay (status ok, or skipped with the reason)."""
+    """
+    Return one row per node of a finished replay (status ok, or skipped with the reason).
+
+    ``corrupt_chunks``: the mcap chunks replay skipped as corrupt (their messages not used).
+    """
     date = _date(job, summary)
-    base = {'robot': job.robot, 'date': date, 'bag': str(job.bag), 'peak_rss_mb': peak_rss_mb()}
+    base = {'robot': job.robot, 'date': date, 'bag': str(job.bag), 'peak_rss_mb': peak_rss_mb(),
+            'corrupt_chunks': len(summary.get('corrupt_chunks') or ())}
     rows = []
     for node, part in summary.get('nodes', {}).items():
         row = {**base, 'node': node, 'status': 'ok', 'reason': '', 'runtime_s': seconds}
