@@ -227,6 +227,33 @@ def test_vacuum_scenario_automatic_mode_beats_uncorrected_gyro():
     assert 0.0 < c.result().gyro_bias < 2.0 * bias     # learning the bias (slowly: 2 minutes only)
 
 
+def test_standstill_learns_a_gyro_bias_far_beyond_its_prior():
+    # 0.01 rad/s (2000 deg/h, 34 times the prior's sigma): the references made in the first
+    # seconds are already rotated and every later turn drifts beyond the gates, unless the
+    # bias is read while the robot stands still (the vacuum stops for 2 s at its start)
+    r = run_scenario('vacuum', seed=1, duration=120.0,
+                     overrides={'imu.gyro_bias': [0.0, 0.0, -0.01]})
+    off = GyroLineParams()
+    off.improved.standstill_update = False
+    _, err_off = _run(r, off)
+    c, err = _run(r, GyroLineParams())
+    assert np.abs(err_off).max() > 3.0
+    assert np.abs(err).max() < 1.0
+    assert c.counts['standstill_updates'] >= 2
+    assert abs(c.result().gyro_bias + 0.01) < 1e-3
+
+
+def test_a_turn_while_the_odometry_stands_still_is_not_learnt_as_bias():
+    pipe = GyroLinePipeline()
+    _drive(pipe, 0.0, 2.0, 1.0, odom_moving=False)             # standing still: bias 0 read
+    assert pipe.core.counts['standstill_updates'] >= 2
+    assert abs(pipe.core.result().gyro_bias) < 1e-6
+    # pushed round (0.2 rad/s, below the carried rate) while the wheels do not turn
+    _drive(pipe, 2.0, 4.0, 1.0, heading_rate=0.2, odom_moving=False)
+    assert pipe.core.counts['standstill_refused_gyro_turning'] >= 10
+    assert abs(pipe.core.result().gyro_bias) < 1e-3                # (learnt, it would be 0.2)
+
+
 def test_correction_totals_count_every_correction_while_few_are_kept(monkeypatch):
     """The summary's total and the plot's trace cover the whole run, not the kept window."""
     from robot_calib.methods.gyro_line_calibration import base

@@ -104,6 +104,8 @@ class GyroLineBase(abc.ABC):
         self._acc_dt = 0.0
         self._acc_wdt = 0.0
         self._acc_q = 0.0
+        self._flushed_dt = 0.0  # s and rad of gyro flushed since the last odometry sample
+        self._flushed_wdt = 0.0
         self._untrusted_until = -math.inf
         self._stopped_turning_since = None
         self._prev_ranges = None
@@ -328,6 +330,8 @@ class GyroLineBase(abc.ABC):
         """
         if self._acc_dt <= 0.0:
             return
+        self._flushed_dt += self._acc_dt
+        self._flushed_wdt += self._acc_wdt
         if P is None:
             rows = self.P.tolist()
             self._propagate_gyro(rows)

@@ -33,6 +33,7 @@ from typing import Optional
 
 import numpy as np
 
+from robot_calib.core import types as T
 from robot_calib.core.geometry import rot2, wrap_angle, wrap_half_pi
 from robot_calib.core.lines import Line, line_from_endpoints
 from robot_calib.methods.gyro_line_calibration.base import GyroLineBase
@@ -65,6 +66,62 @@ class ImprovedGyroLine(GyroLineBase):
         self._last_update = -math.inf
         self._cum_correction = 0.0
         self._ref_cache: tuple = ((), None)  # (reference lines, their ref_arrays)
+        self._still_since: Optional[float] = None  # odometry standing still since (s)
+        self._still_rates: list = []  # (s, rad/s) gyro intervals of the standstill block
+        self._innovations: deque = deque(maxlen=40)  # (t, normalized heading innovation)
+        self._gated: deque = deque(maxlen=200)  # (t, line outside the gate) of gated lines
+
+    # -- standstill -----------------------------------------------------------------------
+    def _update_odom(self, s: T.OdomSample) -> None:
+        """Apply one odometry sample, then learn the gyro bias if the robot stands still."""
+        super()._update_odom(s)
+        gyro_dt, gyro_int = self._flushed_dt, self._flushed_wdt
+        self._flushed_dt = self._flushed_wdt = 0.0
+        ip = self.params.improved
+        if not ip.standstill_update or self._odom_t != s.t or gyro_dt <= 0.0:
+            return  # off, or the sample was not applied (a repeat, a jump)
+        if self._odom_speed >= ip.standstill_speed or abs(self._odom_rate) >= ip.standstill_rate:
+            self._still_since = None
+            self._still_rates.clear()
+            return
+        if self._still_since is None:
+            self._still_since = s.t
+        if s.t - self._still_since < ip.standstill_settle or not self._use_gyro(s.t) \
+                or s.t < self._untrusted_until:
+            self._still_rates.clear()
+            return
+        mean_rate = gyro_int / gyro_dt
+        if abs(mean_rate) > ip.standstill_max_rate:
+            self.count('standstill_refused_gyro_turning')
+            self._still_rates.clear()
+            return
+        self._still_rates.append((gyro_dt, mean_rate))
+        if len(self._still_rates) >= 5 and \
+                sum(d for d, _ in self._still_rates) >= ip.standstill_block:
+            self._zero_rate_update(self._still_rates)
+            self._still_rates.clear()
+
+    def _zero_rate_update(self, intervals: list) -> None:
+        """
+        Update with the gyro rates (rad/s) averaged over intervals (s) of standing still.
+
+        The heading rate ``rate * (1 - s) - b`` is zero, so ``rate * (1 - s)``
+        measures ``b`` (the scale is not seen at rest: it is held). The noise of
+        the block's mean comes from the spread of its intervals (white noise:
+        variance of an interval's mean = q^2 / its length), never below a tenth
+        of ``gyro_noise``. The heading follows through its correlation with the bias.
+        """
+        total = sum(d for d, _ in intervals)
+        mean = sum(d * r for d, r in intervals) / total
+        q2 = sum(d * (r - mean) ** 2 for d, r in intervals) / (len(intervals) - 1)
+        x, P = self.x, self.P
+        gain = 1.0 - x[4]
+        variance = max(q2, (0.1 * self.params.improved.gyro_noise) ** 2) / total * gain ** 2
+        PH = P[:, 3].copy()
+        K = PH / (PH[3] + variance)
+        x += K * (mean * gain - x[3])
+        P -= np.outer(K, PH)
+        self.count('standstill_updates')
 
     def _tentative_count(self) -> int:
         return len(self.tentative)
@@ -114,6 +171,7 @@ class ImprovedGyroLine(GyroLineBase):
                                (pre[0][k], pre[1][k], pre[2][k], pre[3], pre[4]), state)
             close = [g for g in gated if g[0] <= ip.gate_chi2]
             if gated:
+                self._gated.append((t, not close))
                 if not close:
                     self.count('lines_outside_gate')
                     continue
@@ -290,6 +348,7 @@ class ImprovedGyroLine(GyroLineBase):
         ip = self.params.improved
         before = self.x.copy()
         min_ref_var = math.inf
+        first = True
         if ip.refine_references:
             for line, ref, y, H, R in keep:
                 self._refine(ref, line)
@@ -301,6 +360,9 @@ class ImprovedGyroLine(GyroLineBase):
             if not ip.correct_position:
                 H, y, R = H[:1], y[:1], R[:1, :1]
             S = H @ self.P @ H.T + R
+            if first:
+                self._innovations.append((t, float(y[0]) / math.sqrt(S[0, 0]), float(y[0])))
+                first = False
             K = self.P @ H.T @ np.linalg.inv(S)
             self.x = self.x + K @ y
             I_KH = _I5 - K @ H

@@ -72,6 +72,19 @@ class ImprovedParams:
     scale_sigma0: float = param(0.01, '', 'Initial gyro scale-error uncertainty (set the '
                                 "gyro's specified sensitivity tolerance when larger, e.g. 0.03).",
                                 minimum=0.0)
+    standstill_update: bool = param(True, '', 'Learn the gyro bias while the odometry stands '
+                                    'still (zero angular rate update).')
+    standstill_speed: float = param(0.002, 'm/s', 'Odometry slower than this (and turning '
+                                    'slower than standstill_rate) stands still.', minimum=0.0)
+    standstill_rate: float = param(0.002, 'rad/s', 'Odometry yaw rate below which it may stand '
+                                   'still.', minimum=0.0)
+    standstill_settle: float = param(0.25, 's', 'The odometry must have stood still this long '
+                                     'before the gyro is read as its bias.', minimum=0.0)
+    standstill_block: float = param(0.5, 's', 'Standstill time averaged into one bias '
+                                    'update.', minimum=0.0)
+    standstill_max_rate: float = param(0.035, 'rad/s', 'A mean gyro rate above this while the '
+                                       'odometry stands still is motion (pushed, carried), not '
+                                       'bias.', minimum=0.0)
     odom_noise: float = param(0.02, 'm/sqrt(m)', 'Odometry position noise per sqrt(metre).',
                               minimum=0.0)
     line_sigma: float = param(0.03, 'm', 'Extra 1-sigma distance noise of a fitted line.',
