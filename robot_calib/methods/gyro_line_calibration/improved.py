@@ -22,6 +22,10 @@ retired); a correction needs support from two
 distinct references, or from the same one in two scans that agree over time.
 A 90-degree symmetric room cannot alias because the heading uncertainty keeps
 the angle gate far below 90 degrees.
+
+While the odometry stands still the gyro reads its own bias (a zero angular
+rate update, here): a turn-on bias far beyond ``bias_sigma0`` is learnt at the
+first stop instead of rotating the first references and drifting past every gate.
 """
 
 from __future__ import annotations
