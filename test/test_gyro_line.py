@@ -254,6 +254,45 @@ def test_a_turn_while_the_odometry_stands_still_is_not_learnt_as_bias():
     assert abs(pipe.core.result().gyro_bias) < 1e-3                # (learnt, it would be 0.2)
 
 
+def _replay(result, pipe):
+    for topic, m in result.messages:
+        if topic == '/tf_static':
+            for tf in m:
+                pipe.on_static_transform(tf)
+        elif topic in ('/imu', '/odom', '/scan'):
+            pipe.process(topic[1:], m)
+    return pipe
+
+
+@pytest.mark.parametrize('scale', [0.08, -0.08])
+def test_walls_contradicting_the_heading_are_reported(scale):
+    # an 8 % gyro scale error (the prior says 1 %) turns the heading outside every gate at the
+    # first turns; new references then agree with the rotated heading, so corrections go on.
+    # The heading is tens of degrees off: the status must not say ok
+    r = run_scenario('vacuum', seed=2, duration=90.0,
+                     overrides={'imu.gyro_scale': [0.0, 0.0, scale]})
+    pipe = _replay(r, GyroLinePipeline())
+    _, err = _run(r, GyroLineParams())
+    assert np.abs(err).max() > 5.0                               # really lost
+    t_end = r.messages[-1][1].t
+    status = pipe.status(t_end)
+    assert status.level == 1 and 'lost the walls' in status.message
+    summary = pipe.method_summary()
+    assert summary['walls_verdict'] == 'contradicted'
+    assert summary['walls_contradicted_times'] >= 1
+
+
+def test_walls_agreeing_with_the_heading_are_not_reported():
+    r = run_scenario('vacuum', seed=2, duration=90.0,
+                     overrides={'imu.gyro_scale': [0.0, 0.0, 0.005]})
+    pipe = _replay(r, GyroLinePipeline())
+    assert pipe.status(r.messages[-1][1].t).level == 0
+    assert pipe.method_summary()['walls_verdict'] == 'consistent'
+    assert pipe.core.counts.get('heading_contradicted_by_walls', 0) == 0
+    seed = _replay(r, GyroLinePipeline(GyroLineParams(mode='seed')))
+    assert seed.method_summary()['walls_verdict'] == 'not_checked'
+
+
 def test_correction_totals_count_every_correction_while_few_are_kept(monkeypatch):
     """The summary's total and the plot's trace cover the whole run, not the kept window."""
     from robot_calib.methods.gyro_line_calibration import base

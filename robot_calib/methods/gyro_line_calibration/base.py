@@ -104,6 +104,10 @@ class GyroLineBase(abc.ABC):
         self._acc_dt = 0.0
         self._acc_wdt = 0.0
         self._acc_q = 0.0
+        self.lock_lost_episodes = 0
+        """Times the walls began to contradict the heading (improved variant)."""
+        self.lock_lost_last: Optional[float] = None
+        """Time (s) of the latest scan whose lines contradicted the heading."""
         self._flushed_dt = 0.0  # s and rad of gyro flushed since the last odometry sample
         self._flushed_wdt = 0.0
         self._untrusted_until = -math.inf
@@ -158,7 +162,8 @@ class GyroLineBase(abc.ABC):
             untrusted_until=self._untrusted_until, corrections=self._corrections_snapshot(),
             references=tuple(r.line for r in self.references),
             tentative_references=self._tentative_count(), counts=frozen_counts(self.counts),
-            scan_rejected=self._scan_rejected)
+            scan_rejected=self._scan_rejected, lock_lost_episodes=self.lock_lost_episodes,
+            lock_lost_last=self.lock_lost_last)
 
     # -- state shortcuts -----------------------------------------------------------------
     @property
@@ -181,6 +186,11 @@ class GyroLineBase(abc.ABC):
     def trusted(self, t: float) -> bool:
         """Return True when lines may be used at time ``t`` (s)."""
         return self.initialized and t >= self._untrusted_until
+
+    def walls_contradict(self, t: float) -> bool:
+        """Return True when the walls contradicted the heading within ``lock_hold`` of ``t``."""
+        last = self.lock_lost_last
+        return last is not None and t - last <= self.params.improved.lock_hold
 
     @property
     def scan_rejected(self) -> Optional[str]:

@@ -105,6 +105,8 @@ class GyroLineResult:
     :ivar tentative_references: tentative references not yet confirmed (improved variant).
     :ivar counts: event counters (corrections, rejections, untrusted data, ...).
     :ivar scan_rejected: why the last scan was rejected (None: it was accepted).
+    :ivar lock_lost_episodes: times the walls began to contradict the heading.
+    :ivar lock_lost_last: time (s) the walls last contradicted it (None: never).
     """
 
     initialized: bool
@@ -121,6 +123,8 @@ class GyroLineResult:
     tentative_references: int
     counts: Mapping[str, int]
     scan_rejected: Optional[str] = None
+    lock_lost_episodes: int = 0
+    lock_lost_last: Optional[float] = None
 
     def trusted(self, t: float) -> bool:
         """Return True when lines may be used at time ``t`` (s)."""

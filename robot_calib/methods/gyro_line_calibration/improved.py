@@ -46,6 +46,8 @@ from robot_calib.methods.gyro_line_calibration.improved_gate import (
     gate, gate_state, line_jacobian, line_model, line_noise, line_noise_diag, overlaps, prefilter,
     ref_arrays)
 
+_LOCK_ANGLE = math.radians(30.0)
+_LOCK_DISTANCE = 0.3
 _I2 = np.eye(2)
 _I5 = np.eye(5)
 _I2.flags.writeable = _I5.flags.writeable = False  # shared identities: read only
@@ -72,8 +74,7 @@ class ImprovedGyroLine(GyroLineBase):
         self._ref_cache: tuple = ((), None)  # (reference lines, their ref_arrays)
         self._still_since: Optional[float] = None  # odometry standing still since (s)
         self._still_rates: list = []  # (s, rad/s) gyro intervals of the standstill block
-        self._innovations: deque = deque(maxlen=40)  # (t, normalized heading innovation)
-        self._gated: deque = deque(maxlen=200)  # (t, line outside the gate) of gated lines
+        self._lock: deque = deque(maxlen=50)  # (lines agreeing, contradicting) per scan
 
     # -- standstill -----------------------------------------------------------------------
     def _update_odom(self, s: T.OdomSample) -> None:
@@ -165,7 +166,7 @@ class ImprovedGyroLine(GyroLineBase):
         ip = self.params.improved
         pos_sigma = math.sqrt(max(self.P[0, 0], self.P[1, 1], 0.0))
         margin = ip.overlap_margin + 3.0 * pos_sigma
-        matches = []
+        matches, unmatched = [], []
         pre = prefilter(self.references, lines, margin, self.params.match.angle_tolerance,
                         self._ref_arrays()) if self.references else None
         state = gate_state(self.x, self.P)  # neither changes before the filter update
@@ -175,9 +176,9 @@ class ImprovedGyroLine(GyroLineBase):
                                (pre[0][k], pre[1][k], pre[2][k], pre[3], pre[4]), state)
             close = [g for g in gated if g[0] <= ip.gate_chi2]
             if gated:
-                self._gated.append((t, not close))
                 if not close:
                     self.count('lines_outside_gate')
+                    unmatched.append(line)
                     continue
                 rhos = [g[2][1] for g in gated]
                 angles = [g[2][0] for g in gated]
@@ -191,11 +192,48 @@ class ImprovedGyroLine(GyroLineBase):
                 ref.t_last = t
                 matches.append((line, ref, y, H, R))
                 continue
+            unmatched.append(line)
             self._tentative_step(line, t, margin)
         self._age_tentative(t)
+        self._watch_lock(t, len(matches), unmatched)
         if not matches:
             return []
         return self._filter_update(matches, t)
+
+    # -- lock on the walls ----------------------------------------------------------------
+    def _watch_lock(self, t: float, agreeing: int, unmatched: list) -> None:
+        """
+        Watch whether the walls still agree with the heading (one scan at ``t``, s).
+
+        A line that lies on a reference (its midpoint within 0.3 m of it, along
+        its length, within 30 deg) but matched nothing contradicts it. When such
+        lines are a large share of the lines on references over the last 50
+        scans, the heading has lost the walls: a turn with a gyro scale far beyond
+        its prior left it outside every gate, and new references are being made
+        in the rotated frame, where they will agree with it from then on.
+        """
+        contradicting = 0
+        if unmatched and self.references:
+            ang, u, nrm, o, r2, rho = self._ref_arrays()
+            la = np.array([ln.angle for ln in unmatched])
+            mid = np.array([ln.midpoint for ln in unmatched])
+            err = np.abs(wrap_half_pi(ang[None, :] - la[:, None]))
+            along = mid @ u.T - o[None, :]
+            dist = np.abs(rho[None, :] - mid @ nrm.T)
+            on = (err <= _LOCK_ANGLE) & (along >= 0.0) & (along <= r2[None, :]) \
+                & (dist <= _LOCK_DISTANCE)
+            contradicting = int(np.count_nonzero(on.any(axis=1)))
+        if not (agreeing or contradicting):
+            return
+        self._lock.append((agreeing, contradicting))
+        ip = self.params.improved
+        on_refs = sum(a + c for a, c in self._lock)
+        against = sum(c for _, c in self._lock)
+        if against >= ip.lock_min_contradictions and against >= ip.lock_contradiction * on_refs:
+            if not self.walls_contradict(t):
+                self.lock_lost_episodes += 1
+                self.count('heading_contradicted_by_walls')
+            self.lock_lost_last = t
 
     # -- references ----------------------------------------------------------------------
     def _extend(self, ref: Reference, line: Line) -> None:
@@ -352,7 +390,6 @@ class ImprovedGyroLine(GyroLineBase):
         ip = self.params.improved
         before = self.x.copy()
         min_ref_var = math.inf
-        first = True
         if ip.refine_references:
             for line, ref, y, H, R in keep:
                 self._refine(ref, line)
@@ -364,9 +401,6 @@ class ImprovedGyroLine(GyroLineBase):
             if not ip.correct_position:
                 H, y, R = H[:1], y[:1], R[:1, :1]
             S = H @ self.P @ H.T + R
-            if first:
-                self._innovations.append((t, float(y[0]) / math.sqrt(S[0, 0]), float(y[0])))
-                first = False
             K = self.P @ H.T @ np.linalg.inv(S)
             self.x = self.x + K @ y
             I_KH = _I5 - K @ H

@@ -120,6 +120,14 @@ class ImprovedParams:
                                 minimum=1)
     update_interval: float = param(0.5, 's', 'Shortest time between two filter updates.',
                                    minimum=0.0)
+    lock_contradiction: float = param(0.5, '', 'Share of the lines lying on references over '
+                                      'the last 50 scans that, disagreeing with them, means the '
+                                      'heading lost the walls (diagnostics WARN).',
+                                      minimum=0.0, maximum=1.0)
+    lock_min_contradictions: int = param(10, '', 'Fewest disagreeing lines over those scans for '
+                                         'that verdict.', minimum=1)
+    lock_hold: float = param(120.0, 's', 'The warning holds this long after the walls last '
+                             'contradicted the heading.', minimum=0.0)
     refine_references: bool = param(True, '', 'Refine a reference with every supported match '
                                     '(Kalman-weighted angle and distance).')
     reference_floor: bool = param(False, '', 'Never let the heading variance fall below the '

@@ -63,6 +63,7 @@ class GyroLinePipeline(Pipeline):
         self.core = make_estimator(self.params)
         self._next_diag = None
         self._odom_resets = 0
+        self._lock_lost_episodes = 0
         self._trace = Thinned()  # (t, x, y, yaw) for the plot
 
     def on_static_transform(self, transform: T.StaticTransform) -> None:
@@ -76,12 +77,17 @@ class GyroLinePipeline(Pipeline):
             reason = self.core.scan_rejected
             if reason is not None:
                 self.reject('scan', reason)
+            lost = self.core.lock_lost_episodes > self._lock_lost_episodes
+            if lost:
+                self._lock_lost_episodes = self.core.lock_lost_episodes
+                self.log('warn', f't={sample.t:.1f} s: the walls contradict the heading (lines '
+                         'on references disagree with them): a turn left it outside every gate; '
+                         'a gyro scale or bias beyond scale_sigma0 / bias_sigma0?')
             if made:
                 c = made[-1]
                 self.log('debug', f'heading corrected by {math.degrees(c.delta):+.3f} deg '
                          f'({c.kind}, references {list(c.reference_ids)})')
-                return self._diagnostics(sample, force=True)
-            return []
+            return self._diagnostics(sample, force=True) if made or lost else []
         if key != 'odom':
             return []
         if made.odom_resets > self._odom_resets:
@@ -112,6 +118,8 @@ class GyroLinePipeline(Pipeline):
         res = res if res is not None else self.core.result()
         last = res.last_correction
         trusted = res.trusted(t)
+        contradicted = res.lock_lost_last is not None and \
+            t - res.lock_lost_last <= self.params.improved.lock_hold
         rejected = {f'rejected_{k}.{r[9:]}': v for k, c in self.counts.items()
                     for r, v in c.items() if r.startswith('rejected_')}
         values = [
@@ -125,12 +133,17 @@ class GyroLinePipeline(Pipeline):
             ('heading_sigma_deg', f'{math.degrees(res.heading_sigma):.4f}'),
             ('gyro_bias_deg_per_h', f'{math.degrees(res.gyro_bias) * 3600.0:.3f}'),
             ('trusted', str(trusted)),
+            ('walls_contradict_heading', str(contradicted)),
+            ('walls_contradicted_times', str(res.lock_lost_episodes)),
         ]
         values += [(k, str(v)) for k, v in sorted(rejected.items())]
         values += [(f'events.{k}', str(v)) for k, v in sorted(res.counts.items())
                    if k not in ('lines',)]
         level, msg = 0, 'ok'
-        if not trusted:
+        if contradicted:
+            level, msg = 1, ('heading lost the walls: lines on references disagree with them '
+                             '(gyro scale or bias beyond its prior?)')
+        elif not trusted:
             level, msg = 1, 'lines not used: untrusted data (carried, odometry reset or gap)'
         elif not res.corrections:
             msg = 'no correction yet'
@@ -145,7 +158,14 @@ class GyroLinePipeline(Pipeline):
                 if isinstance(summary.get(k), (int, float))}
 
     def method_summary(self) -> dict[str, Any]:
-        """Return corrections, references, bias estimate and event counts."""
+        """
+        Return corrections, references, bias estimate and event counts.
+
+        ``walls_verdict`` is ``contradicted`` when the walls ever disagreed with
+        the heading (it lost them: every later correction may follow references
+        made in a rotated frame), ``no_correction`` when no wall corrected it,
+        ``not_checked`` in seed mode, else ``consistent``.
+        """
         res, core = self.core.result(), self.core
         return {
             'mode': self.params.mode,
@@ -163,7 +183,17 @@ class GyroLinePipeline(Pipeline):
             'heading_sigma': res.heading_sigma,
             'final_pose': [float(v) for v in res.pose] if res.initialized else None,
             'events': dict(res.counts),
+            'walls_verdict': self._walls_verdict(res),
+            'walls_contradicted_times': res.lock_lost_episodes,
+            'walls_contradicted_last_t': res.lock_lost_last,
         }
+
+    def _walls_verdict(self, res: GyroLineResult) -> str:
+        if self.params.mode != 'improved':
+            return 'not_checked'
+        if res.lock_lost_episodes:
+            return 'contradicted'
+        return 'consistent' if res.counts.get('corrections', 0) else 'no_correction'
 
     def plot(self, out_dir: str) -> list[str]:
         """Draw the corrected trajectory and the heading corrections over time."""
