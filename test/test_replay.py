@@ -475,6 +475,32 @@ def test_time_window(bag, tmp_path):
         assert (out / 'summary.json').is_file() and (out / 'report.md').is_file()
 
 
+def test_progress_bar_counts_the_time_window(tmp_path, monkeypatch):
+    from robot_calib.sim import simulate
+    import tqdm
+    bars = []
+
+    class Bar(tqdm.tqdm):
+        def __init__(self, *args, **kwargs):
+            super().__init__(*args, **kwargs)
+            self.first_total = self.total
+            bars.append(self)
+
+    monkeypatch.setattr(tqdm, 'tqdm', Bar)
+    bag = tmp_path / 'drive'
+    simulate('drive', bag, seed=1, duration=6.0)  # IMU 200 Hz, odometry 50 Hz, for 6 s
+    whole = replay(bag, tmp_path / 'all', nodes=ECHO, progress=True, plots=False)
+    s = replay(bag, tmp_path / 'o', nodes=ECHO, start_offset=2.0, duration=2.0, progress=True,
+               plots=False)
+    read = s['timing']['messages']
+    assert read == 200 * 2 + 50 * 2 + 2  # both ends of the window
+    all_bar, bar = bars
+    assert all_bar.first_total == all_bar.total == all_bar.n == whole['timing']['messages']
+    # the total was the whole bag's (1502): the bar stopped at a third
+    assert abs(bar.first_total - read) <= 5
+    assert bar.total == bar.n == read  # closed at 100 %
+
+
 class CollidingPipeline(EchoPipeline):
     """Report keys that replay also writes (its own errors and timing)."""
 

@@ -171,12 +171,35 @@ def _progress_bar(total: int, progress: Optional[bool]) -> Any:
                 dynamic_ncols=True)
 
 
+def _window_ns(bagset: BagSet, window: tuple[float, Optional[float]]
+               ) -> tuple[int, Optional[int]]:
+    """Return the first and last receive time (ns; None: no end) of ``window``."""
+    t_lo = bagset.start_ns + int(round(window[0] * 1e9))
+    return t_lo, None if window[1] is None else t_lo + int(round(window[1] * 1e9))
+
+
+def _expected_messages(bagset: BagSet, streams: list,
+                       window: tuple[float, Optional[float]]) -> int:
+    """
+    Return how many messages of ``streams`` lie inside ``window``: the progress bar's total.
+
+    The bags count messages per topic only: for a window narrower than the
+    recording this is their share of its time span, an estimate.
+    """
+    total = sum(s.count for s in streams)
+    t_lo, t_hi = _window_ns(bagset, window)
+    start, end = bagset.start_ns, bagset.end_ns
+    if t_lo <= start and (t_hi is None or t_hi >= end):
+        return total
+    inside = (end if t_hi is None else min(t_hi, end)) - t_lo
+    return round(total * inside / (end - start)) if inside > 0 else 0
+
+
 def _loop(bagset: BagSet, streams: list, stream_info: dict, emit: _Emitter, stats: RunStats,
           window: tuple[float, Optional[float]], bar: Any, times: list) -> None:
     """Feed every message of ``streams`` inside ``window`` (s from the start, length)."""
     perf = time.perf_counter
-    t_lo = bagset.start_ns + int(round(window[0] * 1e9))
-    t_hi = None if window[1] is None else t_lo + int(round(window[1] * 1e9))
+    t_lo, t_hi = _window_ns(bagset, window)
     clip = window[0] > 0 or t_hi is not None
     # not decoded: a topic read for its trajectory alone (decoded where the plot keeps a
     # point), and a topic every node reading it turns away unread (Pipeline.refusal)
@@ -238,6 +261,7 @@ def _loop(bagset: BagSet, streams: list, stream_info: dict, emit: _Emitter, stat
             if bar is not None:
                 bar.update(2048)
     if bar is not None:
+        bar.total = stats.n_msgs  # what was replayed (a window's total is an estimate)
         bar.update(stats.n_msgs % 2048)
         bar.close()
 
@@ -359,7 +383,7 @@ def run(bagset: BagSet, plan: Plan, tmp: Path, progress: Optional[bool], storage
                            topic_of[id(s)] if topic_of[id(s)] in traj_topics else None,
                            _refusable(s, routes.get(topic_of[id(s)], ())))
                    for s in streams}
-    bar = _progress_bar(sum(s.count for s in streams), progress)
+    bar = _progress_bar(_expected_messages(bagset, streams, window), progress)
     bag_dir = tmp / Path(OUTPUT_BAG).stem  # a ROS 2 bag folder, flattened below
     latched = [t for r in plan.runs for (t, _, is_latched) in r.outputs.values() if is_latched]
     with BagWriter(bag_dir, storage=storage, latched=latched, compress=compress) as writer:
