@@ -38,7 +38,7 @@ from robot_calib.core.geometry import quat_from_rpy, quat_to_matrix, rot2, wrap_
 from robot_calib.core.lines import extract_lines, Line, ObstacleGrid
 from robot_calib.core.series import Thinned
 from robot_calib.methods.gyro_line_calibration.common import (
-    Correction, frozen_counts, GyroLineResult, PoseEstimate, Reference)
+    Correction, frozen_counts, GyroLineResult, PoseEstimate, Reference, within_hold)
 from robot_calib.methods.gyro_line_calibration.params import GyroLineParams
 
 _DEG = math.pi / 180.0
@@ -189,8 +189,7 @@ class GyroLineBase(abc.ABC):
 
     def walls_contradict(self, t: float) -> bool:
         """Return True when the walls contradicted the heading within ``lock_hold`` of ``t``."""
-        last = self.lock_lost_last
-        return last is not None and t - last <= self.params.improved.lock_hold
+        return within_hold(self.lock_lost_last, t, self.params.improved.lock_hold)
 
     @property
     def scan_rejected(self) -> Optional[str]:

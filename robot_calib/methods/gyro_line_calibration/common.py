@@ -84,6 +84,11 @@ class PoseEstimate:
     odom_resets: int
 
 
+def within_hold(last: Optional[float], t: float, hold: float) -> bool:
+    """Return True when ``last`` (s, None: never) is at most ``hold`` (s) before ``t`` (s)."""
+    return last is not None and t - last <= hold
+
+
 @dataclass(frozen=True)
 class GyroLineResult:
     """

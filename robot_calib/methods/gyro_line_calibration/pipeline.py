@@ -33,7 +33,7 @@ import numpy as np
 
 from robot_calib.core import figures, types as T
 from robot_calib.core.series import Thinned
-from robot_calib.methods.gyro_line_calibration.common import GyroLineResult
+from robot_calib.methods.gyro_line_calibration.common import GyroLineResult, within_hold
 from robot_calib.methods.gyro_line_calibration.params import GyroLineParams
 from robot_calib.methods.gyro_line_calibration.variants import make_estimator
 from robot_calib.pipelines.base import InputSpec, Output, OutputSpec, Pipeline
@@ -118,8 +118,7 @@ class GyroLinePipeline(Pipeline):
         res = res if res is not None else self.core.result()
         last = res.last_correction
         trusted = res.trusted(t)
-        contradicted = res.lock_lost_last is not None and \
-            t - res.lock_lost_last <= self.params.improved.lock_hold
+        contradicted = within_hold(res.lock_lost_last, t, self.params.improved.lock_hold)
         rejected = {f'rejected_{k}.{r[9:]}': v for k, c in self.counts.items()
                     for r, v in c.items() if r.startswith('rejected_')}
         values = [
