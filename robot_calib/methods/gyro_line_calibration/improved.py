@@ -46,8 +46,6 @@ from robot_calib.methods.gyro_line_calibration.improved_gate import (
     gate, gate_state, line_jacobian, line_model, line_noise, line_noise_diag, overlaps, prefilter,
     ref_arrays)
 
-_LOCK_ANGLE = math.radians(30.0)
-_LOCK_DISTANCE = 0.3
 _I2 = np.eye(2)
 _I5 = np.eye(5)
 _I2.flags.writeable = _I5.flags.writeable = False  # shared identities: read only
@@ -166,7 +164,7 @@ class ImprovedGyroLine(GyroLineBase):
         ip = self.params.improved
         pos_sigma = math.sqrt(max(self.P[0, 0], self.P[1, 1], 0.0))
         margin = ip.overlap_margin + 3.0 * pos_sigma
-        matches, unmatched = [], []
+        matches, contradicting = [], 0
         pre = prefilter(self.references, lines, margin, self.params.match.angle_tolerance,
                         self._ref_arrays()) if self.references else None
         state = gate_state(self.x, self.P)  # neither changes before the filter update
@@ -178,7 +176,7 @@ class ImprovedGyroLine(GyroLineBase):
             if gated:
                 if not close:
                     self.count('lines_outside_gate')
-                    unmatched.append(line)
+                    contradicting += pre[5][k]
                     continue
                 rhos = [g[2][1] for g in gated]
                 angles = [g[2][0] for g in gated]
@@ -192,37 +190,27 @@ class ImprovedGyroLine(GyroLineBase):
                 ref.t_last = t
                 matches.append((line, ref, y, H, R))
                 continue
-            unmatched.append(line)
+            if pre is not None:
+                contradicting += pre[5][k]
             self._tentative_step(line, t, margin)
         self._age_tentative(t)
-        self._watch_lock(t, len(matches), unmatched)
+        self._watch_lock(t, len(matches), contradicting)
         if not matches:
             return []
         return self._filter_update(matches, t)
 
     # -- lock on the walls ----------------------------------------------------------------
-    def _watch_lock(self, t: float, agreeing: int, unmatched: list) -> None:
+    def _watch_lock(self, t: float, agreeing: int, contradicting: int) -> None:
         """
         Watch whether the walls still agree with the heading (one scan at ``t``, s).
 
-        A line that lies on a reference (its midpoint within 0.3 m of it, along
-        its length, within 30 deg) but matched nothing contradicts it. When such
-        lines are a large share of the lines on references over the last 50
-        scans, the heading has lost the walls: a turn with a gyro scale far beyond
-        its prior left it outside every gate, and new references are being made
-        in the rotated frame, where they will agree with it from then on.
+        ``contradicting`` lines lie on a reference (:func:`prefilter`) but matched
+        nothing; ``agreeing`` ones were matched. When the former are a large
+        share of the lines on references over the last 50 scans, the heading has
+        lost the walls: a turn with a gyro scale far beyond its prior left it
+        outside every gate, and new references are being made in the rotated
+        frame, where they will agree with it from then on.
         """
-        contradicting = 0
-        if unmatched and self.references:
-            ang, u, nrm, o, r2, rho = self._ref_arrays()
-            la = np.array([ln.angle for ln in unmatched])
-            mid = np.array([ln.midpoint for ln in unmatched])
-            err = np.abs(wrap_half_pi(ang[None, :] - la[:, None]))
-            along = mid @ u.T - o[None, :]
-            dist = np.abs(rho[None, :] - mid @ nrm.T)
-            on = (err <= _LOCK_ANGLE) & (along >= 0.0) & (along <= r2[None, :]) \
-                & (dist <= _LOCK_DISTANCE)
-            contradicting = int(np.count_nonzero(on.any(axis=1)))
         if not (agreeing or contradicting):
             return
         self._lock.append((agreeing, contradicting))

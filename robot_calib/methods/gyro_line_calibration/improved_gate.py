@@ -15,6 +15,7 @@ reference's own covariance and the fit noise.
 
 from __future__ import annotations
 
+import math
 from typing import Optional
 
 import numpy as np
@@ -22,6 +23,12 @@ import numpy as np
 from robot_calib.core.geometry import wrap_half_pi
 from robot_calib.core.lines import Line
 from robot_calib.methods.gyro_line_calibration.params import ImprovedParams
+
+
+LOCK_ANGLE = math.radians(30.0)
+"""Largest angle (rad) between a line and a reference it lies on (the lock check)."""
+LOCK_DISTANCE = 0.3
+"""Largest distance (m) of a line's midpoint from a reference it lies on."""
 
 
 def line_noise_diag(line: Line, ip: ImprovedParams) -> tuple[float, float]:
@@ -95,7 +102,9 @@ def prefilter(refs: list, lines: list[Line], margin: float, angle_tolerance: flo
 
     Returns the angle errors (rad), distances (m), the candidate mask (each a
     list of rows, one per line, one entry per reference) and the references'
-    directions and normals (lists of pairs), as Python lists for :func:`gate`.
+    directions and normals (lists of pairs), as Python lists for :func:`gate`,
+    then whether each line lies on a reference (:data:`LOCK_ANGLE`,
+    :data:`LOCK_DISTANCE`, its midpoint along it), whatever the tolerances.
     """
     ang, u, nrm, o, r2, rho = arrays if arrays is not None else ref_arrays(refs)
     la = np.array([ln.angle for ln in lines])
@@ -106,9 +115,14 @@ def prefilter(refs: list, lines: list[Line], margin: float, angle_tolerance: flo
     a2 = lp2 @ u.T - o[None, :]
     lo, hi = np.minimum(a1, a2), np.maximum(a1, a2)
     dist = rho[None, :] - (0.5 * (lp1 + lp2)) @ nrm.T
-    ok = (np.abs(err) <= angle_tolerance) & (hi >= -margin) & (lo <= r2[None, :] + margin) \
-        & (np.abs(dist) < margin + 1.0)
-    return err.tolist(), dist.tolist(), ok.tolist(), u.tolist(), nrm.tolist()
+    abs_err, abs_dist = np.abs(err), np.abs(dist)
+    ok = (abs_err <= angle_tolerance) & (hi >= -margin) & (lo <= r2[None, :] + margin) \
+        & (abs_dist < margin + 1.0)
+    along = 0.5 * (a1 + a2)  # the midpoint's offset along the reference
+    on = (abs_err <= LOCK_ANGLE) & (along >= 0.0) & (along <= r2[None, :]) \
+        & (abs_dist <= LOCK_DISTANCE)
+    return err.tolist(), dist.tolist(), ok.tolist(), u.tolist(), nrm.tolist(), \
+        on.any(axis=1).tolist()
 
 
 def gate_state(x: np.ndarray, P: np.ndarray) -> tuple:
@@ -133,7 +147,7 @@ def gate(refs: list, line: Line, margin: float, chi2: float, state: tuple,
     if not refs:
         return []
     if pre is None:
-        err, dist, ok, u, nrm = prefilter(refs, [line], margin, angle_tolerance)
+        err, dist, ok, u, nrm, _ = prefilter(refs, [line], margin, angle_tolerance)
         pre = (err[0], dist[0], ok[0], u, nrm)
     err, dist, ok, u, nrm = pre
     out = []
