@@ -223,6 +223,8 @@ class FusionResult:
     """Improved: consistency of the odometry updates."""
     imu_stale: Optional[bool] = None
     """Improved: whether the IMU is silent (propagation by the wheels only)."""
+    yaw_rate_fit: Optional[Mapping[str, Any]] = None
+    """Improved: the odometry yaw-rate calibration over the recording (status, blocks...)."""
     odometry_state: Optional[np.ndarray] = None
     """Seed: the odometry state observed (x, y, vx, vy, ax, ay by integration)."""
     odometry_covariance: Optional[np.ndarray] = None

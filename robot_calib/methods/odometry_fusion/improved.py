@@ -40,6 +40,7 @@ from robot_calib.core.geometry import wrap_scalar
 from robot_calib.methods.odometry_fusion.common import FusionOutput
 from robot_calib.methods.odometry_fusion.filter_base import FusionFilter
 from robot_calib.methods.odometry_fusion.improved_consistency import NisMonitor, NoiseAdapter
+from robot_calib.methods.odometry_fusion.yaw_rate_fit import YawRateFit
 
 IX, IY, IYAW, IV, IBG, IBA, IKW, IKV = range(8)
 """Indices of the improved state."""
@@ -52,6 +53,10 @@ _CONSIDER_POSE = 3
 
 REJECTION_TOLD = 0.5
 """Seconds of continuously rejected wheel data after which a warning says so (s)."""
+
+_FIT_KEYS = ('yaw_rate_scale', 'yaw_rate_scale_std', 'yaw_rate_per_speed',
+             'yaw_rate_per_speed_std')
+"""The yaw-rate fit's numbers that are estimates (with their stds)."""
 
 _outer = np.multiply.outer
 _add_reduce = np.add.reduce
@@ -80,6 +85,7 @@ class ImprovedFusion(FusionFilter):
             else float('inf')
         self.noise = NoiseAdapter(p, self._gate)
         self.nis = NisMonitor(p.nis_window)
+        self.yaw_fit = YawRateFit(p.yaw_rate_fit_block, p.yaw_rate_fit_min_blocks)
         self._rej_since: dict = {'slip_speed': None, 'slip_yaw_rate': None}
         self._rej_told: dict = {'slip_speed': False, 'slip_yaw_rate': False}
         self.imu_stale = True
@@ -273,7 +279,8 @@ class ImprovedFusion(FusionFilter):
         self._predict_to_wheels(t, v, w)
         still = p.zero_velocity_update and abs(v) < p.zero_velocity_threshold and \
             abs(w) < p.zero_velocity_threshold
-        gz_avg = self._gz_sum / self._gz_n if self._gz_n else self.gz
+        fresh = self._gz_n > 0
+        gz_avg = self._gz_sum / self._gz_n if fresh else self.gz
         self._gz_sum, self._gz_n = 0.0, 0
         if still and not self.imu_stale and self._gyro_turning(t, gz_avg):
             # late odometry (or wheels held while the robot is pushed round) still reads
@@ -291,7 +298,7 @@ class ImprovedFusion(FusionFilter):
             nis_total += nis_v
             dof += 1
         if not self.imu_stale:
-            nis_w = self._yaw_rate_update(t, v, w, r_w, gz_avg, still)
+            nis_w = self._yaw_rate_update(t, v, w, r_w, gz_avg, still, fresh)
             if nis_w is None:
                 rejected.append('slip_yaw_rate')
             else:
@@ -356,12 +363,14 @@ class ImprovedFusion(FusionFilter):
         return nis_v if used else None
 
     def _yaw_rate_update(self, t: float, v: float, w: float, r_w: float, gz_avg: float,
-                         still: bool) -> Optional[float]:
+                         still: bool, fresh: bool) -> Optional[float]:
         """
         Update with the wheel yaw rate (z = k_w (gz - b_g) + k_v v); return its NIS or None.
 
-        ``gz_avg`` is the gyro z averaged over the odometry interval (rad/s); at
-        standstill a zero-velocity update then pins the gyro bias.
+        ``gz_avg`` is the gyro z averaged over the odometry interval (rad/s), ``fresh``
+        whether gyro samples arrived in it; at standstill a zero-velocity update then pins
+        the gyro bias. The calibration over the recording (:mod:`.yaw_rate_fit`) takes
+        the accepted intervals while moving.
         """
         p = self.p
         x = self.x
@@ -382,6 +391,7 @@ class ImprovedFusion(FusionFilter):
         s_w = s_pred + r_eff
         nis_w = res_w * res_w / s_w
         used = not (nis_w > self._gate and not still)
+        self.yaw_fit.add(t, w, w_imu, v, used and fresh and not still)
         if used:
             self._gain_update(Ph, s_w, res_w, None if p.bias_from_wheels else _CONSIDER_W)
         self.noise.adapt(1, res_w, s_pred + r_gyro, r_w, s_w, t)
@@ -493,17 +503,24 @@ class ImprovedFusion(FusionFilter):
                             float(w), pose_cov, twist_cov)
 
     def _estimates(self) -> dict:
-        """Return the current bias/scale estimates and adaptation state."""
+        """
+        Return the bias estimates, the adaptation state and the yaw-rate calibration.
+
+        The yaw-rate scale and per-speed term are the fit over the recording
+        (:mod:`.yaw_rate_fit`), present once it has enough motion; the filter's own
+        random-walk states of them are nuisance states, not reported.
+        """
         sd = np.sqrt(np.maximum(np.diag(self.P), 0.0))
-        return {'gyro_bias': float(self.x[IBG]), 'gyro_bias_std': float(sd[IBG]),
-                'accel_bias': float(self.x[IBA]), 'accel_bias_std': float(sd[IBA]),
-                'yaw_rate_scale': float(self.x[IKW]), 'yaw_rate_scale_std': float(sd[IKW]),
-                'yaw_rate_per_speed': float(self.x[IKV]),
-                'yaw_rate_per_speed_std': float(sd[IKV]),
-                'noise_scale_speed': float(self.noise.scales[0]),
-                'noise_scale_yaw_rate': float(self.noise.scales[1])}
+        out = {'gyro_bias': float(self.x[IBG]), 'gyro_bias_std': float(sd[IBG]),
+               'accel_bias': float(self.x[IBA]), 'accel_bias_std': float(sd[IBA])}
+        fit = self.yaw_fit.result()
+        out.update((k, fit[k]) for k in _FIT_KEYS if k in fit)
+        out['noise_scale_speed'] = float(self.noise.scales[0])
+        out['noise_scale_yaw_rate'] = float(self.noise.scales[1])
+        return out
 
     def _variant_result(self) -> dict:
-        """Return the noise scales, the NIS statistics and whether the IMU is stale."""
+        """Return the noise scales, the NIS statistics, the IMU's staleness, the fit."""
         return {'noise_scales': (float(self.noise.scales[0]), float(self.noise.scales[1])),
-                'nis': self.nis.stats(), 'imu_stale': self.imu_stale}
+                'nis': self.nis.stats(), 'imu_stale': self.imu_stale,
+                'yaw_rate_fit': self.yaw_fit.result()}

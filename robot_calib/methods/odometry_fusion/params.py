@@ -108,6 +108,12 @@ class FusionParams:
                                         minimum=1e-6)
     yaw_rate_offset_walk: float = param(1e-4, 'rad/m/sqrt(s)', 'Random walk of the yaw rate '
                                         'per unit speed', minimum=0.0)
+    yaw_rate_fit_block: float = param(10.0, 's', 'Block of the odometry yaw-rate calibration '
+                                      'over the recording: one unknown offset (the gyro bias '
+                                      "error) per block, and the jackknife's unit",
+                                      minimum=0.5)
+    yaw_rate_fit_min_blocks: int = param(8, '', 'Blocks of accepted motion before that '
+                                         'calibration is reported', minimum=3)
     bias_from_wheels: bool = param(False, '', 'Let the wheel yaw rate correct the gyro bias; '
                                    'off: the bias is a consider state there (wheel slip and '
                                    'radius mismatch mimic a bias) and is learnt at standstill')

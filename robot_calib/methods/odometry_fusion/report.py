@@ -48,6 +48,8 @@ def diagnostic_status(r: FusionResult, params: FusionParams,
                    ('nis_window_in_band_fraction',
                     f'{math.nan if wfrac is None else wfrac:.3f}')]
         values += [(k, f'{v:.6g}') for k, v in r.estimates.items()]
+        if r.yaw_rate_fit is not None:
+            values.append(('yaw_rate_fit', r.yaw_rate_fit['status']))
         values.append(('imu_stale', str(r.imu_stale)))
         if math.isfinite(nis.average) and nis.average > nis.band[1]:
             # innovations larger than the filter expects: it is over-confident. (Below the
@@ -94,6 +96,8 @@ def summary(r: FusionResult, params: FusionParams, covariances_ignored: int) -> 
         'path_length': r.path_length,
     }
     out['estimates'] = dict(r.estimates)
+    if r.yaw_rate_fit is not None:
+        out['yaw_rate_calibration'] = dict(r.yaw_rate_fit)
     if r.nis is not None:
         out['nis'] = {
             'updates': r.nis.updates,
