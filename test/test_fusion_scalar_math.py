@@ -51,6 +51,7 @@ def test_consider_update_keeps_the_leading_states(n):
     """A consider update of n leaves the first n states as they were and corrects the rest."""
     f = _filter_after_a_drive()
     x0 = list(f.x)
+    asymmetry = np.abs(f.P - f.P.T).max()  # rounding the drive's predictions left
     h = np.zeros(8)
     h[IBG], h[6], h[7] = -1.0, 0.2, 0.5
     free = _filter_after_a_drive()
@@ -59,7 +60,7 @@ def test_consider_update_keeps_the_leading_states(n):
     _scalar_update(f, h, 0.05, 1e-3, n)
     assert f.x[:n] == x0[:n]
     assert f.x[6:] != x0[6:]
-    assert np.allclose(f.P, f.P.T, rtol=0.0, atol=1e-15)
+    assert np.abs(f.P - f.P.T).max() <= asymmetry + 1e-15
 
 
 @pytest.mark.parametrize('n', [None, 3, 6])
@@ -99,7 +100,7 @@ def test_yaw_rate_update_innovation_variance_is_h_P_h():
     seen = {}
     scale = a.noise.scales[1]  # before the update adapts it
     a._gain_update = lambda Ph, s, resid, consider: seen.update(s=s, Ph=Ph.copy())
-    a._yaw_rate_update(t, v, w, 1e-4, gz, False)
+    a._yaw_rate_update(t, v, w, 1e-4, gz, False, True)
     r_gyro = x[6] ** 2 * a.p.gyro_noise ** 2 / (t - a._last_upd_t) * scale
     r_eff = 1e-4 * scale + r_gyro
     assert seen['s'] - r_eff == pytest.approx(s_dense, rel=1e-12)

@@ -42,6 +42,12 @@ class ImuFrontEnd:
         self._acc_sum = np.zeros(3)
         self._n_up = 0
         self.warnings: list[str] = []
+        self.full_vectors = False
+        """Whether :meth:`convert` also keeps the whole gyro and force in base_link."""
+        self.gyro = (0.0, 0.0, 0.0)
+        """The last gyro reading in base_link (rad/s), with ``full_vectors``."""
+        self.force = (0.0, 0.0, 0.0)
+        """The last specific force in base_link (m/s^2), with ``full_vectors``."""
         rpy = list(params.imu_rpy) + [0.0] * 3
         if params.imu_extrinsic == 'param' or (params.imu_extrinsic == 'auto'
                                                and any(abs(v) > 0 for v in rpy[:3])):
@@ -51,6 +57,7 @@ class ImuFrontEnd:
         """Use ``rot`` (3x3, IMU -> base) from ``source``."""
         self.rot = np.asarray(rot, dtype=float)
         self._r0 = [float(v) for v in self.rot[0]]
+        self._r1 = [float(v) for v in self.rot[1]]
         self._r2 = [float(v) for v in self.rot[2]]
         self.rot_source = source
         self.forward_known = source in ('param', 'tf')
@@ -97,6 +104,12 @@ class ImuFrontEnd:
         use_acc = self.forward_known and self.units_source != 'unknown'
         ax = (r0[0] * acc[0] + r0[1] * acc[1] + r0[2] * acc[2]) * self.accel_scale \
             if use_acc else 0.0
+        if use_acc and self.full_vectors:
+            r1, k = self._r1, self.accel_scale
+            self.gyro = (r0[0] * g[0] + r0[1] * g[1] + r0[2] * g[2],
+                         r1[0] * g[0] + r1[1] * g[1] + r1[2] * g[2], gz)
+            self.force = (ax, (r1[0] * acc[0] + r1[1] * acc[1] + r1[2] * acc[2]) * k,
+                          (r2[0] * acc[0] + r2[1] * acc[1] + r2[2] * acc[2]) * k)
         return gz, ax, use_acc
 
 

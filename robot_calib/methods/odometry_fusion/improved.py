@@ -9,7 +9,8 @@ yaw-rate scale (a skid-steer or track-width error, dimensionless) and the
 odometry yaw rate per unit speed (a left/right wheel radius mismatch, rad/m).
 The IMU (gyro z and forward specific force, rotated into ``base_link`` by the
 mounting extrinsic from a parameter, ``/tf_static`` or, failing both, the
-gravity direction: :mod:`.frontend`) drives the prediction; the wheel
+gravity direction: :mod:`.frontend`) drives the prediction, with gravity
+taken out of the forward force on slopes (:mod:`.gravity`); the wheel
 odometry's forward speed and yaw rate are scalar observations, each gated by
 its innovation (chi-square, 1 dof) so wheel slip and outliers are rejected
 and counted. A stationary robot (wheels exactly still) gives a zero-velocity
@@ -39,6 +40,7 @@ from robot_calib.core.chi2 import chi2_ppf
 from robot_calib.core.geometry import wrap_scalar
 from robot_calib.methods.odometry_fusion.common import FusionOutput
 from robot_calib.methods.odometry_fusion.filter_base import FusionFilter
+from robot_calib.methods.odometry_fusion.gravity import GravityTracker
 from robot_calib.methods.odometry_fusion.improved_consistency import NisMonitor, NoiseAdapter
 from robot_calib.methods.odometry_fusion.yaw_rate_fit import YawRateFit
 
@@ -50,6 +52,9 @@ _CONSIDER_W = 6
 """States the wheel yaw rate does not correct by default: the first 6 (all but k_w, k_v)."""
 _CONSIDER_POSE = 3
 """States a standstill update leaves alone with ``continuous_pose``: the first 3 (pose)."""
+
+WHEEL_ACCEL_TIME = 0.1
+"""Low-pass time constant of the wheel acceleration the gravity tracker subtracts (s)."""
 
 REJECTION_TOLD = 0.5
 """Seconds of continuously rejected wheel data after which a warning says so (s)."""
@@ -86,6 +91,11 @@ class ImprovedFusion(FusionFilter):
         self.noise = NoiseAdapter(p, self._gate)
         self.nis = NisMonitor(p.nis_window)
         self.yaw_fit = YawRateFit(p.yaw_rate_fit_block, p.yaw_rate_fit_min_blocks)
+        self.gravity = GravityTracker(p.gravity_time_constant) if p.gravity_compensation \
+            else None
+        self.front.full_vectors = self.gravity is not None
+        self._wheel_accel = 0.0
+        self._wheel_last: Optional[tuple[float, float]] = None
         self._rej_since: dict = {'slip_speed': None, 'slip_yaw_rate': None}
         self._rej_told: dict = {'slip_speed': False, 'slip_yaw_rate': False}
         self.imu_stale = True
@@ -220,6 +230,11 @@ class ImprovedFusion(FusionFilter):
             self.count('late_imu')
         self._predict(t)
         self.imu_stale = False
+        if use_acc and self.gravity is not None:
+            # the forward force less gravity on a slope (gravity.py); the motion's own
+            # acceleration from the wheels, its sideways part from speed and turn rate
+            ax = self.gravity.update(t, self.front.gyro, self.front.force, self._wheel_accel,
+                                     self.x[IV] * (gz - self.x[IBG]))
         self.gz, self.ax, self.use_acc = gz, ax, use_acc
         self._gz_sum += gz
         self._gz_n += 1
@@ -277,6 +292,7 @@ class ImprovedFusion(FusionFilter):
                 return 'stale'
             t = self.t  # a little late: apply now
         self._predict_to_wheels(t, v, w)
+        self._track_wheel_accel(t, v)
         still = p.zero_velocity_update and abs(v) < p.zero_velocity_threshold and \
             abs(w) < p.zero_velocity_threshold
         fresh = self._gz_n > 0
@@ -311,6 +327,16 @@ class ImprovedFusion(FusionFilter):
         if rejected:
             return None if dof else 'gated_' + rejected[0]
         return None
+
+    def _track_wheel_accel(self, t: float, v: float) -> None:
+        """Follow the wheel speed's rate of change (m/s^2), low-passed over WHEEL_ACCEL_TIME."""
+        last, self._wheel_last = self._wheel_last, (t, v)
+        if last is None or not 0.0 < t - last[0] <= self.p.sensor_timeout:
+            self._wheel_accel = 0.0
+            return
+        dt = t - last[0]
+        k = dt / (WHEEL_ACCEL_TIME + dt)
+        self._wheel_accel += k * ((v - last[1]) / dt - self._wheel_accel)
 
     def _interval(self, t: float) -> float:
         """Return the time (s) the gyro was averaged over since the last odometry update."""

@@ -108,6 +108,11 @@ class FusionParams:
                                         minimum=1e-6)
     yaw_rate_offset_walk: float = param(1e-4, 'rad/m/sqrt(s)', 'Random walk of the yaw rate '
                                         'per unit speed', minimum=0.0)
+    gravity_compensation: bool = param(True, '', 'Track the up direction in base_link (gyro, '
+                                       'corrected by the accelerometer) and remove gravity '
+                                       'from the forward acceleration on slopes')
+    gravity_time_constant: float = param(5.0, 's', 'Time constant of that correction by the '
+                                         'accelerometer', minimum=0.05)
     yaw_rate_fit_block: float = param(10.0, 's', 'Block of the odometry yaw-rate calibration '
                                       'over the recording: one unknown offset (the gyro bias '
                                       "error) per block, and the jackknife's unit",

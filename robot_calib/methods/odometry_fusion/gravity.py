@@ -1,0 +1,99 @@
+# Copyright 2026 robot_calib contributors
+# SPDX-License-Identifier: Apache-2.0
+"""
+Gravity in the forward accelerometer on slopes: the up direction tracked in ``base_link``.
+
+On a slope of pitch ``theta`` the forward specific force is the forward
+acceleration plus ``g sin(theta)``: 2.5 m/s^2 on a 15 deg ramp, which the
+planar filter took for acceleration (its fused speed ran 2-2.5 m/s off for
+seconds, the wheels were rejected as slip). :class:`GravityTracker` keeps the
+unit up vector ``u`` in ``base_link`` with a complementary filter of the
+Mahony form (Mahony, Hamel, Pflimlin, *Nonlinear complementary filters on the
+special orthogonal group*, IEEE TAC 2008, eq. 32-33 reduced to one vector):
+
+    e = u_meas x u                                                     (1)
+    du/dt = -(w - b + k_p e) x u,    db/dt = -k_i e                    (2)
+
+where ``w`` is the gyro (rad/s) and ``u_meas`` the direction of the specific
+force less the motion's own acceleration (forward: the wheel speed's rate of
+change; sideways: speed times turn rate), used only when its magnitude is
+within ``GATE`` of g (not during bumps and impacts). The gyro carries the
+ramp's entry (fast), the accelerometer holds the drift (``k_p = 1 / tau``,
+``k_i = k_p^2 / 4``, critically damped). The motion's forward acceleration is
+then ``f_x - g u_x``.
+"""
+
+from __future__ import annotations
+
+import math
+
+from robot_calib.core.constants import GRAVITY
+
+GATE = 0.1
+"""Largest relative difference of |f - a_motion| from g at which the accelerometer corrects."""
+
+MAX_STEP = 0.1
+"""Longest time step integrated (s); a longer gap restarts from the next reading."""
+
+
+class GravityTracker:
+    """Up direction and pitch/roll gyro bias in ``base_link`` (see the module)."""
+
+    def __init__(self, time_constant: float) -> None:
+        """Correct towards the accelerometer with ``time_constant`` (s)."""
+        self.k_p = 1.0 / time_constant
+        self.k_i = 0.25 * self.k_p * self.k_p
+        self.up = (0.0, 0.0, 1.0)
+        self.bias = [0.0, 0.0, 0.0]
+        self.started = False
+        self.t = 0.0
+        self.corrections = 0
+
+    def update(self, t: float, gyro: tuple, force: tuple, accel_forward: float,
+               accel_lateral: float) -> float:
+        """
+        Advance to ``t`` (s) and return the forward motion acceleration (m/s^2).
+
+        :param gyro: angular rate in base_link (rad/s)
+        :param force: specific force in base_link (m/s^2)
+        :param accel_forward: the motion's forward acceleration from the wheels (m/s^2)
+        :param accel_lateral: its sideways (centripetal) acceleration (m/s^2)
+        """
+        fx, fy, fz = force
+        mx, my, mz = fx - accel_forward, fy - accel_lateral, fz
+        norm = math.sqrt(mx * mx + my * my + mz * mz)
+        ok = abs(norm - GRAVITY) < GATE * GRAVITY
+        if not self.started or t - self.t > MAX_STEP or t <= self.t:
+            if not self.started or t - self.t > MAX_STEP:
+                if ok:
+                    self.up = (mx / norm, my / norm, mz / norm)
+                    self.started = True
+            self.t = t
+            return fx - GRAVITY * self.up[0] if self.started else fx
+        dt = t - self.t
+        self.t = t
+        ux, uy, uz = self.up
+        b = self.bias
+        wx, wy, wz = gyro[0] - b[0], gyro[1] - b[1], gyro[2] - b[2]
+        if ok:
+            # eq. (1): the rotation that turns the estimate towards the measurement
+            ax, ay, az = mx / norm, my / norm, mz / norm
+            ex, ey, ez = ay * uz - az * uy, az * ux - ax * uz, ax * uy - ay * ux
+            kp, ki = self.k_p, self.k_i * dt
+            wx, wy, wz = wx + kp * ex, wy + kp * ey, wz + kp * ez
+            b[0] -= ki * ex
+            b[1] -= ki * ey
+            b[2] -= ki * ez
+            self.corrections += 1
+        # eq. (2): du/dt = -w x u, then back onto the unit sphere
+        dx = -(wy * uz - wz * uy) * dt
+        dy = -(wz * ux - wx * uz) * dt
+        dz = -(wx * uy - wy * ux) * dt
+        ux, uy, uz = ux + dx, uy + dy, uz + dz
+        n = math.sqrt(ux * ux + uy * uy + uz * uz)
+        self.up = (ux / n, uy / n, uz / n)
+        return fx - GRAVITY * self.up[0]
+
+    def pitch(self) -> float:
+        """Return the slope under the robot along its forward axis (rad, nose up positive)."""
+        return math.asin(max(-1.0, min(1.0, self.up[0])))
