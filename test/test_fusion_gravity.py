@@ -11,8 +11,8 @@ from robot_calib.methods.odometry_fusion.gravity import GravityTracker
 
 
 def force_on_slope(pitch, roll, accel=0.0):
-    """Return the specific force (m/s^2) in base_link, nose up ``pitch``, ``roll`` (rad)."""
-    up = (math.sin(pitch), -math.sin(roll) * math.cos(pitch), math.cos(roll) * math.cos(pitch))
+    """Return the specific force (m/s^2) in base_link, nose up ``pitch``, REP-103 ``roll``."""
+    up = (math.sin(pitch), math.sin(roll) * math.cos(pitch), math.cos(roll) * math.cos(pitch))
     return (accel + GRAVITY * up[0], GRAVITY * up[1], GRAVITY * up[2])
 
 
@@ -92,3 +92,19 @@ def test_ramps_through_the_filter(compensate):
         assert counts.get('rejected_slip_speed', 0) == 0
     else:
         assert err.max() > 1.0 and counts['rejected_slip_speed'] > 100
+
+
+def test_the_heading_turns_at_the_yaw_euler_rate_on_a_slope():
+    """Turning on a 15 deg cross slope: the body z rate is not the heading's rate."""
+    g = GravityTracker(5.0)
+    roll, pitch, yaw_rate = math.radians(-15.0), math.radians(6.0), 0.4
+    # ZYX Euler rates (roll, pitch constant) -> body rates, REP-103 (pitch nose down)
+    p_ros = -pitch
+    gyro = (-yaw_rate * math.sin(p_ros), yaw_rate * math.cos(p_ros) * math.sin(roll),
+            yaw_rate * math.cos(p_ros) * math.cos(roll))
+    for i in range(500):
+        g.update(i * 0.01, gyro, force_on_slope(pitch, roll), 0.0, 0.0)
+    rate, share = g.level(gyro, gyro[2])
+    assert rate == pytest.approx(yaw_rate, rel=2e-3)
+    assert abs(gyro[2] - yaw_rate) > 0.03 * yaw_rate  # what the body rate would have said
+    assert share == pytest.approx(math.cos(pitch), rel=1e-3)

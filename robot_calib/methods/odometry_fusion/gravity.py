@@ -20,7 +20,9 @@ change; sideways: speed times turn rate), used only when its magnitude is
 within ``GATE`` of g (not during bumps and impacts). The gyro carries the
 ramp's entry (fast), the accelerometer holds the drift (``k_p = 1 / tau``,
 ``k_i = k_p^2 / 4``, critically damped). The motion's forward acceleration is
-then ``f_x - g u_x``.
+then ``f_x - g u_x``; the heading turns at the yaw Euler rate, not the body z
+rate (on bumpy_drive's ramps the body rate put the heading 9 deg off in 300 s),
+and the position advances by the horizontal share of the speed (:meth:`level`).
 """
 
 from __future__ import annotations
@@ -93,6 +95,22 @@ class GravityTracker:
         n = math.sqrt(ux * ux + uy * uy + uz * uz)
         self.up = (ux / n, uy / n, uz / n)
         return fx - GRAVITY * self.up[0]
+
+    def level(self, gyro: tuple, gz: float) -> tuple[float, float]:
+        """
+        Return (the heading's rate of change rad/s, the horizontal share of the speed).
+
+        ``gyro`` is the reading in base_link, ``gz`` its z (rad/s). The rate is the ZYX
+        yaw Euler rate ``(w_y sin(roll) + w_z cos(roll)) / cos(pitch)`` (Diebel 2006, eq.
+        2.7 inverted) written with the up vector, ``(w_y u_y + w_z u_z) / (1 - u_x^2)``;
+        the share is ``cos(pitch) = sqrt(1 - u_x^2)`` (the wheels measure along the
+        ground). Before the first reading they are ``gz`` and 1.
+        """
+        if not self.started:
+            return gz, 1.0
+        ux, uy, uz = self.up
+        c2 = max(1.0 - ux * ux, 0.25)  # |pitch| <= 60 deg: a robot on its wheels
+        return ((gyro[1] - self.bias[1]) * uy + gz * uz) / c2, math.sqrt(c2)
 
     def pitch(self) -> float:
         """Return the slope under the robot along its forward axis (rad, nose up positive)."""

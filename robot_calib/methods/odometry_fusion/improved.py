@@ -95,6 +95,8 @@ class ImprovedFusion(FusionFilter):
             else None
         self.front.full_vectors = self.gravity is not None
         self._wheel_accel = 0.0
+        self._yaw_rate_world = 0.0
+        self._horizontal = 1.0
         self._wheel_last: Optional[tuple[float, float]] = None
         self._rej_since: dict = {'slip_speed': None, 'slip_yaw_rate': None}
         self._rej_told: dict = {'slip_speed': False, 'slip_yaw_rate': False}
@@ -155,7 +157,7 @@ class ImprovedFusion(FusionFilter):
         if self.imu_stale:
             w_in, a_in = self._w_fallback, 0.0
         else:
-            w_in = self.gz - x[IBG]
+            w_in = self._yaw_rate_world - x[IBG]
             a_in = self.ax - x[IBA] if self.use_acc else 0.0
             # clamp to what the robot can do on its wheels (seed 004's clamping): a shock
             # or an aliased spike must not throw the speed off
@@ -164,7 +166,8 @@ class ImprovedFusion(FusionFilter):
         yaw, v = x[IYAW], x[IV]
         c, s = math.cos(yaw), math.sin(yaw)
         # constant-rate planar kinematics, first order (IMU as input)
-        dx, dy = v * c * dt, v * s * dt
+        vh = v * self._horizontal
+        dx, dy = vh * c * dt, vh * s * dt
         x[IX] += dx
         x[IY] += dy
         yaw += w_in * dt
@@ -235,6 +238,10 @@ class ImprovedFusion(FusionFilter):
             # acceleration from the wheels, its sideways part from speed and turn rate
             ax = self.gravity.update(t, self.front.gyro, self.front.force, self._wheel_accel,
                                      self.x[IV] * (gz - self.x[IBG]))
+            # the turn about the vertical and the horizontal share of the speed
+            self._yaw_rate_world, self._horizontal = self.gravity.level(self.front.gyro, gz)
+        else:
+            self._yaw_rate_world, self._horizontal = gz, 1.0
         self.gz, self.ax, self.use_acc = gz, ax, use_acc
         self._gz_sum += gz
         self._gz_n += 1
