@@ -335,6 +335,20 @@ class ImprovedFusion(FusionFilter):
             return None if dof else 'gated_' + rejected[0]
         return None
 
+    def _wheel_turn_rate(self, v: float, w: float) -> float:
+        """
+        Return the turn rate (rad/s) the wheels tell while the IMU is silent.
+
+        ``(w - k_v v) / k_w`` with the calibration over the recording once it is ``ok``,
+        else with the filter's states of them.
+        """
+        fit = self.yaw_fit.result()
+        if fit['status'] == 'ok':
+            kw, kv = fit['yaw_rate_scale'], fit['yaw_rate_per_speed']
+        else:
+            kw, kv = self.x[IKW], self.x[IKV]
+        return (w - kv * v) / kw if abs(kw) > 1e-3 else w
+
     def _track_wheel_accel(self, t: float, v: float) -> None:
         """Follow the wheel speed's rate of change (m/s^2), low-passed over WHEEL_ACCEL_TIME."""
         last, self._wheel_last = self._wheel_last, (t, v)
@@ -373,8 +387,8 @@ class ImprovedFusion(FusionFilter):
             self.warn(t, 'IMU stale: propagating with wheel odometry only')
             self.count('imu_stale_periods')
         self.imu_stale = imu_stale
-        kw = self.x[IKW] if abs(self.x[IKW]) > 1e-3 else 1.0
-        self._w_fallback = w / kw
+        if imu_stale:
+            self._w_fallback = self._wheel_turn_rate(v, w)
         self._predict(t)
         self._flush()
         if gap:
