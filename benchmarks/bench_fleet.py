@@ -54,15 +54,21 @@ def score(out: Path, truth: list[dict]) -> dict:
     with open(out / 'flags.csv', newline='') as f:
         found = list(csv.DictReader(f))
     drift = {r['robot']: r['drift'] for r in truth}
-    hit = {'wear': set(), 'gyro_step': set()}
+    hit = {'wear': set(), 'gyro_step': set(), 'wear_yaw_rate': set()}
     other, false = [], []
     for f in found:
         kind = drift.get(f['robot'], 'unchanged')
         right = (kind == 'wear' and f['parameter'] in RADII) or \
             (kind == 'gyro_step' and f['node'] == 'odometry_fusion'
              and f['parameter'] == 'gyro_bias')
+        # both radii shrink, so the odometry over-reads its turns by as much: the fusion's
+        # yaw-rate scale (odometry against gyro) grows with the wear
+        seen = kind == 'wear' and f['node'] == 'odometry_fusion' and \
+            f['parameter'] == 'yaw_rate_scale'
         if right:
             hit[kind].add(f['robot'])
+        elif seen:
+            hit['wear_yaw_rate'].add(f['robot'])
         elif kind == 'unchanged':
             false.append(f)
         else:
@@ -115,6 +121,9 @@ def scoring_section(args: argparse.Namespace, tmp: Path) -> list[str]:
         '| measure | value | goal | status |', '|---|---|---|---|',
         f'| wearing robots flagged on a wheel radius | {len(s["hit"]["wear"])} of {n_wear} | '
         f'all | {status(len(s["hit"]["wear"]) == n_wear)} |',
+        "| wearing robots also flagged on the fusion's odometry yaw-rate scale (the same wear: "
+        f'the odometry over-reads turns as the radii shrink) | {len(s["hit"]["wear_yaw_rate"])} '
+        f'of {n_wear} | | |',
         f'| gyro-step robots flagged on the fusion gyro bias | {len(s["hit"]["gyro_step"])} of '
         f'{n_step} | all | {status(len(s["hit"]["gyro_step"]) == n_step)} |',
         f'| unchanged robots flagged | {len(false_robots)} of {n_same}'

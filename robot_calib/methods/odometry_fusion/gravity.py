@@ -34,7 +34,7 @@ from robot_calib.core.constants import GRAVITY
 GATE = 0.1
 """Largest relative difference of |f - a_motion| from g at which the accelerometer corrects."""
 
-MAX_STEP = 0.1
+MAX_STEP = 0.5
 """Longest time step integrated (s); a longer gap restarts from the next reading."""
 
 
