@@ -83,6 +83,11 @@ def test_replay_of_the_real_husky_bag(tmp_path):
     # GPS is not an input of the filter; it only scores the result
     assert _ate(est, gps) < _ate(raw, gps)
     assert summ['filter_counts'].get('reinitialisations', 0) == 0
+    # a skid-steer robot: its odometry over-reads turns; the fit says so with a std that holds
+    fit = summ['yaw_rate_calibration']
+    assert fit['status'] == 'ok' and fit['blocks'] >= 30
+    assert 0.6 < summ['estimates']['yaw_rate_scale'] < 0.95
+    assert summ['estimates']['yaw_rate_scale_std'] < 0.05
 
 
 def test_joint_states_of_the_simulator_with_its_geometry():
