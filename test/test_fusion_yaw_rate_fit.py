@@ -133,3 +133,21 @@ def test_without_the_imu_the_wheels_turn_by_the_calibration(seed):
     drift = (yaw[j] - yaw[i]) - (true_yaw[j] - true_yaw[i])
     assert pipe.estimator.result().counts['imu_stale_periods'] >= 1
     assert abs(math.degrees(drift)) < 2.0
+
+
+def test_a_status_may_reuse_the_fit_until_a_block_closes():
+    """stale_ok returns the last fit while no block closed; a plain result is always fresh."""
+    t, w_odom, w_gyro, v = synthetic(5, duration=200.0)
+    f = YawRateFit(10.0, 8)
+    rows = list(zip(t.tolist(), w_odom.tolist(), w_gyro.tolist(), v.tolist()))
+    for args in rows[:4800]:  # 96 s: 9 closed blocks and an open one (90 to 100 s)
+        f.add(*args, True)
+    first = f.result()
+    for args in rows[4800:4900]:  # 2 s more, inside the open block
+        f.add(*args, True)
+    assert f.result(stale_ok=True) == first
+    fresh = f.result()
+    assert fresh['samples'] > first['samples'] and fresh != first
+    for args in rows[4900:5600]:  # the open block closes
+        f.add(*args, True)
+    assert f.result(stale_ok=True)['blocks'] > first['blocks']

@@ -91,8 +91,14 @@ class FusionFilter(abc.ABC):
             raise TypeError(f'odometry fusion takes no {type(sample).__name__}')
         return Rejected(reason) if reason is not None else self._output()
 
-    def result(self) -> FusionResult:
-        """Return the estimates, counters and warnings so far (covariance: as last propagated)."""
+    def result(self, for_status: bool = False) -> FusionResult:
+        """
+        Return the estimates, counters and warnings so far (covariance: as last propagated).
+
+        ``for_status``: for a periodic status, where a calibration over the recording
+        may be the one last refitted (the improved filter's yaw-rate fit, at each block).
+        """
+        self._for_status = for_status
         acc, valid = self._lidar_check()
         rot = self.front.rot
         return FusionResult(

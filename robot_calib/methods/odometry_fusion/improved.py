@@ -560,7 +560,7 @@ class ImprovedFusion(FusionFilter):
         sd = np.sqrt(np.maximum(np.diag(self.P), 0.0))
         out = {'gyro_bias': float(self.x[IBG]), 'gyro_bias_std': float(sd[IBG]),
                'accel_bias': float(self.x[IBA]), 'accel_bias_std': float(sd[IBA])}
-        fit = self.yaw_fit.result()
+        fit = self.yaw_fit.result(stale_ok=self._for_status)
         out.update((k, fit[k]) for k in _FIT_KEYS if k in fit)
         out['noise_scale_speed'] = float(self.noise.scales[0])
         out['noise_scale_yaw_rate'] = float(self.noise.scales[1])
@@ -570,4 +570,4 @@ class ImprovedFusion(FusionFilter):
         """Return the noise scales, the NIS statistics, the IMU's staleness, the fit."""
         return {'noise_scales': (float(self.noise.scales[0]), float(self.noise.scales[1])),
                 'nis': self.nis.stats(), 'imu_stale': self.imu_stale,
-                'yaw_rate_fit': self.yaw_fit.result()}
+                'yaw_rate_fit': self.yaw_fit.result(stale_ok=self._for_status)}

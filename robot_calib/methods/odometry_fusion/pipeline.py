@@ -153,7 +153,8 @@ class FusionPipeline(Pipeline):
 
     def status(self) -> T.DiagnosticStatus:
         """Return the current diagnostic status: level, message and key-values."""
-        return report.diagnostic_status(self.estimator.result(), self.params, self.counts)
+        return report.diagnostic_status(self.estimator.result(for_status=True), self.params,
+                                        self.counts)
 
     @staticmethod
     def headline(summary: dict[str, Any]) -> dict[str, Any]:

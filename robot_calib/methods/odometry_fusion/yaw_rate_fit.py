@@ -76,7 +76,7 @@ class YawRateFit:
         self._t0: Optional[float] = None
         self._sums = [0.0] * 14
         self._prev: Optional[float] = None
-        self._cache: tuple[int, dict] = (-1, {})
+        self._cache: tuple[int, int, dict] = (-1, -1, {})
         self.samples = 0
 
     def add(self, t: float, w_odom: float, w_gyro: float, v: float, usable: bool) -> None:
@@ -146,19 +146,23 @@ class YawRateFit:
             if self._index is not None:
                 self._index //= 2
 
-    def result(self) -> dict:
+    def result(self, stale_ok: bool = False) -> dict:
         """
         Return the fit: ``status`` and, when it has enough blocks, the estimates with stds.
+
+        With ``stale_ok`` the last fit is returned while no block has closed since it
+        (a status at 1 Hz need not refit every second; about 0.2 ms a fit).
 
         Keys: ``status`` (``ok``, ``uncertain`` or ``too_little_motion``), ``blocks``,
         ``blocks_dropped``, ``block_length`` (s), ``samples``, and with a solution
         ``yaw_rate_scale``, ``yaw_rate_scale_std`` (-), ``yaw_rate_per_speed``,
         ``yaw_rate_per_speed_std`` (rad/m) and their ``correlation``; ``why`` when not ok.
         """
-        if self._cache[0] == self.samples:
-            return dict(self._cache[1])
+        samples, closed, cached = self._cache
+        if samples == self.samples or (stale_ok and closed == len(self._blocks) and cached):
+            return dict(cached)
         out = self._fit()
-        self._cache = (self.samples, out)
+        self._cache = (self.samples, len(self._blocks), out)
         return dict(out)
 
     def _fit(self) -> dict:
