@@ -531,7 +531,7 @@ def slope_run(seed: int, compensate: bool, duration: float = 300.0) -> dict:
 def slopes(lines: list, seeds: int) -> None:
     """Benchmark the gravity compensation on bumpy_drive's ramps (300 s per seed)."""
     seeds = max(seeds, 1)
-    lines += ['## Simulation: slopes (bumpy_drive, 15 and 8 deg ramps, bumps, hard braking)', '',
+    lines += ['## Slopes, simulated (bumpy_drive, 15 and 8 deg ramps, bumps, hard braking)', '',
               f'{seeds} seeds x 300 s; the fused speed against the true speed along the '
               'ground, the position against the true horizontal position (the start pose '
               "from the odometry). This scenario's wheels have no errors, so its raw "
