@@ -371,6 +371,17 @@ def node_p99(seq: list):
 # ---------------------------------------------------------------------------------------
 # simulation
 # ---------------------------------------------------------------------------------------
+def sim_sequence(r) -> list:
+    """Return a simulation's IMU, odometry and static transforms as (kind, sample) pairs."""
+    seq = []
+    for tp, s in r.messages:
+        if tp in ('/imu', '/odom'):
+            seq.append((tp[1:], s))
+        elif tp == '/tf_static':
+            seq += [('tf_static', x) for x in s]
+    return seq
+
+
 def sim_seed(seed: int, duration: float) -> dict:
     """Run fusion_drive with ``seed``; return the scores of raw odometry, seed and default."""
     from robot_calib.sim import run_scenario
@@ -378,14 +389,7 @@ def sim_seed(seed: int, duration: float) -> dict:
     gt = np.array([[s.t, s.x, s.y, s.yaw] for tp, s in r.messages
                    if tp == '/ground_truth/odom'])
     odoms = [s for tp, s in r.messages if tp == '/odom']
-    seq = []
-    for tp, s in r.messages:
-        if tp == '/imu':
-            seq.append(('imu', s))
-        elif tp == '/odom':
-            seq.append(('odom', s))
-        elif tp == '/tf_static':
-            seq += [('tf_static', x) for x in s]
+    seq = sim_sequence(r)
     out = {'raw': score(**odom_track(odoms), ref=gt)}
     tr, _, _, _ = run_filter(seq, mode='seed')
     out['seed'] = score(**tr, ref=gt)
@@ -504,12 +508,7 @@ def slope_run(seed: int, compensate: bool, duration: float = 300.0) -> dict:
     """Run bumpy_drive (15 and 8 deg ramps) through the filter; return its speed errors."""
     from robot_calib.sim import run_scenario
     r = run_scenario('bumpy_drive', seed=seed, duration=duration)
-    seq = []
-    for tp, s in r.messages:
-        if tp in ('/imu', '/odom'):
-            seq.append((tp[1:], s))
-        elif tp == '/tf_static':
-            seq += [('tf_static', x) for x in s]
+    seq = sim_sequence(r)
     run = run_batch(make_estimator(FusionParams(gravity_compensation=compensate)),
                     [s for _, s in seq], keep=from_odometry)
     f, gt = run.result, r.sensors

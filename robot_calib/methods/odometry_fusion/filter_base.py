@@ -48,6 +48,7 @@ class FusionFilter(abc.ABC):
     def _start(self) -> None:
         """Set the state of a filter that has seen no sample (variants extend it)."""
         self.front = ImuFrontEnd(self.p)
+        self._for_status = False  # set by result(): whether it serves a periodic status
         self.t: Optional[float] = None
         self.counts: dict[str, int] = {}
         self.events: list[tuple[float, str]] = []

@@ -49,7 +49,6 @@ class GravityTracker:
         self.bias = [0.0, 0.0, 0.0]
         self.started = False
         self.t = 0.0
-        self.corrections = 0
 
     def update(self, t: float, gyro: tuple, force: tuple, accel_forward: float,
                accel_lateral: float) -> float:
@@ -86,7 +85,6 @@ class GravityTracker:
             b[0] -= ki * ex
             b[1] -= ki * ey
             b[2] -= ki * ez
-            self.corrections += 1
         # eq. (2): du/dt = -w x u, then back onto the unit sphere
         dx = -(wy * uz - wz * uy) * dt
         dy = -(wz * ux - wx * uz) * dt
@@ -96,22 +94,18 @@ class GravityTracker:
         self.up = (ux / n, uy / n, uz / n)
         return fx - GRAVITY * self.up[0]
 
-    def level(self, gyro: tuple, gz: float) -> tuple[float, float]:
+    def level(self, gyro: tuple) -> tuple[float, float]:
         """
         Return (the heading's rate of change rad/s, the horizontal share of the speed).
 
-        ``gyro`` is the reading in base_link, ``gz`` its z (rad/s). The rate is the ZYX
-        yaw Euler rate ``(w_y sin(roll) + w_z cos(roll)) / cos(pitch)`` (Diebel 2006, eq.
-        2.7 inverted) written with the up vector, ``(w_y u_y + w_z u_z) / (1 - u_x^2)``;
-        the share is ``cos(pitch) = sqrt(1 - u_x^2)`` (the wheels measure along the
-        ground). Before the first reading they are ``gz`` and 1.
+        ``gyro`` is the reading in base_link (rad/s). The rate is the ZYX yaw Euler rate
+        ``(w_y sin(roll) + w_z cos(roll)) / cos(pitch)`` (Diebel 2006, eq. 2.7 inverted)
+        written with the up vector, ``(w_y u_y + w_z u_z) / (1 - u_x^2)``; the share is
+        ``cos(pitch) = sqrt(1 - u_x^2)`` (the wheels measure along the ground). Before the
+        first reading they are ``w_z`` and 1.
         """
         if not self.started:
-            return gz, 1.0
+            return gyro[2], 1.0
         ux, uy, uz = self.up
         c2 = max(1.0 - ux * ux, 0.25)  # |pitch| <= 60 deg: a robot on its wheels
-        return ((gyro[1] - self.bias[1]) * uy + gz * uz) / c2, math.sqrt(c2)
-
-    def pitch(self) -> float:
-        """Return the slope under the robot along its forward axis (rad, nose up positive)."""
-        return math.asin(max(-1.0, min(1.0, self.up[0])))
+        return ((gyro[1] - self.bias[1]) * uy + gyro[2] * uz) / c2, math.sqrt(c2)

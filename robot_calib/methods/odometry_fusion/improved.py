@@ -239,7 +239,7 @@ class ImprovedFusion(FusionFilter):
             ax = self.gravity.update(t, self.front.gyro, self.front.force, self._wheel_accel,
                                      self.x[IV] * (gz - self.x[IBG]))
             # the turn about the vertical and the horizontal share of the speed
-            self._yaw_rate_world, self._horizontal = self.gravity.level(self.front.gyro, gz)
+            self._yaw_rate_world, self._horizontal = self.gravity.level(self.front.gyro)
         else:
             self._yaw_rate_world, self._horizontal = gz, 1.0
         self.gz, self.ax, self.use_acc = gz, ax, use_acc
