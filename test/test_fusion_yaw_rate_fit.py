@@ -71,7 +71,7 @@ def test_too_little_motion_reports_nothing_and_straight_driving_is_not_ok():
 
 
 def test_blocks_merge_beyond_the_cap():
-    t, w_odom, w_gyro, v = synthetic(4, duration=2500.0, rate=20.0, gyro_noise=0.005)
+    t, w_odom, w_gyro, v = synthetic(4, duration=1.5 * MAX_BLOCKS, rate=20.0, gyro_noise=0.005)
     f = YawRateFit(1.0, 8)
     for args in zip(t.tolist(), w_odom.tolist(), w_gyro.tolist(), v.tolist()):
         f.add(*args, True)

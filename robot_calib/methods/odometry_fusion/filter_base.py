@@ -164,6 +164,18 @@ class FusionFilter(abc.ABC):
             return self._output()
         return None
 
+    def _imu_invalid(self, gx: float, gy: float, gz: float, ax: float, ay: float, az: float,
+                     t: float) -> Optional[str]:
+        """Return why an IMU reading cannot be used (non-finite, out of range), or None."""
+        p = self.p
+        if not math.isfinite(gx + gy + gz + ax + ay + az + t):
+            return 'non_finite'
+        if max(abs(gx), abs(gy), abs(gz)) > p.max_gyro:
+            return 'gyro_out_of_range'
+        if math.sqrt(ax * ax + ay * ay + az * az) * (self.front.accel_scale or 1.0) > p.max_accel:
+            return 'accel_out_of_range'
+        return None
+
     def _imu_sample(self, s: T.ImuSample) -> Optional[str]:
         """Check one IMU sample and use it; return a rejection reason or None when used."""
         gx, gy, gz = np.asarray(s.gyro, dtype=float).tolist()
@@ -171,12 +183,9 @@ class FusionFilter(abc.ABC):
         t = s.t
         p = self.p
         front = self.front
-        if not math.isfinite(gx + gy + gz + ax + ay + az + t):
-            return 'non_finite'
-        if max(abs(gx), abs(gy), abs(gz)) > p.max_gyro:
-            return 'gyro_out_of_range'
-        if math.sqrt(ax * ax + ay * ay + az * az) * (front.accel_scale or 1.0) > p.max_accel:
-            return 'accel_out_of_range'
+        reason = self._imu_invalid(gx, gy, gz, ax, ay, az, t)
+        if reason is not None:
+            return reason
         last = self.last_imu_t
         if last is not None and t <= last:
             return 'out_of_order'

@@ -26,19 +26,21 @@ turns it into a full update).
 
 Sensor latency: an IMU sample or odometry up to ``max_lag`` older than the
 filter time is applied at the filter time (counted); older ones are
-rejected. Equations from seed 004 are tagged ``seed 004``.
+rejected. Odometry whose content lags its stamps by ``odometry_delay`` is
+used at the time it describes (:mod:`.delay`). Equations from seed 004 are tagged ``seed 004``.
 """
 
 from __future__ import annotations
 
 import math
-from typing import Optional
+from typing import Any, Optional, Union
 
 import numpy as np
 from robot_calib.core import types as T
 from robot_calib.core.chi2 import chi2_ppf
 from robot_calib.core.geometry import wrap_scalar
-from robot_calib.methods.odometry_fusion.common import FusionOutput
+from robot_calib.methods.odometry_fusion.common import FusionOutput, Rejected
+from robot_calib.methods.odometry_fusion.delay import DelayLine
 from robot_calib.methods.odometry_fusion.filter_base import FusionFilter
 from robot_calib.methods.odometry_fusion.gravity import GravityTracker
 from robot_calib.methods.odometry_fusion.improved_consistency import NisMonitor, NoiseAdapter
@@ -60,7 +62,7 @@ REJECTION_TOLD = 0.5
 """Seconds of continuously rejected wheel data after which a warning says so (s)."""
 
 _FIT_KEYS = ('yaw_rate_scale', 'yaw_rate_scale_std', 'yaw_rate_per_speed',
-             'yaw_rate_per_speed_std')
+             'yaw_rate_per_speed_std', 'odometry_delay', 'odometry_delay_std')
 """The yaw-rate fit's numbers that are estimates (with their stds)."""
 
 _outer = np.multiply.outer
@@ -90,7 +92,8 @@ class ImprovedFusion(FusionFilter):
             else float('inf')
         self.noise = NoiseAdapter(p, self._gate)
         self.nis = NisMonitor(p.nis_window)
-        self.yaw_fit = YawRateFit(p.yaw_rate_fit_block, p.yaw_rate_fit_min_blocks)
+        self.yaw_fit = YawRateFit(p.yaw_rate_fit_block, p.yaw_rate_fit_min_blocks,
+                                  p.yaw_rate_fit_max_delay, p.odometry_delay)
         self.gravity = GravityTracker(p.gravity_time_constant) if p.gravity_compensation \
             else None
         self.front.full_vectors = self.gravity is not None
@@ -106,6 +109,38 @@ class ImprovedFusion(FusionFilter):
         self._w_fallback = 0.0
         self._last_upd_t: Optional[float] = None
         self._pl_last: Optional[tuple] = None
+        self._delay = DelayLine(p.odometry_delay) if p.odometry_delay > 0.0 else None
+
+    def update(self, sample: Any) -> Union[FusionOutput, Rejected, None]:
+        """Process one sample (see FusionFilter.update), through the delay line when set."""
+        line = self._delay
+        if line is None:
+            return super().update(sample)
+        if isinstance(sample, T.ImuSample):
+            g, a = sample.gyro, sample.accel
+            reason = self._imu_invalid(float(g[0]), float(g[1]), float(g[2]), float(a[0]),
+                                       float(a[1]), float(a[2]), sample.t)
+            if reason is None and not line.hold(sample):
+                reason = 'out_of_order'
+            if reason is not None:
+                return Rejected(reason)
+            out = None
+            for s in line.release(line.newest - line.delay):
+                out = super().update(s) or out
+        elif isinstance(sample, (T.OdomSample, T.JointStateSample)):
+            line.see(sample.t)
+            for s in line.release(sample.t - line.delay):
+                super().update(s)
+            out = super().update(line.shifted(sample))
+        else:
+            return super().update(sample)
+        if not isinstance(out, FusionOutput) or self.t is None:
+            return out
+        rot = self.front.rot
+        return line.carry(out, sample.t, self.t, self._yaw_rate_world, self.x[IBG],
+                          self.x[IV] * self._horizontal,
+                          None if rot is None or self.imu_stale else rot[2].tolist(),
+                          self.p.sensor_timeout)
 
     # -- initialisation --------------------------------------------------------------------
     def _init_pose(self, s: Optional[T.OdomSample]) -> None:
@@ -438,7 +473,8 @@ class ImprovedFusion(FusionFilter):
         s_w = s_pred + r_eff
         nis_w = res_w * res_w / s_w
         used = not (nis_w > self._gate and not still)
-        self.yaw_fit.add(t, w, w_imu, v, used and fresh and not still)
+        self.yaw_fit.add(t, w, w_imu, v, fresh and not still, fresh,
+                         (kw, x[IKV], math.sqrt(self._gate * s_w)))
         if used:
             self._gain_update(Ph, s_w, res_w, None if p.bias_from_wheels else _CONSIDER_W)
         self.noise.adapt(1, res_w, s_pred + r_gyro, r_w, s_w, t)

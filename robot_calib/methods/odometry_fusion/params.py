@@ -119,6 +119,9 @@ class FusionParams:
                                       minimum=0.5)
     yaw_rate_fit_min_blocks: int = param(8, '', 'Blocks of accepted motion before that '
                                          'calibration is reported', minimum=3)
+    yaw_rate_fit_max_delay: float = param(1.0, 's', 'Longest delay of the odometry behind '
+                                          'the gyro that calibration searches (0: none)',
+                                          minimum=0.0, maximum=10.0)
     bias_from_wheels: bool = param(False, '', 'Let the wheel yaw rate correct the gyro bias; '
                                    'off: the bias is a consider state there (wheel slip and '
                                    'radius mismatch mimic a bias) and is learnt at standstill')
@@ -150,6 +153,12 @@ class FusionParams:
     max_accel: float = param(160.0, 'm/s^2', 'Accelerometer readings above this are rejected',
                              minimum=1.0)
     sensor_timeout: float = param(0.5, 's', 'A sensor silent this long is stale', minimum=0.01)
+    odometry_delay: float = param(0.0, 's', 'How far the wheel odometry lags its stamps '
+                                  'against the IMU (improved mode): odometry stamped t is used '
+                                  'as the motion at t - odometry_delay, the IMU is held that '
+                                  'long, and each estimate is carried to its stamp with the gyro '
+                                  'and speed; summary.json estimates.odometry_delay tells it',
+                                  minimum=0.0, maximum=2.0)
     max_lag: float = param(0.2, 's', 'Odometry older than the filter by more is rejected',
                            minimum=0.0)
     reset_jump: float = param(1.0, 'm', 'Odometry pose jump beyond twist*dt taken as a reset',

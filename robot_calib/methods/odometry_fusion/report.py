@@ -50,6 +50,9 @@ def diagnostic_status(r: FusionResult, params: FusionParams,
         values += [(k, f'{v:.6g}') for k, v in r.estimates.items()]
         if r.yaw_rate_fit is not None:
             values.append(('yaw_rate_fit', r.yaw_rate_fit['status']))
+            advice = delay_advice(r.yaw_rate_fit, params.odometry_delay)
+            if advice:
+                level, msg = 1, advice
         values.append(('imu_stale', str(r.imu_stale)))
         if math.isfinite(nis.average) and nis.average > nis.band[1]:
             # innovations larger than the filter expects: it is over-confident. (Below the
@@ -98,6 +101,9 @@ def summary(r: FusionResult, params: FusionParams, covariances_ignored: int) -> 
     out['estimates'] = dict(r.estimates)
     if r.yaw_rate_fit is not None:
         out['yaw_rate_calibration'] = dict(r.yaw_rate_fit)
+        advice = delay_advice(r.yaw_rate_fit, params.odometry_delay)
+        if advice:
+            out['warnings'].append(f'end: {advice}')
     if r.nis is not None:
         out['nis'] = {
             'updates': r.nis.updates,
@@ -108,6 +114,22 @@ def summary(r: FusionResult, params: FusionParams, covariances_ignored: int) -> 
         }
     out['lidar_accuracy'] = {'accuracy': r.lidar_accuracy, 'valid': r.lidar_valid}
     return out
+
+
+def delay_advice(fit: dict, configured: float) -> str:
+    """
+    Return advice when the yaw-rate fit finds the odometry later than ``configured`` (s).
+
+    Said when the fit is ``ok`` and its delay exceeds the configured one by 0.05 s and
+    by 3 of its standard deviations; empty otherwise.
+    """
+    if fit.get('status') != 'ok' or 'odometry_delay' not in fit:
+        return ''
+    d, sd = fit['odometry_delay'], fit['odometry_delay_std']
+    if d - configured < max(0.05, 3.0 * sd):
+        return ''
+    return (f'the wheel odometry lags the IMU by {d:.2f} +- {sd:.2f} s (yaw-rate fit); set '
+            f'odometry_delay: {d:.2f} to use it at the time it describes')
 
 
 def plot(r: FusionResult, params: FusionParams, trajectory: list, out_dir: str) -> list[str]:

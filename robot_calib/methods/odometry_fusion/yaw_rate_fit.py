@@ -35,12 +35,23 @@ times the median block's is dropped: slip that passed the filter's gate (the
 gyro turning while the wheels say straight) weighs more than all the rest. The
 standard deviations come from the delete-one-block jackknife of (2) over the
 blocks kept, which holds with time-correlated errors, smaller slip left in and
-a model that only roughly fits, where the textbook formula would not. On the
-simulated drives (20 x 600 s) the error over the std has an RMS of about 1;
-the model leaves out any delay between the odometry and the gyro. With fewer than
+a model that only roughly fits, where the textbook formula would not.
+
+Wheel odometry is often late against the IMU (a controller's filtering, a
+driver's polling: about 0.45 s on the robot_localization Husky bag), and a
+late odometry regressed on the current gyro reads as a smaller scale (1.001
+instead of 1.037 on a simulated drive 0.45 s late). The fit therefore also
+searches the delay: the regressor of lag ``k`` is the gyro of ``k`` odometry
+intervals earlier (its instrument the interval before that), the sums of
+every lag up to ``yaw_rate_fit_max_delay`` are kept per block, and the lag
+whose solution leaves the smallest residual over the recording is chosen.
+The jackknife repeats that choice with each block left out, so the stds
+include the uncertainty of the delay. On the simulated drives (20 x 600 s)
+the error over the std has an RMS of about 1. With fewer than
 ``yaw_rate_fit_min_blocks`` blocks nothing is reported (``status``
-``too_little_motion``); when the drive does not separate the two terms, the
-standard deviations say so and ``status`` is ``uncertain``.
+``too_little_motion``); when the drive does not separate the two terms, or the
+delay reaches the longest searched, the standard deviations or ``why`` say so
+and ``status`` is ``uncertain``.
 """
 
 from __future__ import annotations
@@ -49,9 +60,13 @@ import math
 from typing import Optional
 
 import numpy as np
+from numpy.lib.stride_tricks import sliding_window_view
 
-MAX_BLOCKS = 2048
+MAX_BLOCKS = 1024
 """Blocks kept (even): on reaching it, neighbouring pairs merge (bounded memory, longer blocks)."""
+
+MAX_LAGS = 64
+"""Most odometry intervals of delay searched, whatever the odometry rate (-)."""
 
 SCALE_STD_OK = 0.05
 """Largest scale std (-) with which the fit is called ``ok`` rather than ``uncertain``."""
@@ -62,86 +77,161 @@ PER_SPEED_STD_OK = 0.02
 OUTLIER_RMS_RATIO = 5.0
 """A block whose residual RMS exceeds the median block's by this factor is dropped (-)."""
 
+GAP_INTERVALS = 5.0
+"""An odometry interval this many times the block's median breaks the lagged gyro (-)."""
+
+# columns of a block's centred sums for one lag: n, Z'X (zx, zv, vx, vv), Z'y (zy, vy),
+# and for the residuals xx, xy, yy
+N, ZX, ZV, VX, VV, ZY, VY, XX, XY, YY = range(10)
+
 
 class YawRateFit:
-    """Streaming block sums of (1) and their jackknife solve (see the module)."""
+    """Streaming per-lag block sums of (1) and their jackknife solve (see the module)."""
 
-    def __init__(self, block: float, min_blocks: int) -> None:
-        """Fit over blocks of ``block`` seconds; report from ``min_blocks`` blocks on."""
+    def __init__(self, block: float, min_blocks: int, max_delay: float = 0.0,
+                 known_delay: float = 0.0) -> None:
+        """
+        Fit over blocks of ``block`` seconds; report from ``min_blocks`` blocks on.
+
+        ``max_delay`` (s) is the longest odometry delay searched beyond ``known_delay``
+        (s, the delay the filter already takes out; the one reported is their sum); the
+        lag count follows from the first block's median odometry interval.
+        """
         self.block = block
         self.min_blocks = min_blocks
-        self._blocks: list[tuple[float, ...]] = []
+        self.max_delay = max_delay
+        self.known_delay = known_delay
+        self.lags: Optional[int] = None
+        self._blocks: list[np.ndarray] = []
+        self._intervals: list[float] = []
         self._merged = 1
         self._index: Optional[int] = None
         self._t0: Optional[float] = None
-        self._sums = [0.0] * 14
-        self._prev: Optional[float] = None
+        self._open: list[list[float]] = [[], [], [], [], [], [], [], []]
+        self._tail = np.zeros(0)
+        self._tail_t = math.nan
         self._cache: tuple[int, int, dict] = (-1, -1, {})
         self.samples = 0
 
-    def add(self, t: float, w_odom: float, w_gyro: float, v: float, usable: bool) -> None:
+    def add(self, t: float, w_odom: float, w_gyro: float, v: float, usable: bool,
+            fresh: bool = True, gate: Optional[tuple[float, float, float]] = None) -> None:
         """
         Add one odometry interval ending at ``t`` (s).
 
         :param w_odom: the odometry yaw rate (rad/s)
         :param w_gyro: the gyro z less the filter's bias, averaged over the interval (rad/s)
         :param v: the odometry speed (m/s)
-        :param usable: whether the filter accepted this yaw rate while moving, with gyro
-            samples of its own in the interval; the instrument is the interval before, when
-            it was usable too
+        :param usable: whether the interval may enter the fit (moving, not rejected)
+        :param fresh: whether gyro samples arrived in the interval (else its gyro is unknown,
+            as a regressor of a later interval too)
+        :param gate: the filter's yaw-rate test (k_w, k_v, bound in rad/s): the interval is
+            used only when ``|w_odom - k_w gyro - k_v v| <= bound`` at some lag searched
+            (with the gyro of that lag); a late odometry fails it at lag 0 whenever the turn
+            rate changes, and leaving those intervals out would hide the delay
         """
-        z, self._prev = self._prev, (w_gyro if usable else None)
-        if not usable or z is None:
-            return
         if self._t0 is None:
             self._t0 = t
         index = int((t - self._t0) // (self.block * self._merged))
         if index != self._index:
             self._close()
             self._index = index
-        x, y = w_gyro, w_odom
-        s = self._sums
-        s[0] += 1.0
-        s[1] += z
-        s[2] += x
-        s[3] += v
-        s[4] += y
-        s[5] += z * x
-        s[6] += z * v
-        s[7] += v * x
-        s[8] += v * v
-        s[9] += z * y
-        s[10] += v * y
-        s[11] += x * x
-        s[12] += x * y
-        s[13] += y * y
-        self.samples += 1
+        times, y, g, vs, ok, gk_w, gk_v, bound = self._open
+        times.append(t)
+        y.append(w_odom)
+        g.append(w_gyro if fresh else math.nan)
+        vs.append(v)
+        ok.append(usable)
+        k_w, k_v, b = gate if gate is not None else (0.0, 0.0, math.inf)
+        gk_w.append(k_w)
+        gk_v.append(k_v)
+        bound.append(b)
+        self.samples += usable
+
+    def _lag_count(self) -> int:
+        """Return the lags searched (fixed at the first block from its median interval)."""
+        if self.lags is None:
+            dt = self._median_interval(self._open[0])
+            if self.max_delay <= 0.0 or not dt > 0.0:
+                self.lags = 0
+            else:
+                self.lags = min(int(math.ceil(self.max_delay / dt)), MAX_LAGS)
+        return self.lags
 
     @staticmethod
-    def _centred(sums: list) -> Optional[tuple[float, ...]]:
-        """
-        Return a block's centred sums (eq. 1's constant), or None below 3 samples.
+    def _median_interval(times: list) -> float:
+        """Return the median interval (s) of a block's stamps, or nan below 2 of them."""
+        return float(np.median(np.diff(times))) if len(times) > 1 else math.nan
 
-        Order: n, Z'X (zx, zv, vx, vv), Z'y (zy, vy), and for its residuals xx, xy, yy.
+    def _rows(self) -> Optional[np.ndarray]:
         """
-        n, sz, sx, sv, sy, szx, szv, svx, svv, szy, svy, sxx, sxy, syy = sums
-        if n < 3:
+        Return the open block's centred sums per lag, shape (lags + 1, 10), or None.
+
+        Lag ``k``: x is the gyro ``k`` intervals before the odometry, z the one before x.
+        A lag with fewer than 3 samples contributes a zero row.
+        """
+        times, y, g, vs, ok, gk_w, gk_v, bound = self._open
+        n = len(times)
+        if n == 0 or sum(ok) < 3:
             return None
-        mz, mx, mv, my = sz / n, sx / n, sv / n, sy / n
-        return (n, szx - n * mz * mx, szv - n * mz * mv, svx - n * mv * mx, svv - n * mv * mv,
-                szy - n * mz * my, svy - n * mv * my, sxx - n * mx * mx, sxy - n * mx * my,
-                syy - n * my * my)
+        lags = self._lag_count()
+        tail = self._tail[len(self._tail) - (lags + 1):] if lags + 1 <= len(self._tail) \
+            else np.concatenate((np.full(lags + 1 - len(self._tail), math.nan), self._tail))
+        g_ext = np.concatenate((tail, np.asarray(g, dtype=float)))
+        dt = np.diff(np.concatenate(((self._tail_t,), np.asarray(times, dtype=float))))
+        typical = float(np.nanmedian(dt)) if n > 1 else math.inf
+        gaps = np.flatnonzero(dt > GAP_INTERVALS * max(typical, 1e-6))
+        windows = sliding_window_view(g_ext, lags + 2)[:n]
+        x = windows[:, lags + 1:0:-1]
+        z = windows[:, lags::-1]
+        y_a, v_a = np.asarray(y, dtype=float), np.asarray(vs, dtype=float)
+        res = np.abs(y_a[:, None] - np.asarray(gk_w)[:, None] * x
+                     - (np.asarray(gk_v) * v_a)[:, None])
+        with np.errstate(invalid='ignore'):
+            passed = (res <= np.asarray(bound)[:, None]).any(axis=1)
+        mask = (np.asarray(ok, dtype=bool) & passed)[:, None] & np.isfinite(x) & np.isfinite(z)
+        for start in gaps.tolist():
+            # the gyro before an odometry gap is not a regressor of the odometry after it
+            rows = np.arange(start, min(start + lags + 1, n))
+            mask[rows[:, None], np.arange(lags + 1)[None, :]] &= \
+                np.arange(lags + 1)[None, :] < (rows - start)[:, None]
+        x = np.where(mask, x, 0.0)
+        z = np.where(mask, z, 0.0)
+        yy = np.where(mask, y_a[:, None], 0.0)
+        vv = np.where(mask, v_a[:, None], 0.0)
+        cnt = mask.sum(axis=0).astype(float)
+        safe = np.maximum(cnt, 1.0)
+        mz, mx, mv, my = (a.sum(axis=0) / safe for a in (z, x, vv, yy))
+
+        def centred(a, b, ma, mb):
+            return (a * b).sum(axis=0) - cnt * ma * mb
+
+        out = np.column_stack((cnt, centred(z, x, mz, mx), centred(z, vv, mz, mv),
+                               centred(vv, x, mv, mx), centred(vv, vv, mv, mv),
+                               centred(z, yy, mz, my), centred(vv, yy, mv, my),
+                               centred(x, x, mx, mx), centred(x, yy, mx, my),
+                               centred(yy, yy, my, my)))
+        out[cnt < 3] = 0.0
+        return out if out[:, N].any() else None
 
     def _close(self) -> None:
-        """Store the open block's centred sums; merge pairs of blocks at the cap."""
-        row = self._centred(self._sums)
-        self._sums = [0.0] * 14
+        """Store the open block's sums; keep its gyro tail; merge pairs at the cap."""
+        times, g = self._open[0], self._open[2]
+        if not times:
+            return
+        row = self._rows()
+        interval = self._median_interval(times)
+        self._tail = np.concatenate((self._tail, np.asarray(g, dtype=float)))[-(MAX_LAGS + 1):]
+        self._tail_t = times[-1]
+        self._open = [[], [], [], [], [], [], [], []]
         if row is None:
             return
         self._blocks.append(row)
+        self._intervals.append(interval)
         if len(self._blocks) >= MAX_BLOCKS:
             b = np.asarray(self._blocks)
-            self._blocks = [tuple(r) for r in (b[0::2] + b[1::2]).tolist()]
+            self._blocks = list(b[0::2] + b[1::2])
+            iv = np.asarray(self._intervals)
+            self._intervals = list(np.nanmean(np.column_stack((iv[0::2], iv[1::2])), axis=1))
             self._merged *= 2
             if self._index is not None:
                 self._index //= 2
@@ -156,7 +246,9 @@ class YawRateFit:
         Keys: ``status`` (``ok``, ``uncertain`` or ``too_little_motion``), ``blocks``,
         ``blocks_dropped``, ``block_length`` (s), ``samples``, and with a solution
         ``yaw_rate_scale``, ``yaw_rate_scale_std`` (-), ``yaw_rate_per_speed``,
-        ``yaw_rate_per_speed_std`` (rad/m) and their ``correlation``; ``why`` when not ok.
+        ``yaw_rate_per_speed_std`` (rad/m), their ``correlation``, ``odometry_delay`` and
+        ``odometry_delay_std`` (s, the odometry behind the gyro) and ``max_delay_searched``
+        (s); ``why`` when not ok.
         """
         samples, closed, cached = self._cache
         if samples == self.samples or (stale_ok and closed == len(self._blocks) and cached):
@@ -166,63 +258,102 @@ class YawRateFit:
         return dict(out)
 
     def _fit(self) -> dict:
-        """Solve eq. (2) over the blocks, drop outlying ones, jackknife (see result)."""
+        """Choose the lag, solve eq. (2), drop outlying blocks, jackknife (see result)."""
         rows = list(self._blocks)
-        last = self._centred(self._sums)
+        last = self._rows()
         if last is not None:
             rows.append(last)
         out: dict = {'status': 'too_little_motion', 'blocks': len(rows), 'blocks_dropped': 0,
                      'block_length': self.block * self._merged, 'samples': self.samples}
-        if len(rows) < max(self.min_blocks, 3):
+        need = max(self.min_blocks, 3)
+        if len(rows) < need:
             return out
-        b = np.asarray(rows)
-        beta = _solve(b.sum(axis=0))
-        if beta is not None:
+        b = np.asarray(rows)                    # (blocks, lags + 1, 10)
+        lag = _best_lag(b.sum(axis=0))
+        if lag is not None:
             # a block whose residuals are far beyond the others' is slip the gate let in
             # (a turn the wheels did not see), not noise: drop it before the jackknife
-            k_w, k_v = beta
-            rss = (b[:, 9] - 2.0 * (k_w * b[:, 8] + k_v * b[:, 6])
-                   + k_w * k_w * b[:, 7] + 2.0 * k_w * k_v * b[:, 3] + k_v * k_v * b[:, 4])
-            ms = np.maximum(rss, 0.0) / b[:, 0]
-            keep = ms <= OUTLIER_RMS_RATIO ** 2 * float(np.median(ms))
+            bl = b[:, lag, :]
+            beta = _solve(bl.sum(axis=0))
+            ms = _rss(bl, *beta) / np.maximum(bl[:, N], 1.0)
+            keep = (ms <= OUTLIER_RMS_RATIO ** 2 * float(np.median(ms))) & (bl[:, N] > 0)
             out['blocks_dropped'] = int(len(b) - keep.sum())
             b = b[keep]
             out['blocks'] = len(b)
-        if len(b) < max(self.min_blocks, 3):
+        if len(b) < need:
             return out
         total = b.sum(axis=0)
-        beta = _solve(total)
-        jack = _solve(total - b)
-        if beta is None or jack is None:
+        lag = _best_lag(total)
+        jack_lags = _best_lag(total[None] - b)
+        if lag is None or jack_lags is None:
             out['status'] = 'uncertain'
             out['why'] = 'the turn rate and the speed do not vary independently in this drive'
             return out
-        k_w, k_v = beta
-        jw, jv = jack
+        k_w, k_v = _solve(total[lag])
+        picked = (total[None] - b)[np.arange(len(b)), jack_lags]
+        jw, jv = _solve(picked)
         nb = len(b)
         dw, dv = jw - jw.mean(), jv - jv.mean()
         f = (nb - 1) / nb
         sd_w, sd_v = math.sqrt(f * float(dw @ dw)), math.sqrt(f * float(dv @ dv))
+        interval = float(np.nanmedian(self._intervals)) if self._intervals else math.nan
+        if not math.isfinite(interval):
+            interval = self._median_interval(self._open[0])
+        # the delay's std: the jackknife of the chosen lag and its rounding to an interval
+        dl = jack_lags - jack_lags.mean()
         if not all(math.isfinite(x) for x in (k_w, k_v, sd_w, sd_v)):
             out['status'] = 'uncertain'
             return out
+        lags = self._lag_count()
         out.update(yaw_rate_scale=float(k_w), yaw_rate_scale_std=sd_w,
                    yaw_rate_per_speed=float(k_v), yaw_rate_per_speed_std=sd_v,
-                   correlation=f * float(dw @ dv) / (sd_w * sd_v) if sd_w * sd_v > 0 else 0.0)
+                   correlation=f * float(dw @ dv) / (sd_w * sd_v) if sd_w * sd_v > 0 else 0.0,
+                   odometry_delay=self.known_delay + lag * interval,
+                   odometry_delay_std=math.sqrt(f * float(dl @ dl) + 1.0 / 12.0) * interval,
+                   max_delay_searched=self.known_delay + lags * interval)
         ok = sd_w <= SCALE_STD_OK and sd_v <= PER_SPEED_STD_OK
         out['status'] = 'ok' if ok else 'uncertain'
         if not ok:
             out['why'] = 'the drive does not separate the scale from the yaw rate per speed'
+        elif lags and lag == lags:
+            out['status'] = 'uncertain'
+            out['why'] = (f'the odometry lags the gyro by the longest delay searched '
+                          f'({self.known_delay + lags * interval:.2f} s) or more')
         return out
+
+
+def _rss(rows: np.ndarray, k_w, k_v) -> np.ndarray:
+    """Return the residual sum of squares of eq. (1) from centred sums at (k_w, k_v)."""
+    return np.maximum(rows[..., YY] - 2.0 * (k_w * rows[..., XY] + k_v * rows[..., VY])
+                      + k_w * k_w * rows[..., XX] + 2.0 * k_w * k_v * rows[..., VX]
+                      + k_v * k_v * rows[..., VV], 0.0)
+
+
+def _best_lag(totals: np.ndarray):
+    """
+    Return the lag whose solution of eq. (2) leaves the least residual per sample.
+
+    ``totals`` holds summed rows per lag, shape (lags + 1, 10), or a stack of them
+    (then one lag per stack entry, as an array). None when a system is singular.
+    """
+    zx, zv, vx, vv, zy, vy = (totals[..., i] for i in (ZX, ZV, VX, VV, ZY, VY))
+    det = zx * vv - zv * vx
+    solvable = np.abs(det) > 1e-9 * (np.abs(zx * vv) + np.abs(zv * vx))
+    det = np.where(solvable, det, 1.0)
+    ms = _rss(totals, (vv * zy - zv * vy) / det, (zx * vy - vx * zy) / det)
+    ms = np.where(solvable, ms / np.maximum(totals[..., N], 1.0), np.inf)
+    if not np.all(np.isfinite(ms.min(axis=-1))):
+        return None
+    return np.argmin(ms, axis=-1) if ms.ndim > 1 else int(np.argmin(ms))
 
 
 def _solve(sums: np.ndarray):
     """
-    Solve eq. (2) from summed block rows (one row, or one per row of a 2-D array).
+    Solve eq. (2) from summed block rows (one row, or one per row of an array).
 
     Return (k_w, k_v) as floats or arrays, or None when a system is singular.
     """
-    zx, zv, vx, vv, zy, vy = (sums[..., i] for i in range(1, 7))
+    zx, zv, vx, vv, zy, vy = (sums[..., i] for i in (ZX, ZV, VX, VV, ZY, VY))
     det = zx * vv - zv * vx
     size = np.abs(zx * vv) + np.abs(zv * vx)
     if not np.all(size > 0.0) or np.any(np.abs(det) <= 1e-9 * size):
