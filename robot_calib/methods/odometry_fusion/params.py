@@ -119,8 +119,9 @@ class FusionParams:
                                       minimum=0.5)
     yaw_rate_fit_min_blocks: int = param(8, '', 'Blocks of accepted motion before that '
                                          'calibration is reported', minimum=3)
-    yaw_rate_fit_max_delay: float = param(1.0, 's', 'Longest delay of the odometry behind '
-                                          'the gyro that calibration searches (0: none)',
+    yaw_rate_fit_max_delay: float = param(1.0, 's', 'That calibration searches the delay '
+                                          'of the odometry behind the gyro this far either '
+                                          'side of odometry_delay (0: no search)',
                                           minimum=0.0, maximum=10.0)
     bias_from_wheels: bool = param(False, '', 'Let the wheel yaw rate correct the gyro bias; '
                                    'off: the bias is a consider state there (wheel slip and '

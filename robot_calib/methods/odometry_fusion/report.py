@@ -118,18 +118,22 @@ def summary(r: FusionResult, params: FusionParams, covariances_ignored: int) -> 
 
 def delay_advice(fit: dict, configured: float) -> str:
     """
-    Return advice when the yaw-rate fit finds the odometry later than ``configured`` (s).
+    Return advice when the yaw-rate fit finds another odometry delay than ``configured`` (s).
 
-    Said when the fit is ``ok`` and its delay exceeds the configured one by 0.05 s and
+    Said when the fit is ``ok`` and its delay differs from the configured one by 0.05 s and
     by 3 of its standard deviations; empty otherwise.
     """
     if fit.get('status') != 'ok' or 'odometry_delay' not in fit:
         return ''
     d, sd = fit['odometry_delay'], fit['odometry_delay_std']
-    if d - configured < max(0.05, 3.0 * sd):
+    if abs(d - configured) < max(0.05, 3.0 * sd):
         return ''
-    return (f'the wheel odometry lags the IMU by {d:.2f} +- {sd:.2f} s (yaw-rate fit); set '
-            f'odometry_delay: {d:.2f} to use it at the time it describes')
+    if d < 0.0:
+        return (f'the IMU lags the wheel odometry by {-d:.2f} +- {sd:.2f} s (yaw-rate fit); '
+                f'odometry_delay cannot take that out: set it to 0 and check the IMU stamps')
+    return (f'the wheel odometry lags the IMU by {d:.2f} +- {sd:.2f} s (yaw-rate fit, '
+            f'odometry_delay is {configured:.2f}); set odometry_delay: {d:.2f} to use it at '
+            'the time it describes')
 
 
 def plot(r: FusionResult, params: FusionParams, trajectory: list, out_dir: str) -> list[str]:

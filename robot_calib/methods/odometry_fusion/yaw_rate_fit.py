@@ -38,13 +38,14 @@ blocks kept, which holds with time-correlated errors, smaller slip left in and
 a model that only roughly fits, where the textbook formula would not.
 
 Wheel odometry is often late against the IMU (a controller's filtering, a
-driver's polling: about 0.45 s on the robot_localization Husky bag), and a
+driver's polling: about 0.3 s on the robot_localization Husky bag), and a
 late odometry regressed on the current gyro reads as a smaller scale (1.001
 instead of 1.037 on a simulated drive 0.45 s late). The fit therefore also
 searches the delay: the regressor of lag ``k`` is the gyro of ``k`` odometry
-intervals earlier (its instrument the interval before that), the sums of
-every lag up to ``yaw_rate_fit_max_delay`` are kept per block, and the lag
-whose solution leaves the smallest residual over the recording is chosen.
+intervals earlier (later when k < 0; its instrument the interval before), the
+sums of every lag within ``yaw_rate_fit_max_delay`` either side of the delay
+the filter already takes out (``odometry_delay``) are kept per block, and the
+lag whose solution leaves the smallest residual over the recording is chosen.
 The jackknife repeats that choice with each block left out, so the stds
 include the uncertainty of the delay. On the simulated drives (20 x 600 s)
 the error over the std has an RMS of about 1. With fewer than
@@ -93,9 +94,9 @@ class YawRateFit:
         """
         Fit over blocks of ``block`` seconds; report from ``min_blocks`` blocks on.
 
-        ``max_delay`` (s) is the longest odometry delay searched beyond ``known_delay``
-        (s, the delay the filter already takes out; the one reported is their sum); the
-        lag count follows from the first block's median odometry interval.
+        ``max_delay`` (s): delays are searched that far either side of ``known_delay`` (s,
+        the delay the filter already takes out; the one reported is the sum); the lag
+        count follows from the first block's median odometry interval.
         """
         self.block = block
         self.min_blocks = min_blocks
@@ -109,7 +110,7 @@ class YawRateFit:
         self._t0: Optional[float] = None
         self._open: list[list[float]] = [[], [], [], [], [], [], [], []]
         self._tail = np.zeros(0)
-        self._tail_t = math.nan
+        self._tail_t = np.zeros(0)
         self._cache: tuple[int, int, dict] = (-1, -1, {})
         self.samples = 0
 
@@ -147,10 +148,17 @@ class YawRateFit:
         bound.append(b)
         self.samples += usable
 
-    def _lag_count(self) -> int:
-        """Return the lags searched (fixed at the first block from its median interval)."""
+    def _lag_count(self) -> Optional[int]:
+        """
+        Return L, the lags searched each way, or None before 10 intervals.
+
+        Fixed once, from the median odometry interval of the first 10 or more.
+        """
         if self.lags is None:
-            dt = self._median_interval(self._open[0])
+            times = self._open[0]
+            if len(times) < 10:
+                return None
+            dt = self._median_interval(times)
             if self.max_delay <= 0.0 or not dt > 0.0:
                 self.lags = 0
             else:
@@ -162,38 +170,47 @@ class YawRateFit:
         """Return the median interval (s) of a block's stamps, or nan below 2 of them."""
         return float(np.median(np.diff(times))) if len(times) > 1 else math.nan
 
-    def _rows(self) -> Optional[np.ndarray]:
+    def _rows(self) -> tuple[Optional[np.ndarray], int]:
         """
-        Return the open block's centred sums per lag, shape (lags + 1, 10), or None.
+        Return the open rows' centred sums per lag, shape (2 L + 1, 10) or None, and the rows.
 
-        Lag ``k``: x is the gyro ``k`` intervals before the odometry, z the one before x.
-        A lag with fewer than 3 samples contributes a zero row.
+        Column ``c`` is lag ``k = c - L``: x is the gyro ``k`` intervals before the
+        odometry (after it when k < 0), z the one before x. Only the rows whose gyro ``L``
+        intervals ahead has arrived are summed (their count is returned); a lag with fewer
+        than 3 samples contributes a zero row.
         """
         times, y, g, vs, ok, gk_w, gk_v, bound = self._open
-        n = len(times)
-        if n == 0 or sum(ok) < 3:
-            return None
         lags = self._lag_count()
-        tail = self._tail[len(self._tail) - (lags + 1):] if lags + 1 <= len(self._tail) \
-            else np.concatenate((np.full(lags + 1 - len(self._tail), math.nan), self._tail))
-        g_ext = np.concatenate((tail, np.asarray(g, dtype=float)))
-        dt = np.diff(np.concatenate(((self._tail_t,), np.asarray(times, dtype=float))))
-        typical = float(np.nanmedian(dt)) if n > 1 else math.inf
-        gaps = np.flatnonzero(dt > GAP_INTERVALS * max(typical, 1e-6))
-        windows = sliding_window_view(g_ext, lags + 2)[:n]
-        x = windows[:, lags + 1:0:-1]
-        z = windows[:, lags::-1]
-        y_a, v_a = np.asarray(y, dtype=float), np.asarray(vs, dtype=float)
-        res = np.abs(y_a[:, None] - np.asarray(gk_w)[:, None] * x
-                     - (np.asarray(gk_v) * v_a)[:, None])
+        if lags is None:
+            return None, 0
+        m = len(times) - lags
+        if m <= 0 or sum(ok[:m]) < 3:
+            return None, max(m, 0)
+        width = 2 * lags + 2
+        ctx = lags + 1
+        tail_g = np.concatenate((np.full(ctx, math.nan), self._tail))[-ctx:]
+        tail_t = np.concatenate((np.full(ctx, math.nan), self._tail_t))[-ctx:]
+        g_ext = np.concatenate((tail_g, np.asarray(g, dtype=float)))
+        t_ext = np.concatenate((tail_t, np.asarray(times, dtype=float)))
+        windows = sliding_window_view(g_ext, width)[:m]
+        x = windows[:, width - 1:0:-1]           # column c: gyro of lag c - L
+        z = windows[:, width - 2::-1]
+        y_a, v_a = np.asarray(y[:m], dtype=float), np.asarray(vs[:m], dtype=float)
+        res = np.abs(y_a[:, None] - np.asarray(gk_w[:m])[:, None] * x
+                     - (np.asarray(gk_v[:m]) * v_a)[:, None])
         with np.errstate(invalid='ignore'):
-            passed = (res <= np.asarray(bound)[:, None]).any(axis=1)
-        mask = (np.asarray(ok, dtype=bool) & passed)[:, None] & np.isfinite(x) & np.isfinite(z)
-        for start in gaps.tolist():
-            # the gyro before an odometry gap is not a regressor of the odometry after it
-            rows = np.arange(start, min(start + lags + 1, n))
-            mask[rows[:, None], np.arange(lags + 1)[None, :]] &= \
-                np.arange(lags + 1)[None, :] < (rows - start)[:, None]
+            passed = (res <= np.asarray(bound[:m])[:, None]).any(axis=1)
+            dt = np.diff(t_ext)
+            gaps = np.flatnonzero(dt > GAP_INTERVALS * max(float(np.nanmedian(dt)), 1e-6)) + 1
+        mask = (np.asarray(ok[:m], dtype=bool) & passed)[:, None] & np.isfinite(x) \
+            & np.isfinite(z)
+        if len(gaps):
+            # no lag pairs an odometry and a gyro across a gap in the odometry
+            row = (ctx + np.arange(m))[:, None]
+            k = np.arange(-lags, lags + 1)[None, :]
+            lo, hi = np.minimum(row, row - k - 1), np.maximum(row, row - k)
+            for e in gaps.tolist():
+                mask &= ~((lo < e) & (e <= hi))
         x = np.where(mask, x, 0.0)
         z = np.where(mask, z, 0.0)
         yy = np.where(mask, y_a[:, None], 0.0)
@@ -211,18 +228,25 @@ class YawRateFit:
                                centred(x, x, mx, mx), centred(x, yy, mx, my),
                                centred(yy, yy, my, my)))
         out[cnt < 3] = 0.0
-        return out if out[:, N].any() else None
+        return (out if out[:, N].any() else None), m
 
     def _close(self) -> None:
-        """Store the open block's sums; keep its gyro tail; merge pairs at the cap."""
-        times, g = self._open[0], self._open[2]
+        """
+        Store the open rows' sums as a block; merge pairs at the cap.
+
+        The last L rows wait for the gyro after them and join the next block.
+        """
+        times = self._open[0]
         if not times:
             return
-        row = self._rows()
+        row, used = self._rows()
+        if used <= 0:
+            return
         interval = self._median_interval(times)
-        self._tail = np.concatenate((self._tail, np.asarray(g, dtype=float)))[-(MAX_LAGS + 1):]
-        self._tail_t = times[-1]
-        self._open = [[], [], [], [], [], [], [], []]
+        keep = MAX_LAGS + 1
+        self._tail = np.concatenate((self._tail, np.asarray(self._open[2][:used], float)))[-keep:]
+        self._tail_t = np.concatenate((self._tail_t, np.asarray(times[:used], float)))[-keep:]
+        self._open = [column[used:] for column in self._open]
         if row is None:
             return
         self._blocks.append(row)
@@ -247,8 +271,8 @@ class YawRateFit:
         ``blocks_dropped``, ``block_length`` (s), ``samples``, and with a solution
         ``yaw_rate_scale``, ``yaw_rate_scale_std`` (-), ``yaw_rate_per_speed``,
         ``yaw_rate_per_speed_std`` (rad/m), their ``correlation``, ``odometry_delay`` and
-        ``odometry_delay_std`` (s, the odometry behind the gyro) and ``max_delay_searched``
-        (s); ``why`` when not ok.
+        ``odometry_delay_std`` (s, the odometry behind the gyro; negative: ahead of it) and
+        ``delays_searched`` (s, from, to); ``why`` when not ok.
         """
         samples, closed, cached = self._cache
         if samples == self.samples or (stale_ok and closed == len(self._blocks) and cached):
@@ -260,7 +284,7 @@ class YawRateFit:
     def _fit(self) -> dict:
         """Choose the lag, solve eq. (2), drop outlying blocks, jackknife (see result)."""
         rows = list(self._blocks)
-        last = self._rows()
+        last, _ = self._rows()
         if last is not None:
             rows.append(last)
         out: dict = {'status': 'too_little_motion', 'blocks': len(rows), 'blocks_dropped': 0,
@@ -268,7 +292,7 @@ class YawRateFit:
         need = max(self.min_blocks, 3)
         if len(rows) < need:
             return out
-        b = np.asarray(rows)                    # (blocks, lags + 1, 10)
+        b = np.asarray(rows)                    # (blocks, 2 L + 1, 10)
         lag = _best_lag(b.sum(axis=0))
         if lag is not None:
             # a block whose residuals are far beyond the others' is slip the gate let in
@@ -304,21 +328,22 @@ class YawRateFit:
         if not all(math.isfinite(x) for x in (k_w, k_v, sd_w, sd_v)):
             out['status'] = 'uncertain'
             return out
-        lags = self._lag_count()
+        lags = self.lags or 0
+        reach = (self.known_delay - lags * interval, self.known_delay + lags * interval)
         out.update(yaw_rate_scale=float(k_w), yaw_rate_scale_std=sd_w,
                    yaw_rate_per_speed=float(k_v), yaw_rate_per_speed_std=sd_v,
                    correlation=f * float(dw @ dv) / (sd_w * sd_v) if sd_w * sd_v > 0 else 0.0,
-                   odometry_delay=self.known_delay + lag * interval,
+                   odometry_delay=self.known_delay + (lag - lags) * interval,
                    odometry_delay_std=math.sqrt(f * float(dl @ dl) + 1.0 / 12.0) * interval,
-                   max_delay_searched=self.known_delay + lags * interval)
+                   delays_searched=reach)
         ok = sd_w <= SCALE_STD_OK and sd_v <= PER_SPEED_STD_OK
         out['status'] = 'ok' if ok else 'uncertain'
         if not ok:
             out['why'] = 'the drive does not separate the scale from the yaw rate per speed'
-        elif lags and lag == lags:
+        elif lags and lag in (0, 2 * lags):
             out['status'] = 'uncertain'
-            out['why'] = (f'the odometry lags the gyro by the longest delay searched '
-                          f'({self.known_delay + lags * interval:.2f} s) or more')
+            out['why'] = (f'the odometry delay is at the edge of those searched ({reach[0]:.2f} '
+                          f'to {reach[1]:.2f} s) or beyond')
         return out
 
 
