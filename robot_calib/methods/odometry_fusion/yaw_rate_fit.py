@@ -63,7 +63,7 @@ from typing import Optional
 import numpy as np
 from numpy.lib.stride_tricks import sliding_window_view
 
-MAX_BLOCKS = 1024
+MAX_BLOCKS = 512
 """Blocks kept (even): on reaching it, neighbouring pairs merge (bounded memory, longer blocks)."""
 
 MAX_LAGS = 64
@@ -84,6 +84,8 @@ GAP_INTERVALS = 5.0
 # columns of a block's centred sums for one lag: n, Z'X (zx, zv, vx, vv), Z'y (zy, vy),
 # and for the residuals xx, xy, yy
 N, ZX, ZV, VX, VV, ZY, VY, XX, XY, YY = range(10)
+SEARCH, FIT = 0, 1
+"""A block's two sets of sums: for choosing the lag, and for the fit at the lag chosen."""
 
 
 class YawRateFit:
@@ -199,36 +201,22 @@ class YawRateFit:
         res = np.abs(y_a[:, None] - np.asarray(gk_w[:m])[:, None] * x
                      - (np.asarray(gk_v[:m]) * v_a)[:, None])
         with np.errstate(invalid='ignore'):
-            passed = (res <= np.asarray(bound[:m])[:, None]).any(axis=1)
+            passed = res <= np.asarray(bound[:m])[:, None]
             dt = np.diff(t_ext)
             gaps = np.flatnonzero(dt > GAP_INTERVALS * max(float(np.nanmedian(dt)), 1e-6)) + 1
-        mask = (np.asarray(ok[:m], dtype=bool) & passed)[:, None] & np.isfinite(x) \
-            & np.isfinite(z)
+        usable = np.asarray(ok[:m], dtype=bool)[:, None] & np.isfinite(x) & np.isfinite(z)
         if len(gaps):
             # no lag pairs an odometry and a gyro across a gap in the odometry
             row = (ctx + np.arange(m))[:, None]
             k = np.arange(-lags, lags + 1)[None, :]
             lo, hi = np.minimum(row, row - k - 1), np.maximum(row, row - k)
             for e in gaps.tolist():
-                mask &= ~((lo < e) & (e <= hi))
-        x = np.where(mask, x, 0.0)
-        z = np.where(mask, z, 0.0)
-        yy = np.where(mask, y_a[:, None], 0.0)
-        vv = np.where(mask, v_a[:, None], 0.0)
-        cnt = mask.sum(axis=0).astype(float)
-        safe = np.maximum(cnt, 1.0)
-        mz, mx, mv, my = (a.sum(axis=0) / safe for a in (z, x, vv, yy))
-
-        def centred(a, b, ma, mb):
-            return (a * b).sum(axis=0) - cnt * ma * mb
-
-        out = np.column_stack((cnt, centred(z, x, mz, mx), centred(z, vv, mz, mv),
-                               centred(vv, x, mv, mx), centred(vv, vv, mv, mv),
-                               centred(z, yy, mz, my), centred(vv, yy, mv, my),
-                               centred(x, x, mx, mx), centred(x, yy, mx, my),
-                               centred(yy, yy, my, my)))
-        out[cnt < 3] = 0.0
-        return (out if out[:, N].any() else None), m
+                usable &= ~((lo < e) & (e <= hi))
+        # SEARCH: the intervals that pass the gate at some lag, the same at every lag, so
+        # the residuals of the lags compare; FIT: those that pass at each lag itself
+        out = np.stack((_centred_sums(usable & passed.any(axis=1)[:, None], x, z, y_a, v_a),
+                        _centred_sums(usable & passed, x, z, y_a, v_a)))
+        return (out if out[FIT, :, N].any() else None), m
 
     def _close(self) -> None:
         """
@@ -292,12 +280,12 @@ class YawRateFit:
         need = max(self.min_blocks, 3)
         if len(rows) < need:
             return out
-        b = np.asarray(rows)                    # (blocks, 2 L + 1, 10)
-        lag = _best_lag(b.sum(axis=0))
+        b = np.asarray(rows)                    # (blocks, SEARCH/FIT, 2 L + 1, 10)
+        lag = _best_lag(b[:, SEARCH].sum(axis=0))
         if lag is not None:
             # a block whose residuals are far beyond the others' is slip the gate let in
             # (a turn the wheels did not see), not noise: drop it before the jackknife
-            bl = b[:, lag, :]
+            bl = b[:, FIT, lag, :]
             beta = _solve(bl.sum(axis=0))
             ms = _rss(bl, *beta) / np.maximum(bl[:, N], 1.0)
             keep = (ms <= OUTLIER_RMS_RATIO ** 2 * float(np.median(ms))) & (bl[:, N] > 0)
@@ -307,15 +295,17 @@ class YawRateFit:
         if len(b) < need:
             return out
         total = b.sum(axis=0)
-        lag = _best_lag(total)
-        jack_lags = _best_lag(total[None] - b)
-        if lag is None or jack_lags is None:
+        lag = _best_lag(total[SEARCH])
+        jack_lags = _best_lag(total[None, SEARCH] - b[:, SEARCH])
+        fit = _solve(total[FIT, lag]) if lag is not None else None
+        jack = _solve((total[None, FIT] - b[:, FIT])[np.arange(len(b)), jack_lags]) \
+            if jack_lags is not None else None
+        if fit is None or jack is None:
             out['status'] = 'uncertain'
             out['why'] = 'the turn rate and the speed do not vary independently in this drive'
             return out
-        k_w, k_v = _solve(total[lag])
-        picked = (total[None] - b)[np.arange(len(b)), jack_lags]
-        jw, jv = _solve(picked)
+        k_w, k_v = fit
+        jw, jv = jack
         nb = len(b)
         dw, dv = jw - jw.mean(), jv - jv.mean()
         f = (nb - 1) / nb
@@ -345,6 +335,33 @@ class YawRateFit:
             out['why'] = (f'the odometry delay is at the edge of those searched ({reach[0]:.2f} '
                           f'to {reach[1]:.2f} s) or beyond')
         return out
+
+
+def _centred_sums(mask: np.ndarray, x: np.ndarray, z: np.ndarray, y: np.ndarray,
+                  v: np.ndarray) -> np.ndarray:
+    """
+    Return the centred sums per lag (columns of ``x`` and ``z``) over ``mask``, (lags, 10).
+
+    A lag with fewer than 3 samples gets a zero row.
+    """
+    x = np.where(mask, x, 0.0)
+    z = np.where(mask, z, 0.0)
+    yy = np.where(mask, y[:, None], 0.0)
+    vv = np.where(mask, v[:, None], 0.0)
+    cnt = mask.sum(axis=0).astype(float)
+    safe = np.maximum(cnt, 1.0)
+    mz, mx, mv, my = (a.sum(axis=0) / safe for a in (z, x, vv, yy))
+
+    def centred(a, b, ma, mb):
+        return (a * b).sum(axis=0) - cnt * ma * mb
+
+    out = np.column_stack((cnt, centred(z, x, mz, mx), centred(z, vv, mz, mv),
+                           centred(vv, x, mv, mx), centred(vv, vv, mv, mv),
+                           centred(z, yy, mz, my), centred(vv, yy, mv, my),
+                           centred(x, x, mx, mx), centred(x, yy, mx, my),
+                           centred(yy, yy, my, my)))
+    out[cnt < 3] = 0.0
+    return out
 
 
 def _rss(rows: np.ndarray, k_w, k_v) -> np.ndarray:
