@@ -142,6 +142,11 @@ class WheelCalibParams:
         0.0, 's', 'Added to every scan stamp before it is paired with the wheel data (a '
         'negative value for a lidar whose stamps lag the measurement)', minimum=-1.0,
         maximum=1.0)
+    range_margin: float = param(
+        0.05, '', "Returns farther than (1 - range_margin) x the scan's range_max are not "
+        'matched: near the limit only the returns whose noise fell short survive, so far walls '
+        'read closer and every scan-matched length comes out short (a 4 m lidar: 0.1 % short, '
+        'up to 2 std)', minimum=0.0, maximum=0.5)
     update_period: float = param(2.0, 's', 'Period of the estimate update and status message',
                                  minimum=0.0)
     keyframe: KeyframeParams = field(default_factory=KeyframeParams)

@@ -321,6 +321,13 @@ class DriveSegmenter:
             needed.append(min(self._pending[0].t, self._pending[0].time_span()[0]))
         self.wheels.trim_before(min(needed))
 
+    def range_limit(self, scan: Any) -> float:
+        """Return the farthest range (m) matched in ``scan`` (``range_margin`` below its max)."""
+        limit = self.max_range
+        if scan.range_max > 0.0:
+            limit = min(limit, scan.range_max * (1.0 - self.params.range_margin))
+        return limit
+
     def deskewed_points(self, scan: Any) -> np.ndarray:
         """
         Return the scan's points (m) in its frame at the stamp, motion-compensated.
@@ -333,7 +340,7 @@ class DriveSegmenter:
         motion = None
         if len(self.wheels.t) >= 2:
             motion = self.wheels.sensor_motion_during(scan, self.sensor_pose)
-        return frames.scan_points(scan, max_range=self.max_range, motion=motion)[0]
+        return frames.scan_points(scan, max_range=self.range_limit(scan), motion=motion)[0]
 
     def _on_scan(self, scan: Any) -> None:
         odom, _ = self.wheels.odom_at(scan.t)
@@ -484,7 +491,7 @@ class DriveSegmenter:
             key = id(scan)
             if key not in cache:
                 poses = W.integrate(self.drive, wheels.a, wheels.b, x)
-                cache[key] = frames.scan_points(scan, max_range=self.max_range,
+                cache[key] = frames.scan_points(scan, max_range=self.range_limit(scan),
                                                 motion=W.motion(scan, wheels.t, poses, lp))[0]
             return cache[key]
         for lo in range(0, len(segs), REMATCH_CHUNK):
