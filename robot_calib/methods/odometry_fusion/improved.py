@@ -124,13 +124,10 @@ class ImprovedFusion(FusionFilter):
                 reason = 'out_of_order'
             if reason is not None:
                 return Rejected(reason)
-            out = None
-            for s in line.release(line.newest - line.delay):
-                out = super().update(s) or out
+            out = self._release(line, line.newest - line.delay)
         elif isinstance(sample, (T.OdomSample, T.JointStateSample)):
             line.see(sample.t)
-            for s in line.release(sample.t - line.delay):
-                super().update(s)
+            self._release(line, sample.t - line.delay)
             out = super().update(line.shifted(sample))
         else:
             return super().update(sample)
@@ -141,6 +138,22 @@ class ImprovedFusion(FusionFilter):
                           self.x[IV] * self._horizontal,
                           None if rot is None or self.imu_stale else rot[2].tolist(),
                           self.p.sensor_timeout)
+
+    def _release(self, line: DelayLine, until: float) -> Optional[FusionOutput]:
+        """
+        Use the held IMU samples up to ``until`` (s); return the last estimate they made.
+
+        Their readings were checked on arrival; one the filter still refuses (older than
+        it by more than ``max_lag``) is counted as ``delayed_imu_rejected``.
+        """
+        out = None
+        for s in line.release(until):
+            r = super().update(s)
+            if isinstance(r, Rejected):
+                self.count('delayed_imu_rejected')
+            elif r is not None:
+                out = r
+        return out
 
     # -- initialisation --------------------------------------------------------------------
     def _init_pose(self, s: Optional[T.OdomSample]) -> None:

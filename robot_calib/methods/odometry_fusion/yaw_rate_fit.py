@@ -46,13 +46,16 @@ intervals earlier (later when k < 0; its instrument the interval before), the
 sums of every lag within ``yaw_rate_fit_max_delay`` either side of the delay
 the filter already takes out (``odometry_delay``) are kept per block, and the
 lag whose solution leaves the smallest residual over the recording is chosen.
-The jackknife repeats that choice with each block left out, so the stds
-include the uncertainty of the delay. On the simulated drives (20 x 600 s)
-the error over the std has an RMS of about 1. With fewer than
+The lags are compared over the same intervals, those that pass the filter's
+gate at some lag; the fit at the lag chosen then takes those that pass the
+gate at that lag (the gate where odometry and gyro are aligned). The
+jackknife repeats the choice with each block left out, so the stds include
+the uncertainty of the delay. On the simulated drives (20 x 600 s) the error
+over the std has an RMS of about 1. With fewer than
 ``yaw_rate_fit_min_blocks`` blocks nothing is reported (``status``
 ``too_little_motion``); when the drive does not separate the two terms, or the
-delay reaches the longest searched, the standard deviations or ``why`` say so
-and ``status`` is ``uncertain``.
+delay is at the edge of those searched, the standard deviations or ``why`` say
+so and ``status`` is ``uncertain``.
 """
 
 from __future__ import annotations
@@ -127,10 +130,11 @@ class YawRateFit:
         :param usable: whether the interval may enter the fit (moving, not rejected)
         :param fresh: whether gyro samples arrived in the interval (else its gyro is unknown,
             as a regressor of a later interval too)
-        :param gate: the filter's yaw-rate test (k_w, k_v, bound in rad/s): the interval is
-            used only when ``|w_odom - k_w gyro - k_v v| <= bound`` at some lag searched
-            (with the gyro of that lag); a late odometry fails it at lag 0 whenever the turn
-            rate changes, and leaving those intervals out would hide the delay
+        :param gate: the filter's yaw-rate test (k_w, k_v, bound in rad/s), passed at a lag
+            when ``|w_odom - k_w gyro - k_v v| <= bound`` with the gyro of that lag: the lag
+            is chosen over the intervals that pass at some lag (a late odometry fails at lag
+            0 whenever the turn rate changes, and leaving those out would hide the delay),
+            the fit at the lag chosen uses those that pass there (slip stays out)
         """
         if self._t0 is None:
             self._t0 = t
@@ -174,12 +178,12 @@ class YawRateFit:
 
     def _rows(self) -> tuple[Optional[np.ndarray], int]:
         """
-        Return the open rows' centred sums per lag, shape (2 L + 1, 10) or None, and the rows.
+        Return the open rows' sums, shape (2, 2 L + 1, 10) or None, and the rows summed.
 
         Column ``c`` is lag ``k = c - L``: x is the gyro ``k`` intervals before the
-        odometry (after it when k < 0), z the one before x. Only the rows whose gyro ``L``
-        intervals ahead has arrived are summed (their count is returned); a lag with fewer
-        than 3 samples contributes a zero row.
+        odometry (after it when k < 0), z the one before x; the first index is SEARCH or
+        FIT (see the module). Only the rows whose gyro ``L`` intervals ahead has arrived are
+        summed; a lag with fewer than 3 samples contributes a zero row.
         """
         times, y, g, vs, ok, gk_w, gk_v, bound = self._open
         lags = self._lag_count()
@@ -282,11 +286,11 @@ class YawRateFit:
             return out
         b = np.asarray(rows)                    # (blocks, SEARCH/FIT, 2 L + 1, 10)
         lag = _best_lag(b[:, SEARCH].sum(axis=0))
-        if lag is not None:
+        beta = _solve(b[:, FIT, lag].sum(axis=0)) if lag is not None else None
+        if beta is not None:
             # a block whose residuals are far beyond the others' is slip the gate let in
             # (a turn the wheels did not see), not noise: drop it before the jackknife
             bl = b[:, FIT, lag, :]
-            beta = _solve(bl.sum(axis=0))
             ms = _rss(bl, *beta) / np.maximum(bl[:, N], 1.0)
             keep = (ms <= OUTLIER_RMS_RATIO ** 2 * float(np.median(ms))) & (bl[:, N] > 0)
             out['blocks_dropped'] = int(len(b) - keep.sum())
