@@ -73,6 +73,7 @@ class ImprovedGyroLine(GyroLineBase):
         self._still_since: Optional[float] = None  # odometry standing still since (s)
         self._still_rates: list = []  # (s, rad/s) gyro intervals of the standstill block
         self._lock: deque = deque(maxlen=50)  # (lines agreeing, contradicting) per scan
+        self._lock_sums = [0, 0]  # the window's lines on references, and contradicting ones
 
     # -- standstill -----------------------------------------------------------------------
     def _update_odom(self, s: T.OdomSample) -> None:
@@ -213,10 +214,16 @@ class ImprovedGyroLine(GyroLineBase):
         """
         if not (agreeing or contradicting):
             return
-        self._lock.append((agreeing, contradicting))
+        lock, sums = self._lock, self._lock_sums
+        if len(lock) == lock.maxlen:
+            a, c = lock[0]
+            sums[0] -= a + c
+            sums[1] -= c
+        lock.append((agreeing, contradicting))
+        sums[0] += agreeing + contradicting
+        sums[1] += contradicting
         ip = self.params.improved
-        on_refs = sum(a + c for a, c in self._lock)
-        against = sum(c for _, c in self._lock)
+        on_refs, against = sums
         if against >= ip.lock_min_contradictions and against >= ip.lock_contradiction * on_refs:
             if not self.walls_contradict(t):
                 self.lock_lost_episodes += 1
