@@ -113,7 +113,7 @@ class YawRateFit:
         self._merged = 1
         self._index: Optional[int] = None
         self._t0: Optional[float] = None
-        self._open: list[list[float]] = [[], [], [], [], [], [], [], []]
+        self._open: list[tuple] = []  # (t, w_odom, gyro, v, usable, k_w, k_v, bound) rows
         self._tail = np.zeros(0)
         self._tail_t = np.zeros(0)
         self._cache: tuple[int, int, dict] = (-1, -1, {})
@@ -142,26 +142,21 @@ class YawRateFit:
         if index != self._index:
             self._close()
             self._index = index
-        times, y, g, vs, ok, gk_w, gk_v, bound = self._open
-        times.append(t)
-        y.append(w_odom)
-        g.append(w_gyro if fresh else math.nan)
-        vs.append(v)
-        ok.append(usable)
         k_w, k_v, b = gate if gate is not None else (0.0, 0.0, math.inf)
-        gk_w.append(k_w)
-        gk_v.append(k_v)
-        bound.append(b)
+        self._open.append((t, w_odom, w_gyro if fresh else math.nan, v, usable, k_w, k_v, b))
         self.samples += usable
 
-    def _lag_count(self) -> Optional[int]:
+    def _table(self) -> np.ndarray:
+        """Return the open rows as an array (n, 8), columns as in ``_open``."""
+        return np.array(self._open, dtype=float).reshape(-1, 8)
+
+    def _lag_count(self, times: np.ndarray) -> Optional[int]:
         """
         Return L, the lags searched each way, or None before 10 intervals.
 
-        Fixed once, from the median odometry interval of the first 10 or more.
+        Fixed once, from the median odometry interval of the first 10 or more ``times`` (s).
         """
         if self.lags is None:
-            times = self._open[0]
             if len(times) < 10:
                 return None
             dt = self._median_interval(times)
@@ -172,43 +167,42 @@ class YawRateFit:
         return self.lags
 
     @staticmethod
-    def _median_interval(times: list) -> float:
+    def _median_interval(times: np.ndarray) -> float:
         """Return the median interval (s) of a block's stamps, or nan below 2 of them."""
         return float(np.median(np.diff(times))) if len(times) > 1 else math.nan
 
-    def _rows(self) -> tuple[Optional[np.ndarray], int]:
+    def _rows(self, table: np.ndarray) -> tuple[Optional[np.ndarray], int]:
         """
-        Return the open rows' sums, shape (2, 2 L + 1, 10) or None, and the rows summed.
+        Return the sums of the open rows ``table``, (2, 2 L + 1, 10) or None, and rows summed.
 
         Column ``c`` is lag ``k = c - L``: x is the gyro ``k`` intervals before the
         odometry (after it when k < 0), z the one before x; the first index is SEARCH or
         FIT (see the module). Only the rows whose gyro ``L`` intervals ahead has arrived are
         summed; a lag with fewer than 3 samples contributes a zero row.
         """
-        times, y, g, vs, ok, gk_w, gk_v, bound = self._open
-        lags = self._lag_count()
+        times, y, g, vs, ok, gk_w, gk_v, bound = table.T
+        lags = self._lag_count(times)
         if lags is None:
             return None, 0
         m = len(times) - lags
-        if m <= 0 or sum(ok[:m]) < 3:
+        if m <= 0 or ok[:m].sum() < 3:
             return None, max(m, 0)
         width = 2 * lags + 2
         ctx = lags + 1
         tail_g = np.concatenate((np.full(ctx, math.nan), self._tail))[-ctx:]
         tail_t = np.concatenate((np.full(ctx, math.nan), self._tail_t))[-ctx:]
-        g_ext = np.concatenate((tail_g, np.asarray(g, dtype=float)))
-        t_ext = np.concatenate((tail_t, np.asarray(times, dtype=float)))
+        g_ext = np.concatenate((tail_g, g))
+        t_ext = np.concatenate((tail_t, times))
         windows = sliding_window_view(g_ext, width)[:m]
         x = windows[:, width - 1:0:-1]           # column c: gyro of lag c - L
         z = windows[:, width - 2::-1]
-        y_a, v_a = np.asarray(y[:m], dtype=float), np.asarray(vs[:m], dtype=float)
-        res = np.abs(y_a[:, None] - np.asarray(gk_w[:m])[:, None] * x
-                     - (np.asarray(gk_v[:m]) * v_a)[:, None])
+        y_a, v_a = y[:m], vs[:m]
+        res = np.abs(y_a[:, None] - gk_w[:m, None] * x - (gk_v[:m] * v_a)[:, None])
         with np.errstate(invalid='ignore'):
-            passed = res <= np.asarray(bound[:m])[:, None]
+            passed = res <= bound[:m, None]
             dt = np.diff(t_ext)
             gaps = np.flatnonzero(dt > GAP_INTERVALS * max(float(np.nanmedian(dt)), 1e-6)) + 1
-        usable = np.asarray(ok[:m], dtype=bool)[:, None] & np.isfinite(x) & np.isfinite(z)
+        usable = (ok[:m] > 0.0)[:, None] & np.isfinite(x) & np.isfinite(z)
         if len(gaps):
             # no lag pairs an odometry and a gyro across a gap in the odometry
             row = (ctx + np.arange(m))[:, None]
@@ -228,17 +222,17 @@ class YawRateFit:
 
         The last L rows wait for the gyro after them and join the next block.
         """
-        times = self._open[0]
-        if not times:
+        if not self._open:
             return
-        row, used = self._rows()
+        table = self._table()
+        row, used = self._rows(table)
         if used <= 0:
             return
-        interval = self._median_interval(times)
+        interval = self._median_interval(table[:, 0])
         keep = MAX_LAGS + 1
-        self._tail = np.concatenate((self._tail, np.asarray(self._open[2][:used], float)))[-keep:]
-        self._tail_t = np.concatenate((self._tail_t, np.asarray(times[:used], float)))[-keep:]
-        self._open = [column[used:] for column in self._open]
+        self._tail = np.concatenate((self._tail, table[:used, 2]))[-keep:]
+        self._tail_t = np.concatenate((self._tail_t, table[:used, 0]))[-keep:]
+        del self._open[:used]
         if row is None:
             return
         self._blocks.append(row)
@@ -276,7 +270,8 @@ class YawRateFit:
     def _fit(self) -> dict:
         """Choose the lag, solve eq. (2), drop outlying blocks, jackknife (see result)."""
         rows = list(self._blocks)
-        last, _ = self._rows()
+        table = self._table()
+        last, _ = self._rows(table)
         if last is not None:
             rows.append(last)
         out: dict = {'status': 'too_little_motion', 'blocks': len(rows), 'blocks_dropped': 0,
@@ -316,7 +311,7 @@ class YawRateFit:
         sd_w, sd_v = math.sqrt(f * float(dw @ dw)), math.sqrt(f * float(dv @ dv))
         interval = float(np.nanmedian(self._intervals)) if self._intervals else math.nan
         if not math.isfinite(interval):
-            interval = self._median_interval(self._open[0])
+            interval = self._median_interval(table[:, 0])
         # the delay's std: the jackknife of the chosen lag and its rounding to an interval
         dl = jack_lags - jack_lags.mean()
         if not all(math.isfinite(x) for x in (k_w, k_v, sd_w, sd_v)):
