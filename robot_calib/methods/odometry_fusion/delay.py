@@ -44,6 +44,12 @@ class DelayLine:
         self.newest = -math.inf
         self.last_imu_t = -math.inf
 
+    def retimed(self, delay: float) -> 'DelayLine':
+        """Return a line of another ``delay`` (s) holding what this one holds."""
+        line = DelayLine(delay)
+        line.held, line.newest, line.last_imu_t = self.held, self.newest, self.last_imu_t
+        return line
+
     def hold(self, s: T.ImuSample) -> bool:
         """Hold one IMU sample; False when it is not newer than the last one held."""
         if s.t <= self.last_imu_t:
@@ -89,6 +95,19 @@ class DelayLine:
             tp = s.t
         x, y, yaw = _step(x, y, yaw, speed, w, t_to - tp, timeout)
         return dataclasses.replace(o, t=t_to, x=x, y=y, yaw=wrap_scalar(yaw), w=w)
+
+
+def delay_found(fit: dict, configured: float) -> Optional[float]:
+    """
+    Return the odometry delay (s) a yaw-rate fit has found, when it differs from ``configured``.
+
+    Only from an ``ok`` fit whose delay differs from the configured one (s) by 0.05 s and by
+    3 of its standard deviations; None otherwise.
+    """
+    if fit.get('status') != 'ok' or 'odometry_delay' not in fit:
+        return None
+    d, sd = fit['odometry_delay'], fit['odometry_delay_std']
+    return d if abs(d - configured) >= max(0.05, 3.0 * sd) else None
 
 
 def _step(x: float, y: float, yaw: float, v: float, w: float, dt: float,

@@ -40,7 +40,7 @@ from robot_calib.core import types as T
 from robot_calib.core.chi2 import chi2_ppf
 from robot_calib.core.geometry import wrap_scalar
 from robot_calib.methods.odometry_fusion.common import FusionOutput, Rejected
-from robot_calib.methods.odometry_fusion.delay import DelayLine
+from robot_calib.methods.odometry_fusion.delay import delay_found, DelayLine
 from robot_calib.methods.odometry_fusion.filter_base import FusionFilter
 from robot_calib.methods.odometry_fusion.gravity import GravityTracker
 from robot_calib.methods.odometry_fusion.improved_consistency import NisMonitor, NoiseAdapter
@@ -110,6 +110,10 @@ class ImprovedFusion(FusionFilter):
         self._last_upd_t: Optional[float] = None
         self._pl_last: Optional[tuple] = None
         self._delay = DelayLine(p.odometry_delay) if p.odometry_delay > 0.0 else None
+        self.delay_applied = p.odometry_delay
+        """The odometry delay (s) applied: configured, or found by the yaw-rate fit."""
+        self._delay_switched = False
+        self._fit_blocks_seen = 0
 
     def update(self, sample: Any) -> Union[FusionOutput, Rejected, None]:
         """Process one sample (see FusionFilter.update), through the delay line when set."""
@@ -383,6 +387,32 @@ class ImprovedFusion(FusionFilter):
             return None if dof else 'gated_' + rejected[0]
         return None
 
+    def _apply_found_delay(self, t: float) -> None:
+        """
+        Apply the odometry delay the yaw-rate fit has found, once (``odometry_delay_auto``).
+
+        From now on the IMU is held for the new delay and the odometry shifted by it; the
+        odometry of about the next delay seconds is then older than the filter and dropped
+        as stale (counted), while the IMU held in the meantime covers that time. The fit
+        starts again relative to the new delay.
+        """
+        p = self.p
+        if not p.odometry_delay_auto or self._delay_switched:
+            return
+        found = delay_found(self.yaw_fit.result(stale_ok=True), self.delay_applied)
+        if found is None or found <= 0.0 or found > 2.0:
+            return
+        self._delay_switched = True
+        self.warn(t, f'the wheel odometry lags the IMU by {found:.2f} s (yaw-rate fit): '
+                  f'using it {found:.2f} s before its stamps from now on (set odometry_delay: '
+                  f'{found:.2f} to start with it)')
+        self._delay = self._delay.retimed(found) if self._delay is not None \
+            else DelayLine(found)
+        self.delay_applied = found
+        self.yaw_fit = YawRateFit(p.yaw_rate_fit_block, p.yaw_rate_fit_min_blocks,
+                                  p.yaw_rate_fit_max_delay, found)
+        self._fit_blocks_seen = 0
+
     def _wheel_turn_rate(self, v: float, w: float) -> float:
         """
         Return the turn rate (rad/s) the wheels tell while the IMU is silent.
@@ -488,6 +518,9 @@ class ImprovedFusion(FusionFilter):
         used = not (nis_w > self._gate and not still)
         self.yaw_fit.add(t, w, w_imu, v, fresh and not still, fresh,
                          (kw, x[IKV], math.sqrt(self._gate * s_w)))
+        if self.yaw_fit.closed_blocks != self._fit_blocks_seen:
+            self._fit_blocks_seen = self.yaw_fit.closed_blocks
+            self._apply_found_delay(t)
         if used:
             self._gain_update(Ph, s_w, res_w, None if p.bias_from_wheels else _CONSIDER_W)
         self.noise.adapt(1, res_w, s_pred + r_gyro, r_w, s_w, t)
@@ -611,6 +644,7 @@ class ImprovedFusion(FusionFilter):
                'accel_bias': float(self.x[IBA]), 'accel_bias_std': float(sd[IBA])}
         fit = self.yaw_fit.result(stale_ok=self._for_status)
         out.update((k, fit[k]) for k in _FIT_KEYS if k in fit)
+        out['odometry_delay_applied'] = self.delay_applied
         out['noise_scale_speed'] = float(self.noise.scales[0])
         out['noise_scale_yaw_rate'] = float(self.noise.scales[1])
         return out

@@ -160,6 +160,11 @@ class FusionParams:
                                   'long, and each estimate is carried to its stamp with the gyro '
                                   'and speed; summary.json estimates.odometry_delay tells it',
                                   minimum=0.0, maximum=2.0)
+    odometry_delay_auto: bool = param(False, '', 'When the yaw-rate calibration finds the '
+                                      'odometry delay differing from odometry_delay (status ok, '
+                                      'by 0.05 s and 3 std), apply the delay found, once, from '
+                                      'then on (the odometry of that moment is dropped as stale '
+                                      'for about the delay while the IMU is held)')
     max_lag: float = param(0.2, 's', 'Odometry older than the filter by more is rejected',
                            minimum=0.0)
     reset_jump: float = param(1.0, 'm', 'Odometry pose jump beyond twist*dt taken as a reset',

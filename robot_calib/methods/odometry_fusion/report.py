@@ -18,6 +18,7 @@ from typing import Any, Mapping
 import numpy as np
 from robot_calib.core import figures, types as T
 from robot_calib.methods.odometry_fusion.common import FusionResult
+from robot_calib.methods.odometry_fusion.delay import delay_found
 from robot_calib.methods.odometry_fusion.params import FusionParams
 
 
@@ -50,7 +51,7 @@ def diagnostic_status(r: FusionResult, params: FusionParams,
         values += [(k, f'{v:.6g}') for k, v in r.estimates.items()]
         if r.yaw_rate_fit is not None:
             values.append(('yaw_rate_fit', r.yaw_rate_fit['status']))
-            advice = delay_advice(r.yaw_rate_fit, params.odometry_delay)
+            advice = delay_advice(r.yaw_rate_fit, applied_delay(r, params))
             if advice:
                 level, msg = 1, advice
         values.append(('imu_stale', str(r.imu_stale)))
@@ -101,7 +102,7 @@ def summary(r: FusionResult, params: FusionParams, covariances_ignored: int) -> 
     out['estimates'] = dict(r.estimates)
     if r.yaw_rate_fit is not None:
         out['yaw_rate_calibration'] = dict(r.yaw_rate_fit)
-        advice = delay_advice(r.yaw_rate_fit, params.odometry_delay)
+        advice = delay_advice(r.yaw_rate_fit, applied_delay(r, params))
         if advice:
             out['warnings'].append(f'end: {advice}')
     if r.nis is not None:
@@ -116,18 +117,21 @@ def summary(r: FusionResult, params: FusionParams, covariances_ignored: int) -> 
     return out
 
 
+def applied_delay(r: FusionResult, params: FusionParams) -> float:
+    """Return the odometry delay (s) the filter applies: configured, or found and applied."""
+    return float(r.estimates.get('odometry_delay_applied', params.odometry_delay))
+
+
 def delay_advice(fit: dict, configured: float) -> str:
     """
     Return advice when the yaw-rate fit finds another odometry delay than ``configured`` (s).
 
-    Said when the fit is ``ok`` and its delay differs from the configured one by 0.05 s and
-    by 3 of its standard deviations; empty otherwise.
+    See :func:`.delay.delay_found`; empty when there is nothing to say.
     """
-    if fit.get('status') != 'ok' or 'odometry_delay' not in fit:
+    d = delay_found(fit, configured)
+    if d is None:
         return ''
-    d, sd = fit['odometry_delay'], fit['odometry_delay_std']
-    if abs(d - configured) < max(0.05, 3.0 * sd):
-        return ''
+    sd = fit['odometry_delay_std']
     if d < 0.0:
         return (f'the IMU lags the wheel odometry by {-d:.2f} +- {sd:.2f} s (yaw-rate fit); '
                 f'odometry_delay cannot take that out: set it to 0 and check the IMU stamps')

@@ -119,6 +119,11 @@ class YawRateFit:
         self._cache: tuple[int, int, dict] = (-1, -1, {})
         self.samples = 0
 
+    @property
+    def closed_blocks(self) -> int:
+        """Return how many blocks have closed (a result may change only when this does)."""
+        return len(self._blocks)
+
     def add(self, t: float, w_odom: float, w_gyro: float, v: float, usable: bool,
             fresh: bool = True, gate: Optional[tuple[float, float, float]] = None) -> None:
         """
