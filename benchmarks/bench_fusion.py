@@ -383,17 +383,6 @@ def node_p99(seq: list):
 # ---------------------------------------------------------------------------------------
 # simulation
 # ---------------------------------------------------------------------------------------
-def sim_sequence(r) -> list:
-    """Return a simulation's IMU, odometry and static transforms as (kind, sample) pairs."""
-    seq = []
-    for tp, s in r.messages:
-        if tp in ('/imu', '/odom'):
-            seq.append((tp[1:], s))
-        elif tp == '/tf_static':
-            seq += [('tf_static', x) for x in s]
-    return seq
-
-
 def sim_seed(seed: int, duration: float) -> dict:
     """Run fusion_drive with ``seed``; return the scores of raw odometry, seed and default."""
     from robot_calib.sim import run_scenario
@@ -401,7 +390,7 @@ def sim_seed(seed: int, duration: float) -> dict:
     gt = np.array([[s.t, s.x, s.y, s.yaw] for tp, s in r.messages
                    if tp == '/ground_truth/odom'])
     odoms = [s for tp, s in r.messages if tp == '/odom']
-    seq = sim_sequence(r)
+    seq = r.inputs()
     out = {'raw': score(**odom_track(odoms), ref=gt)}
     tr, _, _, _ = run_filter(seq, mode='seed')
     out['seed'] = score(**tr, ref=gt)
@@ -523,7 +512,7 @@ def late_seed(seed: int, latency: float, duration: float = 300.0) -> dict:
                      overrides={'latency.odom': latency})
     gt = np.array([[s.t, s.x, s.y, s.yaw] for tp, s in r.messages
                    if tp == '/ground_truth/odom'])
-    seq = sim_sequence(r)
+    seq = r.inputs()
     truth = odometry_yaw_rate_truth(r, [s for tp, s in r.messages if tp == '/odom'], latency)
     out = {'seed': seed, 'latency': latency}
     for key, kw in (('blind', {}), ('auto', {'odometry_delay_auto': True}),
@@ -607,7 +596,7 @@ def slope_run(seed: int, compensate: bool, duration: float = 300.0) -> dict:
     """Run bumpy_drive (15 and 8 deg ramps) through the filter; return its speed errors."""
     from robot_calib.sim import run_scenario
     r = run_scenario('bumpy_drive', seed=seed, duration=duration)
-    seq = sim_sequence(r)
+    seq = r.inputs()
     run = run_batch(make_estimator(FusionParams(gravity_compensation=compensate)),
                     [s for _, s in seq], keep=from_odometry)
     f, gt = run.result, r.sensors

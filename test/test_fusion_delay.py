@@ -71,12 +71,7 @@ def _late_sim(seed, latency=0.3, duration=300.0):
     from robot_calib.sim import run_scenario
     r = run_scenario('fusion_drive', seed=seed, duration=duration,
                      overrides={'latency.odom': latency})
-    seq = []
-    for tp, s in r.messages:
-        if tp in ('/imu', '/odom'):
-            seq.append((tp[1:], s))
-        elif tp == '/tf_static':
-            seq += [('tf_static', x) for x in s]
+    seq = r.inputs()
     truth = np.array([[s.t, s.x, s.y, s.yaw] for tp, s in r.messages
                       if tp == '/ground_truth/odom'])
     return seq, truth

@@ -96,6 +96,22 @@ class SimResult:
         """Return the samples of one topic, in time order."""
         return [s for tp, s in self.messages if tp == name]
 
+    def inputs(self, kinds: tuple = ('imu', 'odom')) -> list:
+        """
+        Return (kind, sample) pairs of the topics ``/<kind>`` and the static transforms.
+
+        In time order, as a pipeline or an estimator takes them; every transform of a
+        ``/tf_static`` message is one ``('tf_static', transform)`` pair.
+        """
+        topics = {f'/{k}': k for k in kinds}
+        out = []
+        for tp, s in self.messages:
+            if tp in topics:
+                out.append((topics[tp], s))
+            elif tp == '/tf_static':
+                out += [('tf_static', x) for x in s]
+        return out
+
 
 def rng_for(seed: int, name: str) -> np.random.Generator:
     """Return the random generator of stream ``name`` for ``seed`` (see :data:`STREAMS`)."""

@@ -20,6 +20,9 @@ measurement delay (e.g. Bar-Shalom et al., *Estimation with Applications to
 Tracking and Navigation*, ch. 10 on out-of-sequence measurements, here with a
 known constant delay). The carried pose keeps the covariance of the filter
 time (0.3 s of gyro adds about 1e-4 rad of heading std).
+
+:class:`DelayedOdometry` is the filter's side of it; with ``odometry_delay_auto``
+it also applies, once, the delay the yaw-rate fit finds (:func:`delay_found`).
 """
 
 from __future__ import annotations
@@ -27,11 +30,12 @@ from __future__ import annotations
 from collections import deque
 import dataclasses
 import math
-from typing import Any, Iterator, Optional
+from typing import Any, Iterator, Optional, Union
 
 from robot_calib.core import types as T
 from robot_calib.core.geometry import wrap_scalar
-from robot_calib.methods.odometry_fusion.common import FusionOutput
+from robot_calib.methods.odometry_fusion.common import FusionOutput, Rejected
+from robot_calib.methods.odometry_fusion.yaw_rate_fit import YawRateFit
 
 
 class DelayLine:
@@ -95,6 +99,98 @@ class DelayLine:
             tp = s.t
         x, y, yaw = _step(x, y, yaw, speed, w, t_to - tp, timeout)
         return dataclasses.replace(o, t=t_to, x=x, y=y, yaw=wrap_scalar(yaw), w=w)
+
+
+class DelayedOdometry:
+    """
+    The improved filter's side of the delay line (a mixin before FusionFilter).
+
+    Expects of the filter: ``yaw_fit``, ``p``, ``t``, ``warn``, ``count``,
+    ``_imu_invalid`` and ``_carry_inputs()`` (the filter's turn rate, gyro bias, speed
+    and the mounting's z row for :meth:`DelayLine.carry`); its ``_start`` calls
+    :meth:`_start_delay`.
+    """
+
+    def _start_delay(self) -> None:
+        """Set the delay line of ``odometry_delay`` (none at 0) and the auto switch's state."""
+        d = self.p.odometry_delay
+        self._delay = DelayLine(d) if d > 0.0 else None
+        self.delay_applied = d
+        """The odometry delay (s) applied: configured, or found by the yaw-rate fit."""
+        self._delay_switched = False
+        self._fit_blocks_seen = 0
+
+    def _check_found_delay(self, t: float) -> None:
+        """After a yaw-rate fit block closed: apply a delay found (see _apply_found_delay)."""
+        if self.yaw_fit.closed_blocks != self._fit_blocks_seen:
+            self._fit_blocks_seen = self.yaw_fit.closed_blocks
+            self._apply_found_delay(t)
+
+    def update(self, sample: Any) -> Union[FusionOutput, Rejected, None]:
+        """Process one sample (see FusionFilter.update), through the delay line when set."""
+        line = self._delay
+        if line is None:
+            return super().update(sample)
+        if isinstance(sample, T.ImuSample):
+            g, a = sample.gyro, sample.accel
+            reason = self._imu_invalid(float(g[0]), float(g[1]), float(g[2]), float(a[0]),
+                                       float(a[1]), float(a[2]), sample.t)
+            if reason is None and not line.hold(sample):
+                reason = 'out_of_order'
+            if reason is not None:
+                return Rejected(reason)
+            out = self._release(line, line.newest - line.delay)
+        elif isinstance(sample, (T.OdomSample, T.JointStateSample)):
+            line.see(sample.t)
+            self._release(line, sample.t - line.delay)
+            out = super().update(line.shifted(sample))
+        else:
+            return super().update(sample)
+        if not isinstance(out, FusionOutput) or self.t is None:
+            return out
+        return line.carry(out, sample.t, self.t, *self._carry_inputs(), self.p.sensor_timeout)
+
+    def _release(self, line: DelayLine, until: float) -> Optional[FusionOutput]:
+        """
+        Use the held IMU samples up to ``until`` (s); return the last estimate they made.
+
+        Their readings were checked on arrival; one the filter still refuses (older than
+        it by more than ``max_lag``) is counted as ``delayed_imu_rejected``.
+        """
+        out = None
+        for s in line.release(until):
+            r = super().update(s)
+            if isinstance(r, Rejected):
+                self.count('delayed_imu_rejected')
+            elif r is not None:
+                out = r
+        return out
+
+    def _apply_found_delay(self, t: float) -> None:
+        """
+        Apply the odometry delay the yaw-rate fit has found, once (``odometry_delay_auto``).
+
+        From now on the IMU is held for the new delay and the odometry shifted by it; the
+        odometry of about the next delay seconds is then older than the filter and dropped
+        as stale (counted), while the IMU held in the meantime covers that time. The fit
+        starts again relative to the new delay.
+        """
+        p = self.p
+        if not p.odometry_delay_auto or self._delay_switched:
+            return
+        found = delay_found(self.yaw_fit.result(stale_ok=True), self.delay_applied)
+        if found is None or found <= 0.0 or found > 2.0:
+            return
+        self._delay_switched = True
+        self.warn(t, f'the wheel odometry lags the IMU by {found:.2f} s (yaw-rate fit): '
+                  f'using it {found:.2f} s before its stamps from now on (set odometry_delay: '
+                  f'{found:.2f} to start with it)')
+        self._delay = self._delay.retimed(found) if self._delay is not None \
+            else DelayLine(found)
+        self.delay_applied = found
+        self.yaw_fit = YawRateFit(p.yaw_rate_fit_block, p.yaw_rate_fit_min_blocks,
+                                  p.yaw_rate_fit_max_delay, found)
+        self._fit_blocks_seen = 0
 
 
 def delay_found(fit: dict, configured: float) -> Optional[float]:

@@ -33,14 +33,14 @@ used at the time it describes (:mod:`.delay`). Equations from seed 004 are tagge
 from __future__ import annotations
 
 import math
-from typing import Any, Optional, Union
+from typing import Optional
 
 import numpy as np
 from robot_calib.core import types as T
 from robot_calib.core.chi2 import chi2_ppf
 from robot_calib.core.geometry import wrap_scalar
-from robot_calib.methods.odometry_fusion.common import FusionOutput, Rejected
-from robot_calib.methods.odometry_fusion.delay import delay_found, DelayLine
+from robot_calib.methods.odometry_fusion.common import FusionOutput
+from robot_calib.methods.odometry_fusion.delay import DelayedOdometry
 from robot_calib.methods.odometry_fusion.filter_base import FusionFilter
 from robot_calib.methods.odometry_fusion.gravity import GravityTracker
 from robot_calib.methods.odometry_fusion.improved_consistency import NisMonitor, NoiseAdapter
@@ -69,7 +69,7 @@ _outer = np.multiply.outer
 _add_reduce = np.add.reduce
 
 
-class ImprovedFusion(FusionFilter):
+class ImprovedFusion(DelayedOdometry, FusionFilter):
     """Planar EKF: pose, speed, gyro bias, accel bias and odometry yaw-rate scale (see module)."""
 
     mode = 'improved'
@@ -109,55 +109,13 @@ class ImprovedFusion(FusionFilter):
         self._w_fallback = 0.0
         self._last_upd_t: Optional[float] = None
         self._pl_last: Optional[tuple] = None
-        self._delay = DelayLine(p.odometry_delay) if p.odometry_delay > 0.0 else None
-        self.delay_applied = p.odometry_delay
-        """The odometry delay (s) applied: configured, or found by the yaw-rate fit."""
-        self._delay_switched = False
-        self._fit_blocks_seen = 0
+        self._start_delay()
 
-    def update(self, sample: Any) -> Union[FusionOutput, Rejected, None]:
-        """Process one sample (see FusionFilter.update), through the delay line when set."""
-        line = self._delay
-        if line is None:
-            return super().update(sample)
-        if isinstance(sample, T.ImuSample):
-            g, a = sample.gyro, sample.accel
-            reason = self._imu_invalid(float(g[0]), float(g[1]), float(g[2]), float(a[0]),
-                                       float(a[1]), float(a[2]), sample.t)
-            if reason is None and not line.hold(sample):
-                reason = 'out_of_order'
-            if reason is not None:
-                return Rejected(reason)
-            out = self._release(line, line.newest - line.delay)
-        elif isinstance(sample, (T.OdomSample, T.JointStateSample)):
-            line.see(sample.t)
-            self._release(line, sample.t - line.delay)
-            out = super().update(line.shifted(sample))
-        else:
-            return super().update(sample)
-        if not isinstance(out, FusionOutput) or self.t is None:
-            return out
+    def _carry_inputs(self) -> tuple:
+        """Return what DelayLine.carry needs: turn rate, gyro bias, speed, mounting z row."""
         rot = self.front.rot
-        return line.carry(out, sample.t, self.t, self._yaw_rate_world, self.x[IBG],
-                          self.x[IV] * self._horizontal,
-                          None if rot is None or self.imu_stale else rot[2].tolist(),
-                          self.p.sensor_timeout)
-
-    def _release(self, line: DelayLine, until: float) -> Optional[FusionOutput]:
-        """
-        Use the held IMU samples up to ``until`` (s); return the last estimate they made.
-
-        Their readings were checked on arrival; one the filter still refuses (older than
-        it by more than ``max_lag``) is counted as ``delayed_imu_rejected``.
-        """
-        out = None
-        for s in line.release(until):
-            r = super().update(s)
-            if isinstance(r, Rejected):
-                self.count('delayed_imu_rejected')
-            elif r is not None:
-                out = r
-        return out
+        return (self._yaw_rate_world, self.x[IBG], self.x[IV] * self._horizontal,
+                None if rot is None or self.imu_stale else rot[2].tolist())
 
     # -- initialisation --------------------------------------------------------------------
     def _init_pose(self, s: Optional[T.OdomSample]) -> None:
@@ -387,32 +345,6 @@ class ImprovedFusion(FusionFilter):
             return None if dof else 'gated_' + rejected[0]
         return None
 
-    def _apply_found_delay(self, t: float) -> None:
-        """
-        Apply the odometry delay the yaw-rate fit has found, once (``odometry_delay_auto``).
-
-        From now on the IMU is held for the new delay and the odometry shifted by it; the
-        odometry of about the next delay seconds is then older than the filter and dropped
-        as stale (counted), while the IMU held in the meantime covers that time. The fit
-        starts again relative to the new delay.
-        """
-        p = self.p
-        if not p.odometry_delay_auto or self._delay_switched:
-            return
-        found = delay_found(self.yaw_fit.result(stale_ok=True), self.delay_applied)
-        if found is None or found <= 0.0 or found > 2.0:
-            return
-        self._delay_switched = True
-        self.warn(t, f'the wheel odometry lags the IMU by {found:.2f} s (yaw-rate fit): '
-                  f'using it {found:.2f} s before its stamps from now on (set odometry_delay: '
-                  f'{found:.2f} to start with it)')
-        self._delay = self._delay.retimed(found) if self._delay is not None \
-            else DelayLine(found)
-        self.delay_applied = found
-        self.yaw_fit = YawRateFit(p.yaw_rate_fit_block, p.yaw_rate_fit_min_blocks,
-                                  p.yaw_rate_fit_max_delay, found)
-        self._fit_blocks_seen = 0
-
     def _wheel_turn_rate(self, v: float, w: float) -> float:
         """
         Return the turn rate (rad/s) the wheels tell while the IMU is silent.
@@ -518,9 +450,7 @@ class ImprovedFusion(FusionFilter):
         used = not (nis_w > self._gate and not still)
         self.yaw_fit.add(t, w, w_imu, v, fresh and not still, fresh,
                          (kw, x[IKV], math.sqrt(self._gate * s_w)))
-        if self.yaw_fit.closed_blocks != self._fit_blocks_seen:
-            self._fit_blocks_seen = self.yaw_fit.closed_blocks
-            self._apply_found_delay(t)
+        self._check_found_delay(t)
         if used:
             self._gain_update(Ph, s_w, res_w, None if p.bias_from_wheels else _CONSIDER_W)
         self.noise.adapt(1, res_w, s_pred + r_gyro, r_w, s_w, t)
