@@ -105,10 +105,10 @@ class DelayedOdometry:
     """
     The improved filter's side of the delay line (a mixin before FusionFilter).
 
-    Expects of the filter: ``yaw_fit``, ``p``, ``t``, ``warn``, ``count``,
+    Expects of the filter: ``p``, ``t``, ``warn``, ``count``,
     ``_imu_invalid`` and ``_carry_inputs()`` (the filter's turn rate, gyro bias, speed
     and the mounting's z row for :meth:`DelayLine.carry`); its ``_start`` calls
-    :meth:`_start_delay`.
+    :meth:`_start_delay` and takes its ``yaw_fit`` from :meth:`_new_yaw_fit`.
     """
 
     def _start_delay(self) -> None:
@@ -119,6 +119,12 @@ class DelayedOdometry:
         """The odometry delay (s) applied: configured, or found by the yaw-rate fit."""
         self._delay_switched = False
         self._fit_blocks_seen = 0
+
+    def _new_yaw_fit(self, known_delay: float) -> YawRateFit:
+        """Return an empty yaw-rate fit relative to ``known_delay`` (s, the delay applied)."""
+        p = self.p
+        return YawRateFit(p.yaw_rate_fit_block, p.yaw_rate_fit_min_blocks,
+                          p.yaw_rate_fit_max_delay, known_delay)
 
     def _check_found_delay(self, t: float) -> None:
         """After a yaw-rate fit block closed: apply a delay found (see _apply_found_delay)."""
@@ -188,8 +194,7 @@ class DelayedOdometry:
         self._delay = self._delay.retimed(found) if self._delay is not None \
             else DelayLine(found)
         self.delay_applied = found
-        self.yaw_fit = YawRateFit(p.yaw_rate_fit_block, p.yaw_rate_fit_min_blocks,
-                                  p.yaw_rate_fit_max_delay, found)
+        self.yaw_fit = self._new_yaw_fit(found)
         self._fit_blocks_seen = 0
 
 

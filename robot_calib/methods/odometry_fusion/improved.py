@@ -27,7 +27,8 @@ turns it into a full update).
 Sensor latency: an IMU sample or odometry up to ``max_lag`` older than the
 filter time is applied at the filter time (counted); older ones are
 rejected. Odometry whose content lags its stamps by ``odometry_delay`` is
-used at the time it describes (:mod:`.delay`). Equations from seed 004 are tagged ``seed 004``.
+used at the time it describes (:mod:`.delay`). Equations from seed 004 are
+tagged ``seed 004``.
 """
 
 from __future__ import annotations
@@ -44,7 +45,6 @@ from robot_calib.methods.odometry_fusion.delay import DelayedOdometry
 from robot_calib.methods.odometry_fusion.filter_base import FusionFilter
 from robot_calib.methods.odometry_fusion.gravity import GravityTracker
 from robot_calib.methods.odometry_fusion.improved_consistency import NisMonitor, NoiseAdapter
-from robot_calib.methods.odometry_fusion.yaw_rate_fit import YawRateFit
 
 IX, IY, IYAW, IV, IBG, IBA, IKW, IKV = range(8)
 """Indices of the improved state."""
@@ -92,8 +92,7 @@ class ImprovedFusion(DelayedOdometry, FusionFilter):
             else float('inf')
         self.noise = NoiseAdapter(p, self._gate)
         self.nis = NisMonitor(p.nis_window)
-        self.yaw_fit = YawRateFit(p.yaw_rate_fit_block, p.yaw_rate_fit_min_blocks,
-                                  p.yaw_rate_fit_max_delay, p.odometry_delay)
+        self.yaw_fit = self._new_yaw_fit(p.odometry_delay)
         self.gravity = GravityTracker(p.gravity_time_constant) if p.gravity_compensation \
             else None
         self.front.full_vectors = self.gravity is not None

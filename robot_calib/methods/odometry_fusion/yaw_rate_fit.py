@@ -256,7 +256,8 @@ class YawRateFit:
         Return the fit: ``status`` and, when it has enough blocks, the estimates with stds.
 
         With ``stale_ok`` the last fit is returned while no block has closed since it
-        (a status at 1 Hz need not refit every second; about 0.2 ms a fit).
+        (a status at 1 Hz need not refit every second: with the delay search a fit takes
+        1-15 ms, growing with the blocks and the lags).
 
         Keys: ``status`` (``ok``, ``uncertain`` or ``too_little_motion``), ``blocks``,
         ``blocks_dropped``, ``block_length`` (s), ``samples``, and with a solution
