@@ -83,35 +83,39 @@ class ConstantMotion:
     """
     A robot at constant forward speed ``v`` (m/s) and yaw rate ``w`` (rad/s) during one scan.
 
-    Called with times after the stamp (s) it gives the poses (N, 3) relative to
-    the pose at the stamp, to first order (``(v dt, 0, w dt)``); :meth:`apply`
-    de-skews points with it directly.
+    ``vy`` (m/s) is a sideways speed (a holonomic robot's; 0 otherwise). Called
+    with times after the stamp (s) it gives the poses (N, 3) relative to the pose
+    at the stamp, to first order (``(v dt, vy dt, w dt)``); :meth:`apply` de-skews
+    points with it directly.
     """
 
-    def __init__(self, v: float, w: float):
-        """Keep the speed (m/s) and yaw rate (rad/s)."""
+    def __init__(self, v: float, w: float, vy: float = 0.0):
+        """Keep the speeds (m/s) and the yaw rate (rad/s)."""
         self.v = float(v)
         self.w = float(w)
+        self.vy = float(vy)
 
     def __call__(self, dt: np.ndarray) -> np.ndarray:
         """Return the relative poses (N, 3) at times ``dt`` (s) after the stamp."""
         dt = np.asarray(dt, dtype=float)
-        return np.column_stack((self.v * dt, np.zeros_like(dt), self.w * dt))
+        return np.column_stack((self.v * dt, self.vy * dt, self.w * dt))
 
     def apply(self, points: np.ndarray, dt: np.ndarray) -> np.ndarray:
-        """Return ``R(w dt) p + (v dt, 0)``: points measured ``dt`` s after the stamp, at it."""
+        """Return ``R(w dt) p + (v, vy) dt``: points measured ``dt`` s after the stamp, at it."""
         return np.column_stack(self._apply_xy(points[:, 0], points[:, 1], dt))
 
     def _apply_xy(self, x: np.ndarray, y: np.ndarray, dt: np.ndarray) -> tuple:
         """Return :meth:`apply` of points given as x and y arrays (m), as x and y arrays."""
         th = self.w * dt
         c, s = np.cos(th), np.sin(th)
+        if self.vy:
+            return c * x - s * y + self.v * dt, s * x + c * y + self.vy * dt
         return c * x - s * y + self.v * dt, s * x + c * y
 
 
-def constant_motion(v: float, w: float) -> ConstantMotion:
-    """Return the motion of a robot at constant speed ``v`` (m/s) and yaw rate ``w`` (rad/s)."""
-    return ConstantMotion(v, w)
+def constant_motion(v: float, w: float, vy: float = 0.0) -> ConstantMotion:
+    """Return the motion at constant speeds ``v``, ``vy`` (m/s) and yaw rate ``w`` (rad/s)."""
+    return ConstantMotion(v, w, vy)
 
 
 def deskew(points: np.ndarray, relative: np.ndarray) -> np.ndarray:

@@ -146,6 +146,8 @@ class LoopClosureBase(abc.ABC):
         """Latest bias-corrected yaw rate (rad/s)."""
         self.speed = 0.0
         """Latest forward speed of the odometry (m/s), for de-skewing scans."""
+        self.speed_lateral = 0.0
+        """Its latest sideways speed (m/s; a holonomic robot's, else 0)."""
         self._last_imu: Optional[tuple[float, float]] = None
         self._last_odom = None
         self._last_kf_pose: Optional[np.ndarray] = None
@@ -176,6 +178,7 @@ class LoopClosureBase(abc.ABC):
         elif isinstance(sample, OdomSample):
             self._advance_odom(sample.t, sample.x, sample.y, sample.yaw)
             self.speed = float(sample.vx)
+            self.speed_lateral = float(sample.vy)
         elif isinstance(sample, ScanSample):
             return self._update_scan(sample)
         return None
@@ -312,7 +315,8 @@ class LoopClosureBase(abc.ABC):
         sensor = self._sensor_pose(scan.frame_id)
         if not self._scan_needed(scan.t) and self._count_unneeded(scan, sensor):
             return None
-        pts, _ = scan_points(scan, sensor, motion=constant_motion(self.speed, self.rate))
+        motion = constant_motion(self.speed, self.rate, self.speed_lateral)
+        pts, _ = scan_points(scan, sensor, motion=motion)
         if len(pts) < self.params.min_valid_beams:
             self.scans_refused_few_beams += 1
             return None
@@ -357,8 +361,8 @@ class LoopClosureBase(abc.ABC):
         if len(idx) < self.params.min_valid_beams:
             self.scans_refused_few_beams += 1
             return True
-        if not surely_within(scan, r, sensor, self.speed, self.rate,
-                             self.params.keyframes.max_range):
+        speed = math.hypot(self.speed, self.speed_lateral)
+        if not surely_within(scan, r, sensor, speed, self.rate, self.params.keyframes.max_range):
             return False
         self.counts['scans_used'] += 1
         return True

@@ -111,7 +111,12 @@ class Rejected:
 
 @dataclass(frozen=True)
 class FusionOutput:
-    """One fused estimate: pose, twist and their 3x3 covariances, at time ``t`` (s)."""
+    """
+    One fused estimate: pose, twist and their 3x3 covariances, at time ``t`` (s).
+
+    ``v`` is the forward speed, ``v_lateral`` the sideways one (m/s, base_link y: a
+    holonomic robot's, 0 for wheels that cannot slide sideways).
+    """
 
     t: float
     x: float
@@ -121,6 +126,7 @@ class FusionOutput:
     w: float
     pose_cov: np.ndarray
     twist_cov: np.ndarray
+    v_lateral: float = 0.0
 
 
 def from_odometry(sample: Any, output: Any) -> bool:

@@ -78,14 +78,16 @@ class DelayLine:
         return dataclasses.replace(s, t=s.t - self.delay)
 
     def carry(self, o: FusionOutput, t_to: float, t_from: float, rate: float, bias: float,
-              speed: float, gyro_row: Optional[list], timeout: float) -> FusionOutput:
+              speed: float, lateral: float, gyro_row: Optional[list],
+              timeout: float) -> FusionOutput:
         """
         Return the estimate ``o`` of time ``t_from`` carried to ``t_to`` (s).
 
         Planar dead reckoning over the held gyro: the rate ``rate`` (rad/s, bias included)
         holds until the next held sample, whose z in base_link is ``gyro_row`` times its
         gyro (the mounting's third row; None: no held gyro is used), less ``bias``;
-        ``speed`` (m/s) is constant. Steps longer than ``timeout`` (s) are not integrated.
+        ``speed`` and the sideways ``lateral`` (m/s) are constant. Steps longer than
+        ``timeout`` (s) are not integrated.
         """
         x, y, yaw = o.x, o.y, o.yaw
         w = rate - bias
@@ -93,11 +95,11 @@ class DelayLine:
         for s in self.held if gyro_row is not None else ():
             if s.t > t_to:
                 break
-            x, y, yaw = _step(x, y, yaw, speed, w, s.t - tp, timeout)
+            x, y, yaw = _step(x, y, yaw, speed, lateral, w, s.t - tp, timeout)
             g = s.gyro
             w = gyro_row[0] * g[0] + gyro_row[1] * g[1] + gyro_row[2] * g[2] - bias
             tp = s.t
-        x, y, yaw = _step(x, y, yaw, speed, w, t_to - tp, timeout)
+        x, y, yaw = _step(x, y, yaw, speed, lateral, w, t_to - tp, timeout)
         return dataclasses.replace(o, t=t_to, x=x, y=y, yaw=wrap_scalar(yaw), w=w)
 
 
@@ -211,9 +213,14 @@ def delay_found(fit: dict, configured: float) -> Optional[float]:
     return d if abs(d - configured) >= max(0.05, 3.0 * sd) else None
 
 
-def _step(x: float, y: float, yaw: float, v: float, w: float, dt: float,
+def _step(x: float, y: float, yaw: float, v: float, vl: float, w: float, dt: float,
           timeout: float) -> tuple[float, float, float]:
-    """Advance a planar pose by speed ``v`` (m/s) and turn rate ``w`` (rad/s) over ``dt``."""
+    """
+    Advance a planar pose over ``dt`` (s).
+
+    Forward speed ``v`` and sideways speed ``vl`` (m/s) in base_link, turn rate ``w`` (rad/s).
+    """
     if not 0.0 < dt <= timeout:
         return x, y, yaw
-    return x + v * math.cos(yaw) * dt, y + v * math.sin(yaw) * dt, yaw + w * dt
+    c, s = math.cos(yaw), math.sin(yaw)
+    return x + (v * c - vl * s) * dt, y + (v * s + vl * c) * dt, yaw + w * dt

@@ -59,6 +59,8 @@ class FusionFilter(abc.ABC):
         self.last_odom_t: Optional[float] = None
         self.initialised = False
         self._odom_last: Optional[T.OdomSample] = None
+        self.odom_lateral = 0.0
+        """The sideways speed (m/s) of the last odometry used (a holonomic robot's; else 0)."""
         self._joints_last: Optional[T.JointStateSample] = None
         self.lidar_distance = 0.0
         self._lidar_last: Optional[T.OdomSample] = None
@@ -211,7 +213,7 @@ class FusionFilter(abc.ABC):
         last = self._odom_last
         if last is not None and s.t <= last.t:
             return 'out_of_order'
-        v, w = s.vx, s.wz
+        v, w, lateral = s.vx, s.wz, s.vy
         self._odom_last = s
         if last is not None:
             dt = s.t - last.t
@@ -220,8 +222,9 @@ class FusionFilter(abc.ABC):
             fwd = c * dx + sn * dy
             dyaw = wrap_scalar(s.yaw - last.yaw)
             moved = math.hypot(dx, dy)
-            twist_zero = s.vx == 0.0 and s.wz == 0.0 and last.vx == 0.0 and last.wz == 0.0
-            expect = max(abs(s.vx), abs(last.vx)) * dt
+            twist_zero = s.vx == 0.0 and s.vy == 0.0 and s.wz == 0.0 and last.vx == 0.0 \
+                and last.vy == 0.0 and last.wz == 0.0
+            expect = max(math.hypot(s.vx, s.vy), math.hypot(last.vx, last.vy)) * dt
             jump_limit = self.p.max_speed * dt + self.p.reset_jump
             if moved > expect + self.p.reset_jump and (not twist_zero or moved > jump_limit):
                 self.count('odom_resets')
@@ -231,11 +234,14 @@ class FusionFilter(abc.ABC):
                     return 'odom_reset'
             elif twist_zero and (moved > 1e-6 or abs(dyaw) > 1e-6) and dt > 0:
                 # a driver that fills only the pose: velocity from pose increments
-                v, w = fwd / dt, dyaw / dt
+                v, w, lateral = fwd / dt, dyaw / dt, (c * dy - sn * dx) / dt
         else:
             self._init_pose(s)
-        if abs(v) > 3.0 * self.p.max_speed:
+        if max(abs(v), abs(lateral)) > 3.0 * self.p.max_speed:
             return 'speed_out_of_range'
+        self.odom_lateral = lateral
+        if lateral:
+            self.count('odometry_sideways')  # a holonomic robot's: used as an input
         return self._wheel_step(s.t, v, w)
 
     def _joint_sample(self, s: T.JointStateSample) -> Optional[str]:

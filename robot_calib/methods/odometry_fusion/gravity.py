@@ -37,6 +37,44 @@ GATE = 0.1
 MAX_STEP = 0.5
 """Longest time step integrated (s); a longer gap restarts from the next reading."""
 
+WHEEL_ACCEL_TIME = 0.1
+"""Low-pass time constant of the wheel acceleration the tracker subtracts (s)."""
+
+
+class WheelAcceleration:
+    """The motion's own acceleration from the wheel speeds, low-passed over WHEEL_ACCEL_TIME."""
+
+    def __init__(self, timeout: float) -> None:
+        """Restart after wheel speeds more than ``timeout`` (s) apart."""
+        self.timeout = timeout
+        self.forward = 0.0
+        self.lateral = 0.0
+        self._last: tuple = ()
+
+    def update(self, t: float, v: float, vl: float) -> None:
+        """Add the forward and sideways wheel speeds (m/s; vl a holonomic robot's) at ``t``."""
+        last, self._last = self._last, (t, v, vl)
+        if not last or not 0.0 < t - last[0] <= self.timeout:
+            self.forward = self.lateral = 0.0
+            return
+        dt = t - last[0]
+        k = dt / (WHEEL_ACCEL_TIME + dt)
+        self.forward += k * ((v - last[1]) / dt - self.forward)
+        if vl or last[2]:
+            self.lateral += k * ((vl - last[2]) / dt - self.lateral)
+        else:
+            self.lateral = 0.0
+
+    def in_base(self, v: float, vl: float, w: float) -> tuple[float, float]:
+        """
+        Return the acceleration (m/s^2) along base_link x and y at speeds ``v``, ``vl``.
+
+        In the frame turning at ``w`` (rad/s): ``a_x = v' - w vl``, ``a_y = vl' + w v``.
+        """
+        if vl:
+            return self.forward - w * vl, self.lateral + w * v
+        return self.forward, v * w + self.lateral
+
 
 class GravityTracker:
     """Up direction and pitch/roll gyro bias in ``base_link`` (see the module)."""

@@ -14,8 +14,10 @@ taken out of the forward force on slopes (:mod:`.gravity`); the wheel
 odometry's forward speed and yaw rate are scalar observations, each gated by
 its innovation (chi-square, 1 dof) so wheel slip and outliers are rejected
 and counted. A stationary robot (wheels exactly still) gives a zero-velocity
-update that pins the gyro bias. Noise adaptation and NIS monitoring:
-:mod:`.improved_consistency`.
+update that pins the gyro bias. A holonomic robot's odometry (mecanum or omni
+wheels) also reports a sideways speed: it is taken as an input, moving the
+pose along base_link y, and a robot sliding sideways is not stationary. Noise
+adaptation and NIS monitoring: :mod:`.improved_consistency`.
 
 The gyro bias is learnt at standstill (zero-velocity update: the gyro must
 read its bias) and, by default, NOT from the wheel yaw rate: wheel slip,
@@ -43,7 +45,7 @@ from robot_calib.core.geometry import wrap_scalar
 from robot_calib.methods.odometry_fusion.common import FusionOutput
 from robot_calib.methods.odometry_fusion.delay import DelayedOdometry
 from robot_calib.methods.odometry_fusion.filter_base import FusionFilter
-from robot_calib.methods.odometry_fusion.gravity import GravityTracker
+from robot_calib.methods.odometry_fusion.gravity import GravityTracker, WheelAcceleration
 from robot_calib.methods.odometry_fusion.improved_consistency import NisMonitor, NoiseAdapter
 
 IX, IY, IYAW, IV, IBG, IBA, IKW, IKV = range(8)
@@ -54,9 +56,6 @@ _CONSIDER_W = 6
 """States the wheel yaw rate does not correct by default: the first 6 (all but k_w, k_v)."""
 _CONSIDER_POSE = 3
 """States a standstill update leaves alone with ``continuous_pose``: the first 3 (pose)."""
-
-WHEEL_ACCEL_TIME = 0.1
-"""Low-pass time constant of the wheel acceleration the gravity tracker subtracts (s)."""
 
 REJECTION_TOLD = 0.5
 """Seconds of continuously rejected wheel data after which a warning says so (s)."""
@@ -96,10 +95,9 @@ class ImprovedFusion(DelayedOdometry, FusionFilter):
         self.gravity = GravityTracker(p.gravity_time_constant) if p.gravity_compensation \
             else None
         self.front.full_vectors = self.gravity is not None
-        self._wheel_accel = 0.0
+        self.wheel_accel = WheelAcceleration(p.sensor_timeout)
         self._yaw_rate_world = 0.0
         self._horizontal = 1.0
-        self._wheel_last: Optional[tuple[float, float]] = None
         self._rej_since: dict = {'slip_speed': None, 'slip_yaw_rate': None}
         self._rej_told: dict = {'slip_speed': False, 'slip_yaw_rate': False}
         self.imu_stale = True
@@ -111,10 +109,10 @@ class ImprovedFusion(DelayedOdometry, FusionFilter):
         self._start_delay()
 
     def _carry_inputs(self) -> tuple:
-        """Return what DelayLine.carry needs: turn rate, gyro bias, speed, mounting z row."""
+        """Return what DelayLine.carry needs: turn rate, gyro bias, speeds, mounting z row."""
         rot = self.front.rot
         return (self._yaw_rate_world, self.x[IBG], self.x[IV] * self._horizontal,
-                None if rot is None or self.imu_stale else rot[2].tolist())
+                self.odom_lateral, None if rot is None or self.imu_stale else rot[2].tolist())
 
     # -- initialisation --------------------------------------------------------------------
     def _init_pose(self, s: Optional[T.OdomSample]) -> None:
@@ -174,14 +172,16 @@ class ImprovedFusion(DelayedOdometry, FusionFilter):
             a_in = lim if a_in > lim else (-lim if a_in < -lim else a_in)
         yaw, v = x[IYAW], x[IV]
         c, s = math.cos(yaw), math.sin(yaw)
-        # constant-rate planar kinematics, first order (IMU as input)
-        vh = v * self._horizontal
-        dx, dy = vh * c * dt, vh * s * dt
+        # constant-rate planar kinematics, first order (IMU as input); a holonomic robot's
+        # sideways speed (from its odometry, an input here) moves it along base_link y and
+        # turns into forward speed as it rotates (the transport term of a rotating frame)
+        vh, vl = v * self._horizontal, self.odom_lateral
+        dx, dy = (vh * c - vl * s) * dt, (vh * s + vl * c) * dt
         x[IX] += dx
         x[IY] += dy
         yaw += w_in * dt
         x[IYAW] = yaw if -math.pi < yaw <= math.pi else wrap_scalar(yaw)
-        v += a_in * dt
+        v += (a_in + vl * w_in) * dt if vl else a_in * dt
         x[IV] = v if abs(v) <= p.max_speed else math.copysign(p.max_speed, v)
         acc = self._cov_acc
         acc[0] += dt
@@ -221,6 +221,8 @@ class ImprovedFusion(DelayedOdometry, FusionFilter):
         P = F @ self.P @ F.T
         c, s = math.cos(self.x[IYAW]), math.sin(self.x[IYAW])
         lat = (p.lateral_slip * abs(self.x[IV])) ** 2 * dt
+        if self.odom_lateral:
+            lat += (p.lateral_slip * self.odom_lateral) ** 2 * dt
         P[IX, IX] += lat * s * s + 1e-8 * dt
         P[IY, IY] += lat * c * c + 1e-8 * dt
         P[IX, IY] -= lat * s * c
@@ -244,9 +246,9 @@ class ImprovedFusion(DelayedOdometry, FusionFilter):
         self.imu_stale = False
         if use_acc and self.gravity is not None:
             # the forward force less gravity on a slope (gravity.py); the motion's own
-            # acceleration from the wheels, its sideways part from speed and turn rate
-            ax = self.gravity.update(t, self.front.gyro, self.front.force, self._wheel_accel,
-                                     self.x[IV] * (gz - self.x[IBG]))
+            # acceleration from the wheels, speed and turn rate
+            motion = self.wheel_accel.in_base(self.x[IV], self.odom_lateral, gz - self.x[IBG])
+            ax = self.gravity.update(t, self.front.gyro, self.front.force, *motion)
             # the turn about the vertical and the horizontal share of the speed
             self._yaw_rate_world, self._horizontal = self.gravity.level(self.front.gyro)
         else:
@@ -308,9 +310,10 @@ class ImprovedFusion(DelayedOdometry, FusionFilter):
                 return 'stale'
             t = self.t  # a little late: apply now
         self._predict_to_wheels(t, v, w)
-        self._track_wheel_accel(t, v)
+        self.wheel_accel.update(t, v, self.odom_lateral)
         still = p.zero_velocity_update and abs(v) < p.zero_velocity_threshold and \
-            abs(w) < p.zero_velocity_threshold
+            abs(w) < p.zero_velocity_threshold and \
+            abs(self.odom_lateral) < p.zero_velocity_threshold
         fresh = self._gz_n > 0
         gz_avg = self._gz_sum / self._gz_n if fresh else self.gz
         self._gz_sum, self._gz_n = 0.0, 0
@@ -357,16 +360,6 @@ class ImprovedFusion(DelayedOdometry, FusionFilter):
         else:
             kw, kv = self.x[IKW], self.x[IKV]
         return (w - kv * v) / kw if abs(kw) > 1e-3 else w
-
-    def _track_wheel_accel(self, t: float, v: float) -> None:
-        """Follow the wheel speed's rate of change (m/s^2), low-passed over WHEEL_ACCEL_TIME."""
-        last, self._wheel_last = self._wheel_last, (t, v)
-        if last is None or not 0.0 < t - last[0] <= self.p.sensor_timeout:
-            self._wheel_accel = 0.0
-            return
-        dt = t - last[0]
-        k = dt / (WHEEL_ACCEL_TIME + dt)
-        self._wheel_accel += k * ((v - last[1]) / dt - self._wheel_accel)
 
     def _interval(self, t: float) -> float:
         """Return the time (s) the gyro was averaged over since the last odometry update."""
@@ -555,10 +548,14 @@ class ImprovedFusion(DelayedOdometry, FusionFilter):
         pose_cov = P[:3, :3].copy()
         var_w = (self.p.gyro_noise ** 2) * 30.0 + float(P[IBG, IBG]) if not self.imu_stale \
             else self.p.odom_yaw_rate_noise ** 2
-        lat = (self.p.lateral_slip * abs(x[IV])) ** 2 + 1e-6
-        twist_cov = np.array(((float(P[IV, IV]), 0.0, 0.0), (0.0, lat, 0.0), (0.0, 0.0, var_w)))
+        vl = self.odom_lateral
+        var_lat = (self.p.lateral_slip * abs(x[IV])) ** 2 + 1e-6
+        if vl:  # a holonomic robot's sideways speed, as its odometry measured it
+            var_lat += (self.p.odom_speed_noise + self.p.odom_speed_noise_rel * abs(vl)) ** 2
+        twist_cov = np.array(((float(P[IV, IV]), 0.0, 0.0), (0.0, var_lat, 0.0),
+                              (0.0, 0.0, var_w)))
         return FusionOutput(self.t, float(x[IX]), float(x[IY]), float(x[IYAW]), float(x[IV]),
-                            float(w), pose_cov, twist_cov)
+                            float(w), pose_cov, twist_cov, vl)
 
     def _estimates(self) -> dict:
         """

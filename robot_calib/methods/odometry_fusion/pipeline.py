@@ -131,8 +131,8 @@ class FusionPipeline(Pipeline):
             tw = np.where(np.isfinite(tw), tw, -1.0)
             pc = np.where(np.isfinite(pc), pc, -1.0)
         w = o.w if math.isfinite(o.w) else 0.0
-        out = T.OdomSample(sample.t, o.x, o.y, o.yaw, o.v, 0.0, w, p.odom_frame, p.base_frame,
-                           pc, tw, stamp_ns=sample.stamp_ns)
+        out = T.OdomSample(sample.t, o.x, o.y, o.yaw, o.v, o.v_lateral, w, p.odom_frame,
+                           p.base_frame, pc, tw, stamp_ns=sample.stamp_ns)
         self._trajectory.append((sample.t, o.x, o.y, o.yaw))
         if not p.publish_tf:
             return [('odom', out)]

@@ -96,6 +96,15 @@ REMATCH_CHUNK = 128
 On the 1 h drive (2841 pairs) 128 gives the node alone a peak of 187 MB against 210 MB for
 256 at the same speed; 64 gives 177 MB and a 5 % slower re-match."""
 
+SIDEWAYS_SHARE = 0.1
+"""Share of the odometry's path moved sideways beyond which it is called holonomic (-).
+
+An arc's chord integrated to first order stays within the allowance of
+:meth:`DriveSegmenter._measure_sideways`; a mecanum robot's straight sideways runs count whole."""
+
+SIDEWAYS_MIN_PATH = 2.0
+"""Odometry path (m) before the sideways share is judged."""
+
 
 def prepare_target(points: np.ndarray) -> Any:
     """Prepare key-frame points as a registration target (scan_match.PreparedScan)."""
@@ -179,6 +188,10 @@ class DriveSegmenter:
         self._reset_wheels()
         self._use_joints = False
         self._odom_prev: Optional[Any] = None
+        self.odom_path = 0.0
+        """Distance (m) the odometry moved (while it stands in for the wheels)."""
+        self.odom_sideways = 0.0
+        """Of it, the sideways motion (m) no wheel that rolls without sliding gives."""
 
     def set_sensor_pose(self, x: float, y: float, yaw: float) -> None:
         """Set the nominal sensor pose in base_link (m, m, rad), e.g. from /tf_static."""
@@ -283,9 +296,27 @@ class DriveSegmenter:
             return True
         rel = K.compose(K.inverse(np.array([prev.x, prev.y, prev.yaw])),
                         np.array([od.x, od.y, od.yaw]))
+        self._measure_sideways(rel)
         a, b = self.wheels.virtual_rotations(rel, self.nominal)
         self.add_wheel(od.t, a, b)
         return True
+
+    def _measure_sideways(self, rel: np.ndarray) -> None:
+        """
+        Add one odometry increment ``rel`` (dx, dy m in the earlier pose's frame, dyaw rad).
+
+        A differential or steered drive's base moves along an arc, whose chord leaves
+        the heading at half the turn: ``dy = dx tan(dyaw / 2)``. Integrators of the
+        first order put it anywhere from 0 to the whole turn, so only the part beyond
+        ``|dyaw| / 2`` of the step counts as sideways (a holonomic robot's motion).
+        """
+        dx, dy, dyaw = float(rel[0]), float(rel[1]), float(rel[2])
+        step = math.hypot(dx, dy)
+        if not (math.isfinite(step) and abs(dyaw) < 1.0):
+            return
+        self.odom_path += step
+        off_arc = abs(dy - dx * math.tan(0.5 * dyaw))
+        self.odom_sideways += max(0.0, off_arc - 0.5 * abs(dyaw) * step)
 
     # -- scans ----------------------------------------------------------------------------
     def add_scan(self, scan: Any) -> None:
@@ -460,6 +491,12 @@ class DriveSegmenter:
                        '(set drive_type)')
         if c['wheel_samples'] < 2:
             out.append('no wheel data (need odom or joint_states with the named joints)')
+        if self.odom_path > SIDEWAYS_MIN_PATH and \
+                self.odom_sideways > SIDEWAYS_SHARE * self.odom_path:
+            out.append(f'the odometry moves sideways ({self.odom_sideways:.1f} m of its '
+                       f'{self.odom_path:.1f} m): a holonomic drive (mecanum or omni wheels), '
+                       'neither differential nor steered, so its wheels cannot be calibrated '
+                       'here')
         if c['scans'] == 0:
             out.append('no scans')
         if c['match_attempts'] and c['match_failed'] > 0.25 * c['match_attempts']:
