@@ -100,7 +100,6 @@ class GyroLineBase(abc.ABC):
         self._odom_t = None
         self._odom_speed = 0.0
         self._odom_v = 0.0
-        self._odom_vy = 0.0
         self._odom_rate = 0.0
         self._acc_dt = 0.0
         self._acc_wdt = 0.0
@@ -390,7 +389,6 @@ class GyroLineBase(abc.ABC):
             return
         self._odom_speed = dist / dt
         self._odom_v = d[0] / dt
-        self._odom_vy = float(s.vy) if math.isfinite(s.vy) else 0.0  # a holonomic robot's
         self._odom_rate = d[2] / dt
         if not self._use_gyro(s.t):
             self._integrate_rate(d[2] / dt, dt, self.params.improved.odom_yaw_noise)
@@ -465,7 +463,7 @@ class GyroLineBase(abc.ABC):
         # de-skew a rotating lidar: the robot turns and moves at constant speed over a scan
         rate = self._last_imu_rate - self.x[3] if self._use_gyro(s.t) else self._odom_rate
         pts, idx = scan_points(s, self.laser_pose, self.params.lines.max_range,
-                               constant_motion(self._odom_v, rate, self._odom_vy))
+                               constant_motion(self._odom_v, rate))
         if idx.size < self.params.min_valid_beams:
             return None, 'too_few_valid_beams'
         return pts, None

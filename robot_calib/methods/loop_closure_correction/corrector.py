@@ -73,6 +73,7 @@ import numpy as np
 from robot_calib.core.frames import constant_motion, planar_pose, rotation_matrix, scan_points
 from robot_calib.core.geometry import (rot2, se2_between, se2_compose, se2_inverse,
                                        wrap_angle)
+from robot_calib.core.odometry_twist import TwistFrame
 from robot_calib.core.scan_match import (MatchResult, PreparedScan, register,
                                          ScanMatchParams)
 from robot_calib.core.types import ImuSample, OdomSample, ScanSample, StaticTransform
@@ -148,6 +149,8 @@ class LoopClosureBase(abc.ABC):
         """Latest forward speed of the odometry (m/s), for de-skewing scans."""
         self.speed_lateral = 0.0
         """Its latest sideways speed (m/s; a holonomic robot's, else 0)."""
+        self.twist_frame = TwistFrame()
+        """Tells an odometry twist given in the odometry frame (a driver's mistake)."""
         self._last_imu: Optional[tuple[float, float]] = None
         self._last_odom = None
         self._last_kf_pose: Optional[np.ndarray] = None
@@ -177,8 +180,10 @@ class LoopClosureBase(abc.ABC):
             self._integrate_gyro(sample.t, self._gyro_z(sample))
         elif isinstance(sample, OdomSample):
             self._advance_odom(sample.t, sample.x, sample.y, sample.yaw)
-            self.speed = float(sample.vx)
-            self.speed_lateral = float(sample.vy)
+            vx, vy = self.twist_frame.body_twist(sample)
+            self.speed, self.speed_lateral = float(vx), float(vy)
+            if self.twist_frame.in_odom_frame:
+                self.counts['odometry_twist_rotated'] += 1
         elif isinstance(sample, ScanSample):
             return self._update_scan(sample)
         return None

@@ -21,6 +21,7 @@ from typing import Any, Callable, Optional, Union
 import numpy as np
 from robot_calib.core import types as T
 from robot_calib.core.geometry import wrap_scalar
+from robot_calib.core.odometry_twist import TwistFrame
 from robot_calib.methods.odometry_fusion.common import (
     FusionOutput, FusionResult, lidar_accuracy, LidarOdomSample, Rejected, wheel_twist)
 from robot_calib.methods.odometry_fusion.frontend import chain_rotation, ImuFrontEnd
@@ -59,6 +60,7 @@ class FusionFilter(abc.ABC):
         self.last_odom_t: Optional[float] = None
         self.initialised = False
         self._odom_last: Optional[T.OdomSample] = None
+        self.twist_frame = TwistFrame()
         self.odom_lateral = 0.0
         """The sideways speed (m/s) of the last odometry used (a holonomic robot's; else 0)."""
         self._joints_last: Optional[T.JointStateSample] = None
@@ -213,7 +215,16 @@ class FusionFilter(abc.ABC):
         last = self._odom_last
         if last is not None and s.t <= last.t:
             return 'out_of_order'
-        v, w, lateral = s.vx, s.wz, s.vy
+        rotated = self.twist_frame.in_odom_frame
+        v, lateral = self.twist_frame.body_twist(s)
+        w = s.wz
+        if self.twist_frame.in_odom_frame:
+            self.count('odometry_twist_rotated')
+            if not rotated:
+                self.warn(s.t, 'the odometry twist is in the odometry frame, not in '
+                               'child_frame_id as nav_msgs/Odometry specifies (its poses say '
+                               f'so in {self.twist_frame.votes_odom} intervals): rotated into '
+                               'base_link by the odometry yaw from now on')
         self._odom_last = s
         if last is not None:
             dt = s.t - last.t
