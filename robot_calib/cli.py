@@ -252,6 +252,9 @@ def _replay(args: argparse.Namespace) -> int:
               f' of the {summary["duration"]:.1f} s recording; the outputs are empty',
               file=sys.stderr)
     _warn_corrupt(summary['corrupt_chunks'])
+    for topic, n in summary['restamped'].items():
+        print(f'robot-calib replay: warning: {n} message(s) on {topic} have no header stamp '
+              '(0): their receive time in the bag was used instead', file=sys.stderr)
     for name, node in summary['nodes'].items():
         errors = node.get('errors') if isinstance(node.get('errors'), dict) else \
             node.get('replay_errors', {})

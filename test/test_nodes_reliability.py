@@ -220,3 +220,20 @@ def test_shutdown_writes_the_artifact_even_when_the_context_is_gone(tmp_path):
     assert (tmp_path / 'wheel_calibration.yaml').is_file()
     assert 'verdict' in (tmp_path / 'wheel_calibration.yaml').read_text()
     node.destroy_node()
+
+
+def test_messages_without_a_header_stamp_take_their_receive_time(ros, monkeypatch):
+    """A driver that never fills header.stamp: before, all but one IMU message were duplicates."""
+    node, peer, ex, _ = _tilt_node_with_diagnostics(monkeypatch, 'unstamped_peer')
+    pub = peer.create_publisher(Imu, 'imu', qos_profile_sensor_data)
+    spin_until(ex, lambda: pub.get_subscription_count())
+
+    def published():
+        pub.publish(_imu(0.0))
+        time.sleep(0.002)
+        return node.restamped >= 30
+    assert spin_until(ex, published, 2000, 0.01)
+    counts = node.pipeline.summary()['inputs']['imu']
+    assert counts['accepted'] >= 30 and not counts.get('rejected_duplicate_stamp')
+    node.destroy_node()
+    peer.destroy_node()

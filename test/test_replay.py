@@ -635,3 +635,32 @@ def test_replay_keeps_freed_heap_under_glibc():
     out = subprocess.run([sys.executable, '-c', code], capture_output=True, text=True,
                          check=True)
     assert out.stdout.split() == ['True', 'True']
+
+
+def test_messages_without_a_header_stamp_take_their_receive_time(tmp_path, capsys):
+    """Header stamps left 0 by the driver: the bag's log time stands in, and the user is told."""
+    from robot_calib.cli import main
+    from robot_calib.pipelines.validation import restamp_unset
+    path = tmp_path / 'unstamped'
+    with bags.BagWriter(path) as w:
+        for i in range(200):
+            ns = 10**9 + i * 10**7
+            w.write('/imu', _imu(0), ns)          # stamp 0 every time
+            if i % 5 == 0:
+                w.write('/odom', T.OdomSample(ns * 1e-9, 0.001 * i, 0.0, 0.0, 0.1,
+                                              stamp_ns=ns), ns)  # stamped
+    assert main(['replay', str(path), '--out', str(tmp_path / 'o'), '--nodes',
+                 'tilt_detection,odometry_fusion', '--no-plots', '--no-progress']) == 0
+    assert 'warning: 200 message(s) on /imu have no header stamp' in capsys.readouterr().err
+    s = json.loads((tmp_path / 'o' / 'summary.json').read_text())
+    assert s['restamped'] == {'/imu': 200}
+    assert s['nodes']['tilt_detection']['inputs']['imu']['accepted'] == 200
+    assert s['nodes']['odometry_fusion']['inputs']['imu']['accepted'] == 200
+    # set stamps are kept; a stamp of 0 with no receive time, and static transforms, too
+    assert restamp_unset([_imu(5)], 7) is None
+    assert restamp_unset([_imu(0)], 0) is None
+    tf = T.StaticTransform('base_link', 'imu_link', (0.0, 0.0, 0.0), (1.0, 0.0, 0.0, 0.0),
+                           stamp_ns=0)
+    assert restamp_unset([tf], 7) is None
+    fixed = restamp_unset([_imu(0)], 1_500_000_000)
+    assert fixed[0].stamp_ns == 1_500_000_000 and fixed[0].t == 1.5

@@ -37,6 +37,7 @@ from robot_calib.core.params import from_flat, ParamError, to_flat
 from robot_calib.nodes.health import input_health, NodeLog
 from robot_calib.nodes.ros_params import declare_params
 from robot_calib.pipelines.base import Pipeline
+from robot_calib.pipelines.validation import restamp_unset
 
 HEALTH_PERIOD = 1.0
 """Seconds between two input-health statuses on /diagnostics."""
@@ -95,6 +96,8 @@ class PipelineNode(Node):
         self.add_on_set_parameters_callback(self._on_set_parameters)
         self.callback_seconds: list[float] = []
         self.undecodable = 0
+        self.restamped = 0
+        """Messages whose header stamp was unset (0), stamped at their receive time."""
         self._errors = 0
         self._pubs = {}
         for spec in self.pipeline.active_outputs():
@@ -188,7 +191,16 @@ class PipelineNode(Node):
         self._last_input[key] = time.monotonic()
         try:
             decode = decode or codec.decoder(msgtype)
-            samples = decode(data, self.get_clock().now().nanoseconds)
+            now = self.get_clock().now().nanoseconds
+            samples = decode(data, now)
+            if samples and getattr(samples[0], 'stamp_ns', -1) == 0:
+                restamped = restamp_unset(samples, now)
+                if restamped is not None:  # a driver that leaves header.stamp unset
+                    samples = restamped
+                    self.restamped += 1
+                    self.log('warn', f'{key}: messages without a header stamp (0): their '
+                             'receive time is used instead', throttle_s=60.0,
+                             key=f'unstamped:{key}')
         except Exception as exc:  # noqa: B902 - a bad message must never stop the node
             self.undecodable += 1
             self.pipeline.reject(key, 'undecodable')

@@ -15,11 +15,15 @@ stamps: a stream may run at up to :data:`MAX_RATE` on average and bunch up to
 :data:`RATE_BURST` seconds' worth of samples (drivers that stamp at reception
 deliver USB or network packets of several samples at once).
 
+:func:`restamp_unset` gives samples whose driver left the header stamp unset
+(0) their receive time.
+
 Both use scalar math only on the IMU and odometry hot path.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from typing import Any, Optional
 
@@ -203,3 +207,21 @@ class RateGuard:
             return False
         self.tokens -= 1.0
         return True
+
+
+def restamp_unset(samples: list, time_ns: int) -> Optional[list]:
+    """
+    Return ``samples`` stamped at their receive time ``time_ns`` when their stamps are unset.
+
+    A driver that never fills ``header.stamp`` leaves it 0: every message then has
+    the same stamp and all but the first would be rejected as duplicates. Such
+    samples take the receive time (the bag's log time, or the node's clock)
+    instead; None when the first sample's stamp is set (the usual case: one
+    attribute read) or the receive time is unknown. Static transforms keep theirs.
+    """
+    if not samples or getattr(samples[0], 'stamp_ns', -1) != 0 or time_ns <= 0 or \
+            isinstance(samples[0], T.StaticTransform):
+        return None
+    t = time_ns * 1e-9
+    return [dataclasses.replace(s, t=t, stamp_ns=time_ns) if s.stamp_ns == 0 else s
+            for s in samples]

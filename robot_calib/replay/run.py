@@ -26,7 +26,7 @@ from robot_calib import codec
 from robot_calib.core import types as T
 from robot_calib.core.series import Thinned
 from robot_calib.io.bags import BagSet, BagWriter, UNDECODED
-from robot_calib.pipelines.validation import sample_problem, UNCHECKED
+from robot_calib.pipelines.validation import restamp_unset, sample_problem, UNCHECKED
 from robot_calib.replay.config import OUTPUT_BAG
 from robot_calib.replay.select import NodeRun, Plan
 
@@ -40,6 +40,8 @@ class RunStats:
 
     read: dict[str, int] = field(default_factory=lambda: defaultdict(int))
     undecodable: dict[str, int] = field(default_factory=lambda: defaultdict(int))
+    restamped: dict[str, int] = field(default_factory=lambda: defaultdict(int))
+    """Messages whose header stamp was unset (0): their receive time stood in."""
     trajectories: dict[str, Thinned] = field(default_factory=lambda: defaultdict(Thinned))
     """Input odometry topics (and the ground truth): (t, x, y, yaw) for the plots."""
     out_traj: dict[str, Thinned] = field(default_factory=lambda: defaultdict(Thinned))
@@ -231,6 +233,11 @@ def _loop(bagset: BagSet, streams: list, stream_info: dict, emit: _Emitter, stat
                 if traj is not None:
                     stats.trajectories[traj].append_lazy(
                         partial(_pose, stream, raw, time_ns, stats.undecodable, topic))
+        if samples and getattr(samples[0], 'stamp_ns', -1) == 0:
+            restamped = restamp_unset(samples, time_ns)
+            if restamped is not None:  # a driver that leaves header.stamp unset
+                samples = restamped
+                stats.restamped[topic] += 1
         stats.n_msgs += 1
         stats.read[topic] += 1
         for sample in samples:
