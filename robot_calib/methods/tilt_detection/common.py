@@ -19,10 +19,12 @@ from __future__ import annotations
 
 import abc
 from dataclasses import dataclass
+import math
 from typing import Any, ClassVar, Optional
 
 import numpy as np
 
+from robot_calib.core.constants import GRAVITY
 from robot_calib.core.frames import rotation_matrix
 from robot_calib.core.types import ImuSample, StaticTransform
 from robot_calib.methods.tilt_detection.params import TiltParams
@@ -30,6 +32,20 @@ from robot_calib.methods.tilt_detection.quaternion import IDENTITY, qnorm, quat_
 
 NOMINAL_PERIOD = 0.005
 """Sampling period assumed before the first sample interval is known (s)."""
+
+UNITS_SAMPLES = 10
+"""Samples whose median |a| tells the units when the first one does not."""
+
+GRAVITY_BAND = (0.7, 1.3)
+"""|a| at rest within this share of 9.81 (m/s^2) or of 1 (g) tells the units."""
+
+
+def accel_units_of(norm: float) -> str:
+    """Return 'mps2', 'g' or '' (neither) for a specific-force magnitude ``norm``."""
+    lo, hi = GRAVITY_BAND
+    if lo * GRAVITY <= norm <= hi * GRAVITY:
+        return 'mps2'
+    return 'g' if lo <= norm <= hi else ''
 
 
 # --------------------------------------------------------------------------------------------
@@ -139,7 +155,8 @@ class TiltResult:
     at rest (improved only). ``mounting`` is the IMU frame in base_link (w, x,
     y, z), ``mounting_source`` 'none', 'parameter' or '/tf_static',
     ``mounting_updates`` how often a static transform set it, ``imu_frame``
-    the frame of the samples (None before the first one).
+    the frame of the samples (None before the first one), ``accel_units`` the
+    accelerometer's units as given or detected (``no_gravity``: no tilt known).
     """
 
     mode: str
@@ -161,6 +178,7 @@ class TiltResult:
     mounting_source: str
     mounting_updates: int
     imu_frame: Optional[str]
+    accel_units: str = 'mps2'
 
 
 # --------------------------------------------------------------------------------------------
@@ -181,7 +199,12 @@ class TiltEstimatorBase(abc.ABC):
 
     The caller validates samples (finite, in range, increasing stamps); gaps
     longer than ``max_dt`` restart the attitude filter from the accelerometer
-    (the alert and the gyro bias are kept).
+    (the alert and the gyro bias are kept). With ``accel_units: auto`` the first
+    sample's |a| tells the units (about 9.81: m/s^2, about 1: g); otherwise the
+    median of the first ``UNITS_SAMPLES``, and when neither (a driver that took
+    gravity out) ``accel_units`` is ``'no_gravity'``: the accelerometer cannot
+    tell up, so no fall alert is raised (the caller says so). No alert is raised
+    while the units are undecided.
     """
 
     mode: ClassVar[str] = ''
@@ -238,6 +261,13 @@ class TiltEstimatorBase(abc.ABC):
         self._samples = 0
         self._restarts = 0
         self._max_tilt = 0.0
+        scale = {'mps2': 1.0, 'g': GRAVITY}.get(p.accel_units)
+        self._accel_scale: Optional[float] = scale
+        self._alerts_on = scale is not None
+        self.accel_units = p.accel_units if scale is not None else 'pending'
+        """'mps2' or 'g' (given), 'detected_mps2', 'detected_g', 'no_gravity' or 'pending'."""
+        self.accel_norm_median: Optional[float] = None
+        self._norms: list[float] = []
         self._new_filter()
 
     def update(self, sample: ImuSample) -> TiltState:
@@ -247,6 +277,11 @@ class TiltEstimatorBase(abc.ABC):
         gx, gy, gz = float(g[0]), float(g[1]), float(g[2])
         ax, ay, az = float(a[0]), float(a[1]), float(a[2])
         t = sample.t
+        scale = self._accel_scale
+        if scale != 1.0:
+            if scale is None:
+                scale = self._detect_units(ax, ay, az)
+            ax, ay, az = ax * scale, ay * scale, az * scale
         if self._imu_frame is None:
             self._imu_frame = sample.frame_id
             transform = self._transforms.get(sample.frame_id)
@@ -262,7 +297,7 @@ class TiltEstimatorBase(abc.ABC):
         q, tilt, roll, pitch, bias, rest, decision = self._estimate(gx, gy, gz, ax, ay, az, dt)
         if decision > self._max_tilt:
             self._max_tilt = decision
-        changed = self._detector.update(t, decision)
+        changed = self._detector.update(t, decision) if self._alerts_on else None
         if changed is True:
             self._episodes.append((t, None))
         elif changed is False and self._episodes:
@@ -285,7 +320,7 @@ class TiltEstimatorBase(abc.ABC):
             max_tilt=self._max_tilt, restarts=self._restarts, scale=self._gyro_scale(),
             rest_snaps=self._rest_snaps(), mounting=self._mount,
             mounting_source=self._mount_source, mounting_updates=self._mount_updates,
-            imu_frame=self._imu_frame)
+            imu_frame=self._imu_frame, accel_units=self.accel_units)
 
     # -- what a variant supplies -----------------------------------------------------------
     @abc.abstractmethod
@@ -315,6 +350,25 @@ class TiltEstimatorBase(abc.ABC):
         return 0
 
     # -- internals -------------------------------------------------------------------------
+    def _detect_units(self, ax: float, ay: float, az: float) -> float:
+        """Judge the units from the first samples; return the scale to m/s^2 meanwhile."""
+        norm = math.sqrt(ax * ax + ay * ay + az * az)
+        units = accel_units_of(norm) if not self._norms else ''
+        self._norms.append(norm)
+        if not units and len(self._norms) >= UNITS_SAMPLES:
+            norm = float(np.median(self._norms))
+            units = accel_units_of(norm) or 'no_gravity'
+        if not units:
+            return 1.0
+        self.accel_norm_median = norm
+        self.accel_units = 'detected_' + units if units != 'no_gravity' else units
+        self._accel_scale = GRAVITY if units == 'g' else 1.0
+        self._alerts_on = units != 'no_gravity'
+        if len(self._norms) > 1:
+            self._restart_filter()  # what it saw before the units were known is dropped
+        self._norms = []
+        return self._accel_scale
+
     def _restart(self) -> None:
         """Restart the attitude filter after a gap (the alert state is kept)."""
         self._restart_filter()

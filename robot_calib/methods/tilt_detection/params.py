@@ -98,6 +98,10 @@ class TiltParams:
     use_tf_static: bool = param(True, '', 'Take the IMU mounting rotation from /tf_static '
                                 '(base_link -> IMU frame) when available')
     base_frame: str = param('base_link', '', 'Robot body frame the tilt refers to')
+    accel_units: str = param('auto', '', 'Accelerometer units: auto (told from the gravity '
+                             'magnitude: 9.81 m/s^2 or 1 g; an IMU whose driver removed gravity '
+                             'is reported and raises no alert), mps2 or g',
+                             choices=('auto', 'mps2', 'g'))
     max_accel: float = param(16.0 * GRAVITY, 'm/s^2', 'Specific-force norm above which a sample '
                              'is rejected (sensor saturation or garbage)', minimum=0.0)
     max_gyro: float = param(35.0, 'rad/s', 'Rate norm above which a sample is rejected',

@@ -32,6 +32,7 @@ so does a clock that jumps (the base class turns a jump into such a gap).
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from typing import Any, Optional
 
@@ -44,6 +45,9 @@ from robot_calib.methods.tilt_detection.variants import make_estimator
 from robot_calib.pipelines.base import InputSpec, Output, OutputSpec, Pipeline
 
 STATUS_NAME = 'tilt_detection'
+
+NO_ORIENTATION = np.diag([-1.0, 0.0, 0.0])
+"""Orientation covariance of an IMU message without an orientation (REP-145: element 0 = -1)."""
 
 
 class TiltPipeline(Pipeline):
@@ -76,6 +80,7 @@ class TiltPipeline(Pipeline):
         self._reason = 'upright'
         rp = 0.02 ** 2 if self.params.mode == 'improved' else 0.05 ** 2
         self._cov = np.diag([rp, rp, 1e3])
+        self._units_told = self.est.accel_units
 
     # -- configuration -----------------------------------------------------------------------
     def on_static_transform(self, transform: T.StaticTransform) -> None:
@@ -110,6 +115,8 @@ class TiltPipeline(Pipeline):
         if gx * gx + gy * gy + gz * gz > p.max_gyro * p.max_gyro:
             return self.reject(key, 'gyro_out_of_range')
         s = self.est.update(sample)
+        if self.est.accel_units != self._units_told:
+            self._tell_units()
         if self._first:
             self._log_mounting()
         if s.restart_gap is not None:
@@ -133,8 +140,27 @@ class TiltPipeline(Pipeline):
         self._first = False
         return outs
 
+    def _tell_units(self) -> None:
+        """Log the accelerometer units once they are detected, and a missing gravity."""
+        units = self._units_told = self.est.accel_units
+        if units == 'detected_g':
+            self.log('warn', f'IMU acceleration is in g (|a| median '
+                     f'{self.est.accel_norm_median:.3f}): multiplied by 9.81 (set accel_units)')
+        elif units == 'no_gravity':
+            self.log('error', self._no_gravity())
+
+    def _no_gravity(self) -> str:
+        """Return what a missing gravity in the accelerometer means for the outputs."""
+        return (f'the accelerometer reads no gravity (|a| median '
+                f'{self.est.accel_norm_median:.3f}, neither 9.81 m/s^2 nor 1 g; gravity '
+                'removed by the driver?): the tilt cannot be estimated, no fall alert is '
+                'raised and the orientation is published as unknown')
+
     def _imu_out(self, sample: T.ImuSample, s: TiltState, stamp: int) -> T.ImuSample:
         """Return the sample with the attitude filled (in the base frame when mounted)."""
+        if self._units_told == 'no_gravity':  # REP-145: covariance[0] = -1, no orientation
+            return dataclasses.replace(sample, orientation=np.array([1.0, 0.0, 0.0, 0.0]),
+                                       orientation_cov=NO_ORIENTATION, stamp_ns=stamp)
         if not s.mounted:
             return T.ImuSample(sample.t, sample.gyro, sample.accel, sample.frame_id,
                                np.array(s.quat), self._cov, sample.gyro_cov, sample.accel_cov,
@@ -185,6 +211,8 @@ class TiltPipeline(Pipeline):
         self._restarts_at_diag = r.restarts
         if s.alert:
             level, message = 2, self._reason
+        elif self._units_told == 'no_gravity':
+            level, message = 2, self._no_gravity()
         elif new_restarts:
             level, message = 1, 'attitude filter restarted after an IMU gap'
         elif new_rejects:
@@ -207,6 +235,7 @@ class TiltPipeline(Pipeline):
             ('gyro_bias_rad_s', ' '.join(f'{b:.5f}' for b in s.bias)),
             ('at_rest', str(s.rest).lower()),
             ('mounting', r.mounting_source),
+            ('accel_units', r.accel_units),
             ('filter_restarts', str(r.restarts)),
             ('samples_rejected', str(rejected)),
         )
@@ -226,18 +255,20 @@ class TiltPipeline(Pipeline):
     def method_summary(self) -> dict[str, Any]:
         """Return alert episodes, final state, restarts and the gyro bias for summary.json."""
         r: TiltResult = self.est.result()
+        known = r.accel_units != 'no_gravity'  # else the angles are not estimates
         return {
             'mode': self.params.mode,
             'alerts': len(r.alert_episodes),
             'alert_episodes': [{'start': a, 'end': b} for a, b in r.alert_episodes],
             'alert_active': r.alert,
-            'final_tilt_deg': math.degrees(r.tilt) if r.tilt is not None else None,
-            'max_tilt_deg': math.degrees(r.max_tilt),
+            'final_tilt_deg': math.degrees(r.tilt) if r.tilt is not None and known else None,
+            'max_tilt_deg': math.degrees(r.max_tilt) if known else None,
             'gyro_bias': list(r.bias) if r.bias is not None else None,
             'gyro_scale': list(r.scale) if r.scale is not None else None,
             'filter_restarts': r.restarts,
             'mounting': r.mounting_source,
             'mounting_quat': list(r.mounting),
+            'accel_units': r.accel_units,
         }
 
 

@@ -1,0 +1,92 @@
+# Copyright 2026 robot_calib contributors
+# SPDX-License-Identifier: Apache-2.0
+"""
+The accelerometer's units, and an accelerometer without gravity, in tilt_detection.
+
+Before: an IMU in g tilted the same but judged rest against m/s^2 thresholds; an
+IMU whose driver took gravity out raised a fall alert 0.02 s into a level drive and
+held it (tilt 90 deg), at full confidence.
+"""
+
+import dataclasses
+import json
+
+import numpy as np
+import pytest
+from robot_calib.core.constants import GRAVITY
+from robot_calib.methods.tilt_detection.params import TiltParams
+from robot_calib.methods.tilt_detection.pipeline import TiltPipeline
+
+
+@pytest.fixture(scope='module')
+def drive():
+    from robot_calib.sim import run_scenario
+    return run_scenario('fusion_drive', seed=1, duration=40.0)
+
+
+def _imu(drive, change=lambda a: a):
+    return [dataclasses.replace(m, accel=change(np.asarray(m.accel, dtype=float)))
+            for topic, m in drive.messages if topic == '/imu']
+
+
+def _run(samples, **params):
+    logs = []
+    pipe = TiltPipeline(TiltParams(**params), log=lambda level, msg: logs.append((level, msg)))
+    outs = [out for s in samples for out in pipe.process('imu', s)]
+    return pipe, outs, logs
+
+
+@pytest.mark.parametrize('mode', ['improved', 'seed'])
+def test_gravity_removed_raises_no_alert_and_says_so(drive, mode):
+    samples = _imu(drive, lambda a: a - np.array([0.0, 0.0, GRAVITY]))
+    pipe, outs, logs = _run(samples, mode=mode)
+    s = pipe.summary()
+    assert s['accel_units'] == 'no_gravity' and s['alerts'] == 0
+    assert s['max_tilt_deg'] is None and s['final_tilt_deg'] is None
+    assert not any(o.value for k, o in outs if k == 'fall_alert')
+    imu = [o for k, o in outs if k == 'imu']
+    assert all(o.orientation_cov[0][0] == -1.0 for o in imu[10:])
+    last = [o for k, o in outs if k == 'diagnostics'][-1].statuses[0]
+    assert last.level == 2 and 'no gravity' in last.message
+    assert [m for level, m in logs if level == 'error' and 'no gravity' in m]
+
+
+def test_an_imu_in_g_is_told_and_scaled(drive):
+    ref, ref_outs, _ = _run(_imu(drive))
+    pipe, outs, logs = _run(_imu(drive, lambda a: a / GRAVITY))
+    assert ref.summary()['accel_units'] == 'detected_mps2'
+    assert pipe.summary()['accel_units'] == 'detected_g'
+    assert [m for level, m in logs if 'in g' in m]
+    q_ref = np.array([o.orientation for k, o in ref_outs if k == 'imu'])
+    q = np.array([o.orientation for k, o in outs if k == 'imu'])
+    assert np.allclose(q, q_ref, atol=1e-9)
+    # units given: no detection, the scale applied from the first sample
+    given, given_outs, _ = _run(_imu(drive, lambda a: a / GRAVITY), accel_units='g')
+    assert given.summary()['accel_units'] == 'g'
+    assert np.allclose([o.orientation for k, o in given_outs if k == 'imu'], q_ref, atol=1e-9)
+
+
+def test_undecided_units_hold_the_alert_until_the_median_says(drive):
+    """A first reading far from gravity (a knock) waits for 10 samples, then decides."""
+    samples = _imu(drive)
+    samples[0] = dataclasses.replace(samples[0], accel=np.array([0.0, 0.0, 30.0]))
+    pipe, outs, _ = _run(samples)
+    assert pipe.summary()['accel_units'] == 'detected_mps2'
+    assert pipe.summary()['alerts'] == 0
+
+
+def test_replay_of_a_gravity_free_imu(tmp_path, drive):
+    """End to end: summary, report and plots written; the warning in summary.json."""
+    from robot_calib.io.bags import BagWriter
+    from robot_calib.replay import replay
+    bag = tmp_path / 'free'
+    with BagWriter(bag) as w:
+        for s in _imu(drive, lambda a: a - np.array([0.0, 0.0, GRAVITY])):
+            ns = 10 ** 9 + int(round(s.t * 1e9))
+            w.write('/imu', dataclasses.replace(s, stamp_ns=ns), ns)
+    summary = replay(bag, tmp_path / 'out', nodes='tilt_detection', progress=False)
+    node = summary['nodes']['tilt_detection']
+    assert node['accel_units'] == 'no_gravity' and node['alerts'] == 0
+    assert (tmp_path / 'out' / 'report.md').exists()
+    assert json.loads((tmp_path / 'out' / 'summary.json').read_text())['nodes'][
+        'tilt_detection']['max_tilt_deg'] is None
