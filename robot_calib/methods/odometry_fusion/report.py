@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import math
 from pathlib import Path
-from typing import Any, Mapping
+from typing import Any, Mapping, Optional
 
 import numpy as np
 from robot_calib.core import figures, types as T
@@ -24,6 +24,12 @@ from robot_calib.methods.odometry_fusion.params import FusionParams
 
 RECENT = 3.0
 """A filter warning this recent (s of filter time) sets the diagnostic level to WARN."""
+
+DEG = math.pi / 180.0
+"""One degree in rad: the factor between deg/s and rad/s."""
+
+UNITS_BAND = 1.3
+"""A yaw-rate scale within this factor of pi/180, 180/pi or -1 names a units or axis mistake."""
 
 
 def diagnostic_status(r: FusionResult, params: FusionParams,
@@ -55,6 +61,7 @@ def diagnostic_status(r: FusionResult, params: FusionParams,
             if advice:
                 level, msg = 1, advice
         values.append(('imu_stale', str(r.imu_stale)))
+        wrong_units = units_advice(r.yaw_rate_fit)
         if math.isfinite(nis.average) and nis.average > nis.band[1]:
             # innovations larger than the filter expects: it is over-confident. (Below the
             # band it is cautious, which time-correlated wheel noise makes it on healthy
@@ -62,6 +69,8 @@ def diagnostic_status(r: FusionResult, params: FusionParams,
             level, msg = 1, 'NIS above its 95% band: the filter is over-confident'
         if r.imu_stale:
             level, msg = 1, 'IMU stale: wheel odometry only'
+    else:
+        wrong_units = ''
     for k, v in sorted(r.counts.items()):
         values.append((k, str(v)))
     for key, c in sorted(input_counts.items()):
@@ -80,6 +89,8 @@ def diagnostic_status(r: FusionResult, params: FusionParams,
         if r.t is not None and r.t - t_warn <= RECENT:
             # a re-initialisation or wheel data rejected just now outranks the NIS
             level, msg = 1, text
+    if wrong_units:  # the fused heading means nothing: above every other message
+        level, msg = 2, wrong_units
     return T.DiagnosticStatus('odometry_fusion: filter', level, msg, 'odometry_fusion',
                               tuple(values))
 
@@ -102,9 +113,10 @@ def summary(r: FusionResult, params: FusionParams, covariances_ignored: int) -> 
     out['estimates'] = dict(r.estimates)
     if r.yaw_rate_fit is not None:
         out['yaw_rate_calibration'] = dict(r.yaw_rate_fit)
-        advice = delay_advice(r.yaw_rate_fit, applied_delay(r, params))
-        if advice:
-            out['warnings'].append(f'end: {advice}')
+        for advice in (units_advice(r.yaw_rate_fit),
+                       delay_advice(r.yaw_rate_fit, applied_delay(r, params))):
+            if advice:
+                out['warnings'].append(f'end: {advice}')
     if r.nis is not None:
         out['nis'] = {
             'updates': r.nis.updates,
@@ -120,6 +132,34 @@ def summary(r: FusionResult, params: FusionParams, covariances_ignored: int) -> 
 def applied_delay(r: FusionResult, params: FusionParams) -> float:
     """Return the odometry delay (s) the filter applies: configured, or found and applied."""
     return float(r.estimates.get('odometry_delay_applied', params.odometry_delay))
+
+
+def units_advice(fit: Optional[dict]) -> str:
+    """
+    Return what a yaw-rate scale near pi/180 or 180/pi (or near -1) says about the inputs.
+
+    The odometry's yaw rate over the gyro's is a skid-steer or track-width
+    factor, 0.5-1.5 on real drives (the Husky's 0.82); near pi/180 the gyro reads
+    deg/s, near 180/pi the odometry does, near -1 the IMU's z axis points down in
+    base_link. Empty when the fit has nothing or says none of these.
+    """
+    if not fit or fit.get('status') not in ('ok', 'uncertain'):
+        return ''
+    k = fit.get('yaw_rate_scale')
+    if k is None or not math.isfinite(k):
+        return ''
+    band = (1.0 / UNITS_BAND, UNITS_BAND)
+    said = f'the wheel odometry turns {k:.4g} times as fast as the gyro (yaw-rate fit): '
+    if band[0] <= k / DEG <= band[1]:
+        return said + ('the gyro reads deg/s, not rad/s (REP-103): fix the driver; the fused '
+                       'heading means nothing until then')
+    if band[0] <= k * DEG <= band[1]:
+        return said + ('the odometry yaw rate reads deg/s, not rad/s (REP-103): fix the '
+                       'driver; the fused heading means nothing until then')
+    if band[0] <= -k <= band[1]:
+        return said + ('the IMU z axis points down in base_link: give its mounting (imu_rpy '
+                       'or /tf_static)')
+    return ''
 
 
 def delay_advice(fit: dict, configured: float) -> str:

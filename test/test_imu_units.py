@@ -1,15 +1,17 @@
 # Copyright 2026 robot_calib contributors
 # SPDX-License-Identifier: Apache-2.0
 """
-The accelerometer's units, and an accelerometer without gravity, in tilt_detection.
+IMU units and axes the drivers get wrong, told from the data.
 
-Before: an IMU in g tilted the same but judged rest against m/s^2 thresholds; an
-IMU whose driver took gravity out raised a fall alert 0.02 s into a level drive and
-held it (tilt 90 deg), at full confidence.
+Tilt: before, an IMU in g tilted the same but judged rest against m/s^2
+thresholds; an IMU whose driver took gravity out raised a fall alert 0.02 s into
+a level drive and held it (tilt 90 deg), at full confidence. Fusion: a gyro in
+deg/s re-initialised the filter 4852 times in 120 s and said only that.
 """
 
 import dataclasses
 import json
+import math
 
 import numpy as np
 import pytest
@@ -21,7 +23,7 @@ from robot_calib.methods.tilt_detection.pipeline import TiltPipeline
 @pytest.fixture(scope='module')
 def drive():
     from robot_calib.sim import run_scenario
-    return run_scenario('fusion_drive', seed=1, duration=40.0)
+    return run_scenario('fusion_drive', seed=1, duration=120.0)
 
 
 def _imu(drive, change=lambda a: a):
@@ -90,3 +92,32 @@ def test_replay_of_a_gravity_free_imu(tmp_path, drive):
     assert (tmp_path / 'out' / 'report.md').exists()
     assert json.loads((tmp_path / 'out' / 'summary.json').read_text())['nodes'][
         'tilt_detection']['max_tilt_deg'] is None
+
+
+def test_fusion_names_a_gyro_in_degrees(drive):
+    from robot_calib.methods.odometry_fusion.params import FusionParams
+    from robot_calib.methods.odometry_fusion.pipeline import FusionPipeline
+    pipe = FusionPipeline(FusionParams())
+    outs = []
+    for topic, m in drive.messages:
+        if topic == '/tf_static':
+            for tf in m:
+                pipe.on_static_transform(tf)
+        elif topic == '/imu':
+            outs += pipe.process('imu', dataclasses.replace(m, gyro=np.degrees(m.gyro)))
+        elif topic == '/odom':
+            outs += pipe.process('odom', m)
+    said = [w for w in pipe.summary()['warnings'] if 'the gyro reads deg/s' in w]
+    assert said and said[0].startswith('end: ')
+    status = [o for k, o in outs if k == 'diagnostics'][-1].statuses[0]
+    assert status.level == 2 and 'deg/s' in status.message
+
+
+@pytest.mark.parametrize('scale, says', [
+    (math.pi / 180 * 1.04, 'the gyro reads deg/s'), (180 / math.pi * 0.9, 'odometry yaw rate'),
+    (-1.0, 'points down'), (0.82, ''), (1.04, ''), (0.1, '')])
+def test_units_advice_from_the_yaw_rate_scale(scale, says):
+    from robot_calib.methods.odometry_fusion.report import units_advice
+    advice = units_advice({'status': 'ok', 'yaw_rate_scale': scale})
+    assert (says in advice) if says else advice == ''
+    assert units_advice({'status': 'too_little_motion', 'yaw_rate_scale': scale}) == ''
