@@ -8,7 +8,9 @@ x forward, y left, z up; translation m, rotation quaternion w, x, y, z).
 Every method takes its mountings through ``set_mounting`` of
 :mod:`robot_calib.core.estimator` and turns them into what it needs here:
 a planar sensor pose (x m, y m, yaw rad) for a lidar, a rotation matrix
-(sensor -> base) for an IMU.
+(sensor -> base) for an IMU. A lidar mounted upside down (its z axis pointing
+down: a roll or pitch of pi) measures its beam at angle ``a`` along ``-a`` of
+the same planar pose, so its scans are :func:`mirrored` before use.
 
 :func:`scan_points` is the one way a laser scan becomes points: valid beams
 (:meth:`robot_calib.core.types.ScanSample.beams`), optionally moved into the
@@ -22,6 +24,7 @@ The other way, a planar pose becomes the transform a ``/tf`` entry carries
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from typing import Callable, Optional, Sequence
 
@@ -40,6 +43,17 @@ def planar_pose(transform: StaticTransform) -> tuple[float, float, float]:
 def rotation_matrix(transform: StaticTransform) -> np.ndarray:
     """Return the 3x3 rotation sensor -> base of a mounting."""
     return quat_to_matrix(np.asarray(transform.rotation, dtype=float))
+
+
+def upside_down(transform: StaticTransform) -> bool:
+    """Return True when the mounted sensor's z axis points down in the base frame."""
+    return float(rotation_matrix(transform)[2, 2]) < 0.0
+
+
+def mirrored(scan: ScanSample) -> ScanSample:
+    """Return the scan of an upside-down lidar as an upright one at its planar pose sees it."""
+    return dataclasses.replace(scan, angle_min=-scan.angle_min,
+                               angle_increment=-scan.angle_increment)
 
 
 def pose_transform(parent: str, child: str, pose: Sequence[float], t: float,

@@ -222,7 +222,8 @@ def _static_transforms(p: SimParams, t: float) -> list:
         T.StaticTransform(base, p.imu.frame_id, np.array([p.imu.x, p.imu.y, p.imu.z]),
                           quat_from_rpy(p.imu.roll, p.imu.pitch, p.imu.yaw), t),
         T.StaticTransform(base, p.lidar.frame_id, np.array([p.lidar.x, p.lidar.y, p.lidar.z]),
-                          quat_from_rpy(0.0, 0.0, p.lidar.yaw), t),
+                          quat_from_rpy(math.pi if p.lidar.upside_down else 0.0, 0.0,
+                                        p.lidar.yaw), t),
     ]
 
 

@@ -148,6 +148,8 @@ class LidarParams:
     y: float = param(0.0, 'm', 'laser position in base_link, y')
     z: float = param(0.2, 'm', 'laser position in base_link, z')
     yaw: float = param(0.0, 'rad', 'laser yaw in base_link')
+    upside_down: bool = param(False, '', 'mounted upside down (roll pi in /tf_static): its '
+                              'beams sweep clockwise seen from above')
     frame_id: str = param('laser', '', 'lidar frame')
 
 

@@ -189,7 +189,10 @@ def lidar(tr: dict[str, np.ndarray], p: SimParams, world: Any, times: np.ndarray
     c, s = np.cos(yaw), np.sin(yaw)
     ox = x + c * li.x - s * li.y
     oy = y + s * li.x + c * li.y
-    ang = yaw + li.yaw + amin + inc * np.arange(beams)[None, :]
+    if li.upside_down:  # the laser's angle a points along -a in base_link
+        ang = yaw + li.yaw - amin - inc * np.arange(beams)[None, :]
+    else:
+        ang = yaw + li.yaw + amin + inc * np.arange(beams)[None, :]
     tilted = bool(np.any(tr['roll'] != 0.0) or np.any(tr['pitch'] != 0.0))
     if not tilted:
         ranges = world.raycast_fan(ox, oy, ang)

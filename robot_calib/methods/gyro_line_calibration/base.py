@@ -33,7 +33,8 @@ from typing import Any, Optional, Union
 import numpy as np
 
 from robot_calib.core import types as T
-from robot_calib.core.frames import constant_motion, planar_pose, rotation_matrix, scan_points
+from robot_calib.core.frames import (constant_motion, mirrored, planar_pose, rotation_matrix,
+                                     scan_points, upside_down)
 from robot_calib.core.geometry import quat_from_rpy, quat_to_matrix, rot2, wrap_angle
 from robot_calib.core.lines import extract_lines, Line, ObstacleGrid
 from robot_calib.core.series import Thinned
@@ -68,6 +69,7 @@ class GyroLineBase(abc.ABC):
         self._imu_rot = quat_to_matrix(quat_from_rpy(r, pi_, y))
         lp = (list(p.laser_pose) + [0.0, 0.0, 0.0])[:3]
         self.laser_pose = np.array(lp, dtype=float)
+        self._laser_upside_down = False
         self.reset()
 
     def reset(self) -> None:
@@ -128,6 +130,7 @@ class GyroLineBase(abc.ABC):
             self._imu_rot = rotation_matrix(transform)
         elif any(k in child for k in _LASER_WORDS):
             self.laser_pose = np.array(planar_pose(transform))
+            self._laser_upside_down = upside_down(transform)
 
     def update(self, sample: Any) -> Union[None, PoseEstimate, tuple[Correction, ...]]:
         """
@@ -143,7 +146,7 @@ class GyroLineBase(abc.ABC):
             return PoseEstimate(self.initialized, self.pose, np.array(self.P[:3, :3]),
                                 self.rate, self.counts.get('odom_resets', 0))
         elif isinstance(sample, T.ScanSample):
-            out = self._update_scan(sample)
+            out = self._update_scan(mirrored(sample) if self._laser_upside_down else sample)
             return tuple(out) if out else None
         elif isinstance(sample, T.StaticTransform):
             self.set_mounting(sample)

@@ -70,7 +70,8 @@ import time
 from typing import Any, ClassVar, Optional, Sequence
 
 import numpy as np
-from robot_calib.core.frames import constant_motion, planar_pose, rotation_matrix, scan_points
+from robot_calib.core.frames import (constant_motion, mirrored, planar_pose, rotation_matrix,
+                                     scan_points, upside_down)
 from robot_calib.core.geometry import (rot2, se2_between, se2_compose, se2_inverse,
                                        wrap_angle)
 from robot_calib.core.odometry_twist import TwistFrame
@@ -119,6 +120,8 @@ class LoopClosureBase(abc.ABC):
         self._imu_rotations: dict[str, Optional[np.ndarray]] = {}
         # planar pose in the base frame of each laser frame seen (None: no mounting), per frame id
         self._sensor_poses: dict[str, Optional[tuple[float, float, float]]] = {}
+        self._upside_down: set[str] = set()
+        """Laser frames mounted upside down (their scans are mirrored)."""
         self.reset()
 
     def reset(self) -> None:
@@ -168,6 +171,10 @@ class LoopClosureBase(abc.ABC):
         self._mounts[(transform.parent, transform.child)] = transform
         self._imu_rotations.clear()
         self._sensor_poses.clear()
+        if upside_down(transform):
+            self._upside_down.add(transform.child)
+        else:
+            self._upside_down.discard(transform.child)
 
     def update(self, sample: Any) -> Optional[ClosureReport]:
         """
@@ -318,6 +325,8 @@ class LoopClosureBase(abc.ABC):
     def _update_scan(self, scan: ScanSample) -> Optional[ClosureReport]:
         """Turn the scan into points in the base frame (de-skewed) and process them."""
         sensor = self._sensor_pose(scan.frame_id)
+        if scan.frame_id in self._upside_down:
+            scan = mirrored(scan)
         if not self._scan_needed(scan.t) and self._count_unneeded(scan, sensor):
             return None
         motion = constant_motion(self.speed, self.rate, self.speed_lateral)

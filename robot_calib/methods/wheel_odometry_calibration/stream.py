@@ -69,6 +69,8 @@ class StreamingCalibrator(abc.ABC):
         self.stage_gate: Optional[SeedSteeredCalibrator] = None
         self._gate_epoch: Optional[int] = None
         self._sensor_frame: Optional[str] = None
+        self._upside_down = False
+        """The lidar is mounted upside down: its scans are mirrored."""
         self._notes: list[tuple[str, str]] = []
         self._told_problem = ''
         self._told_stride = 1
@@ -103,7 +105,7 @@ class StreamingCalibrator(abc.ABC):
             if self._sensor_frame is None:
                 self._sensor_frame = sample.frame_id
                 self._apply_mounting(sample.frame_id)
-            self.front.add_scan(sample)
+            self.front.add_scan(frames.mirrored(sample) if self._upside_down else sample)
             rejected = ''
         else:
             return None
@@ -139,8 +141,11 @@ class StreamingCalibrator(abc.ABC):
             return
         x, y, yaw = frames.planar_pose(tf)
         self.front.set_sensor_pose(x, y, yaw)
+        self._upside_down = frames.upside_down(tf)
         self._notes.append(('info', f'lidar pose from /tf_static: x {x:.3f} m, y {y:.3f} m, '
-                                    f'yaw {yaw:.4f} rad'))
+                                    f'yaw {yaw:.4f} rad' + (', mounted upside down (scans '
+                                                            'mirrored)' if self._upside_down
+                                                            else '')))
 
     def _joint_state(self, js: T.JointStateSample) -> str:
         """Feed joint states; return '' when used, else why not; note the drive found."""
