@@ -29,8 +29,8 @@ import math
 from typing import Callable, Optional, Sequence
 
 import numpy as np
-from robot_calib.core.geometry import (quat_from_rpy, quat_to_matrix, se2_compose, se2_inverse,
-                                       yaw_from_quat)
+from robot_calib.core.geometry import (matrix_to_quat, quat_from_rpy, quat_to_matrix, se2_compose,
+                                       se2_inverse, yaw_from_quat)
 from robot_calib.core.types import OdomSample, ScanSample, StaticTransform
 
 
@@ -43,6 +43,62 @@ def planar_pose(transform: StaticTransform) -> tuple[float, float, float]:
 def rotation_matrix(transform: StaticTransform) -> np.ndarray:
     """Return the 3x3 rotation sensor -> base of a mounting."""
     return quat_to_matrix(np.asarray(transform.rotation, dtype=float))
+
+
+class StaticTree:
+    """
+    The static transforms seen so far, kept as tf keeps them: one parent per frame.
+
+    :meth:`mounting` gives a sensor's mounting in the base frame through any chain
+    of links (URDFs often put a sensor below a mount or plate link), composed from
+    the base down; a direct link is returned as received.
+    """
+
+    MAX_DEPTH = 32
+    """Longest chain followed (a longer one is taken as a cycle)."""
+
+    def __init__(self) -> None:
+        """Start with no transform."""
+        self.by_child: dict[str, StaticTransform] = {}
+
+    def add(self, transform: StaticTransform) -> None:
+        """Keep ``transform`` (replacing an earlier one to the same child frame)."""
+        self.by_child[transform.child] = transform
+
+    def leaves(self) -> list[str]:
+        """Return the child frames that are no frame's parent, in the order first seen."""
+        parents = {tf.parent for tf in self.by_child.values()}
+        return [child for child in self.by_child if child not in parents]
+
+    def mounting(self, frame: str, base: Optional[str] = None) -> Optional[StaticTransform]:
+        """
+        Return the transform ``base -> frame`` along the chain of parents, or None.
+
+        ``base`` None: from the top of the frame's chain. None when ``frame`` has
+        no transform or its chain does not reach ``base``.
+        """
+        chain: list[StaticTransform] = []
+        f = frame
+        while f != base:
+            tf = self.by_child.get(f)
+            if tf is None:
+                if base is None and chain:
+                    break
+                return None
+            if len(chain) >= self.MAX_DEPTH:
+                return None
+            chain.append(tf)
+            f = tf.parent
+        if not chain:
+            return None
+        if len(chain) == 1:
+            return chain[0]
+        rot, pos = np.eye(3), np.zeros(3)
+        for tf in reversed(chain):
+            pos = pos + rot @ np.asarray(tf.translation, dtype=float)
+            rot = rot @ rotation_matrix(tf)
+        return StaticTransform(chain[-1].parent, frame, pos, matrix_to_quat(rot), chain[0].t,
+                               chain[0].stamp_ns)
 
 
 def upside_down(transform: StaticTransform) -> bool:

@@ -34,7 +34,7 @@ import numpy as np
 
 from robot_calib.core import types as T
 from robot_calib.core.frames import (constant_motion, mirrored, planar_pose, rotation_matrix,
-                                     scan_points, upside_down)
+                                     scan_points, StaticTree, upside_down)
 from robot_calib.core.geometry import quat_from_rpy, quat_to_matrix, rot2, wrap_angle
 from robot_calib.core.lines import extract_lines, Line, ObstacleGrid
 from robot_calib.core.series import Thinned
@@ -70,6 +70,7 @@ class GyroLineBase(abc.ABC):
         lp = (list(p.laser_pose) + [0.0, 0.0, 0.0])[:3]
         self.laser_pose = np.array(lp, dtype=float)
         self._laser_upside_down = False
+        self._mountings = StaticTree()
         self.reset()
 
     def reset(self) -> None:
@@ -122,15 +123,27 @@ class GyroLineBase(abc.ABC):
 
     # -- the Estimator protocol ----------------------------------------------------------
     def set_mounting(self, transform: T.StaticTransform) -> None:
-        """Take the IMU or laser mounting from a static transform base_frame -> sensor."""
-        if transform.parent != self.params.base_frame:
-            return
-        child = transform.child.lower()
-        if 'imu' in child:
-            self._imu_rot = rotation_matrix(transform)
-        elif any(k in child for k in _LASER_WORDS):
-            self.laser_pose = np.array(planar_pose(transform))
-            self._laser_upside_down = upside_down(transform)
+        """
+        Take a static transform; the IMU's and the laser's mountings in base_frame follow.
+
+        A sensor frame is a leaf of the transform tree named like an IMU or a laser,
+        whose chain of links reaches base_frame.
+        """
+        tree = self._mountings
+        tree.add(transform)
+        for frame in tree.leaves():
+            name = frame.lower()
+            imu = 'imu' in name
+            if not (imu or any(k in name for k in _LASER_WORDS)):
+                continue
+            mounting = tree.mounting(frame, self.params.base_frame)
+            if mounting is None:
+                continue
+            if imu:
+                self._imu_rot = rotation_matrix(mounting)
+            else:
+                self.laser_pose = np.array(planar_pose(mounting))
+                self._laser_upside_down = upside_down(mounting)
 
     def update(self, sample: Any) -> Union[None, PoseEstimate, tuple[Correction, ...]]:
         """

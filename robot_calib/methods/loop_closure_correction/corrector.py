@@ -71,7 +71,7 @@ from typing import Any, ClassVar, Optional, Sequence
 
 import numpy as np
 from robot_calib.core.frames import (constant_motion, mirrored, planar_pose, rotation_matrix,
-                                     scan_points, upside_down)
+                                     scan_points, StaticTree, upside_down)
 from robot_calib.core.geometry import (rot2, se2_between, se2_compose, se2_inverse,
                                        wrap_angle)
 from robot_calib.core.odometry_twist import TwistFrame
@@ -115,7 +115,7 @@ class LoopClosureBase(abc.ABC):
         """Start with an empty map at the origin and no mounting."""
         self.params = params if params is not None else LoopClosureParams()
         self.match_params = self._registration_params()
-        self._mounts: dict[tuple[str, str], StaticTransform] = {}
+        self._mounts = StaticTree()
         # rotation sensor -> base of each IMU frame seen (None: no mounting), per frame id
         self._imu_rotations: dict[str, Optional[np.ndarray]] = {}
         # planar pose in the base frame of each laser frame seen (None: no mounting), per frame id
@@ -168,13 +168,9 @@ class LoopClosureBase(abc.ABC):
     # -- Estimator protocol -----------------------------------------------------------------
     def set_mounting(self, transform: StaticTransform) -> None:
         """Take a static transform base_frame -> sensor frame (the imu's or the laser's)."""
-        self._mounts[(transform.parent, transform.child)] = transform
+        self._mounts.add(transform)
         self._imu_rotations.clear()
         self._sensor_poses.clear()
-        if upside_down(transform):
-            self._upside_down.add(transform.child)
-        else:
-            self._upside_down.discard(transform.child)
 
     def update(self, sample: Any) -> Optional[ClosureReport]:
         """
@@ -241,11 +237,8 @@ class LoopClosureBase(abc.ABC):
             return rotation
 
     def _mount(self, frame: str) -> Optional[StaticTransform]:
-        """Return the mounting whose child is ``frame``, or None."""
-        for (_, child), transform in self._mounts.items():
-            if child == frame:
-                return transform
-        return None
+        """Return the mounting of ``frame`` (through any chain, from its top), or None."""
+        return self._mounts.mounting(frame)
 
     # -- what a variant supplies --------------------------------------------------------------
     @abc.abstractmethod
@@ -346,6 +339,10 @@ class LoopClosureBase(abc.ABC):
             mount = self._mount(frame)
             pose = planar_pose(mount) if mount is not None else None
             self._sensor_poses[frame] = pose
+            if mount is not None and upside_down(mount):
+                self._upside_down.add(frame)
+            else:
+                self._upside_down.discard(frame)
             return pose
 
     def _scan_needed(self, t: float) -> bool:

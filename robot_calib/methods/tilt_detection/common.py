@@ -25,7 +25,7 @@ from typing import Any, ClassVar, Optional
 import numpy as np
 
 from robot_calib.core.constants import GRAVITY
-from robot_calib.core.frames import rotation_matrix
+from robot_calib.core.frames import rotation_matrix, StaticTree
 from robot_calib.core.types import ImuSample, StaticTransform
 from robot_calib.methods.tilt_detection.params import TiltParams
 from robot_calib.methods.tilt_detection.quaternion import IDENTITY, qnorm, quat_from_rpy_tuple
@@ -215,7 +215,7 @@ class TiltEstimatorBase(abc.ABC):
         self.params = params if params is not None else TiltParams()
         p = self.params
         self.ts = ts
-        self._transforms: dict[str, StaticTransform] = {}
+        self._transforms = StaticTree()
         self._imu_frame: Optional[str] = None
         self._mount_source = 'parameter' if any(p.mounting_rpy) else 'none'
         self._mount_updates = 0
@@ -225,18 +225,19 @@ class TiltEstimatorBase(abc.ABC):
     # -- the Estimator protocol ------------------------------------------------------------
     def set_mounting(self, transform: StaticTransform) -> None:
         """
-        Take a static transform ``base_frame`` -> IMU frame as the mounting rotation.
+        Take a static transform; ``base_frame`` -> IMU frame (through any chain) is the mounting.
 
         Kept only with ``use_tf_static``; it applies once samples come in its
         child frame (at once when they already do).
         """
         p = self.params
-        if not p.use_tf_static or transform.parent != p.base_frame \
-                or transform.child == p.base_frame:
+        if not p.use_tf_static or transform.child == p.base_frame:
             return
-        self._transforms[transform.child] = transform
-        if transform.child == self._imu_frame:
-            self._apply_transform(transform)
+        self._transforms.add(transform)
+        if self._imu_frame is not None:
+            mounting = self._transforms.mounting(self._imu_frame, p.base_frame)
+            if mounting is not None:
+                self._apply_transform(mounting)
 
     def set_alert_params(self, params: TiltParams) -> None:
         """
@@ -284,7 +285,7 @@ class TiltEstimatorBase(abc.ABC):
             ax, ay, az = ax * scale, ay * scale, az * scale
         if self._imu_frame is None:
             self._imu_frame = sample.frame_id
-            transform = self._transforms.get(sample.frame_id)
+            transform = self._transforms.mounting(sample.frame_id, self.params.base_frame)
             if transform is not None:
                 self._apply_transform(transform)
         dt = self.ts if self._last_t is None else t - self._last_t

@@ -60,7 +60,7 @@ class StreamingCalibrator(abc.ABC):
         self.params = params or WheelCalibParams()
         self.matcher, self.prepare, self.max_range = matcher, prepare, max_range
         self.periodic = periodic
-        self._mountings: dict[str, T.StaticTransform] = {}
+        self._mountings = frames.StaticTree()
         self.reset()
 
     def reset(self) -> None:
@@ -86,11 +86,10 @@ class StreamingCalibrator(abc.ABC):
         """
         Take a static transform; ``base_frame`` -> scan frame gives the nominal lidar pose.
 
-        The pose is taken while no segment was cut yet (at the first scan, or
-        when the transform comes later).
+        Through any chain of links. The pose is taken while no segment was cut yet
+        (at the first scan, or when the transform comes later).
         """
-        if transform.parent == self.params.base_frame:
-            self._mountings[transform.child] = transform
+        self._mountings.add(transform)
         self._version += 1
         if self._sensor_frame is not None:
             self._apply_mounting(self._sensor_frame)
@@ -136,7 +135,7 @@ class StreamingCalibrator(abc.ABC):
 
     # -- internals ------------------------------------------------------------------------
     def _apply_mounting(self, frame: str) -> None:
-        tf = self._mountings.get(frame)
+        tf = self._mountings.mounting(frame, self.params.base_frame)
         if tf is None or self.front.segments:
             return
         x, y, yaw = frames.planar_pose(tf)
