@@ -181,3 +181,21 @@ def test_status_values_are_strings_and_level_follows_verdict():
     status = out[0][1].statuses[0]
     assert status.level == 1 and all(isinstance(v, str) for _, v in status.values)
     assert 'wheel data' in status.message.lower()
+
+
+@pytest.mark.parametrize('positions', ['missing', 'stuck'])
+def test_joint_states_with_velocities_only(positions):
+    """Drivers that fill only the velocities: before, 'no usable segments' (or no wheel data)."""
+    import dataclasses
+
+    import numpy as np
+    res = _sim('diff_segments', 120.0)
+    fill = np.nan if positions == 'missing' else 0.0
+    msgs = [(topic, dataclasses.replace(s, position=np.full(len(s.position), fill))
+             if topic == '/joint_states' else s) for topic, s in res.messages]
+    pipe = WheelCalibrationPipeline(WheelCalibParams(drive_type='differential'))
+    _feed(pipe, msgs)
+    assert pipe.result.verdict == 'converged'
+    assert pipe.result.values['track_width'] == pytest.approx(res.truth['track_width'],
+                                                              rel=0.005)
+    assert pipe.summary()['counts']['joints_from_velocity'] == 2

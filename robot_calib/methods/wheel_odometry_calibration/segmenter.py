@@ -96,6 +96,12 @@ REMATCH_CHUNK = 128
 On the 1 h drive (2841 pairs) 128 gives the node alone a peak of 187 MB against 210 MB for
 256 at the same speed; 64 gives 177 MB and a 5 % slower re-match."""
 
+STUCK_TURN = 2.0 * math.pi
+"""Turn (rad) a joint's velocity integrates to while its position stays put: positions unset."""
+
+MOVING_RATE = 0.1
+"""Joint speed (rad/s) above which that turn is counted."""
+
 SIDEWAYS_SHARE = 0.1
 """Share of the odometry's path moved sideways beyond which it is called holonomic (-).
 
@@ -174,6 +180,10 @@ class DriveSegmenter:
                        'missing_joints': 0, 'segments_thinned': 0}
         self.epoch = -1
         """Counts the (re)starts of the calibration (a new drive type drops the data)."""
+        self._joint_integrals: dict[str, list] = {}
+        """Per wheel joint: last stamp, velocity, its integral, first position, turn moving."""
+        self._integrated: set[str] = set()
+        """Wheel joints whose position is their integrated velocity (the driver gives none)."""
         self._set_drive(p.drive_type if p.drive_type != 'auto' else drive_detect.DIFFERENTIAL)
 
     def _set_drive(self, drive: str) -> None:
@@ -227,6 +237,9 @@ class DriveSegmenter:
             self.counts['missing_joints'] += 1
             return False
         (a, va), (b, vb) = js.get(self._joints[0]), js.get(self._joints[1])
+        a = self._joint_position(self._joints[0], js.t, a, va)
+        if self.drive == 'differential':  # (a steering reading cannot be integrated)
+            b = self._joint_position(self._joints[1], js.t, b, vb)
         if not (math.isfinite(a) and math.isfinite(b)):
             self.counts['missing_joints'] += 1
             return False
@@ -235,6 +248,38 @@ class DriveSegmenter:
             self._reset_wheels()
         self.add_wheel(js.t, a, b, va, vb)
         return True
+
+    def _joint_position(self, name: str, t: float, position: float, velocity: float) -> float:
+        """
+        Return a wheel joint's position (rad): as given, or its velocity integrated.
+
+        Some drivers fill only the velocities: positions missing (NaN), or left at
+        one value while the velocities turn the wheel a whole turn (counting only
+        speeds above MOVING_RATE, so a velocity offset at rest does not). That joint's
+        position is then the trapezoid integral of its velocity (rad/s) from its
+        first sample on, and the calibration restarts with it.
+        """
+        st = self._joint_integrals.get(name)
+        if st is None:
+            st = self._joint_integrals[name] = [t, velocity, 0.0, position, 0.0]
+        dt = t - st[0]
+        if math.isfinite(velocity) and math.isfinite(st[1]) and \
+                0.0 < dt <= self.params.keyframe.max_wheel_gap:
+            st[2] += 0.5 * (velocity + st[1]) * dt
+            if abs(velocity) > MOVING_RATE:
+                st[4] += abs(velocity) * dt
+        st[0], st[1] = t, velocity
+        if name in self._integrated:
+            return st[2]
+        if not math.isfinite(velocity):
+            return position
+        if not math.isfinite(position) or (position == st[3] and st[4] > STUCK_TURN):
+            self._integrated.add(name)
+            self.counts['joints_from_velocity'] = len(self._integrated)
+            if math.isfinite(position):  # the data cut so far had a wheel standing still
+                self._set_drive(self.drive)
+            return st[2]
+        return position
 
     @property
     def uses_joints(self) -> bool:
