@@ -47,11 +47,26 @@ def test_a_chain_is_composed_from_the_base_down():
     assert np.allclose(frames.rotation_matrix(m), rot) and np.allclose(m.translation, pos)
     assert frames.planar_pose(m) == pytest.approx((pos[0], pos[1], 0.3))
     assert tree.mounting('sensor_plate', 'base_link') is MOUNT   # a direct link as received
-    assert tree.mounting('laser', 'imu_mount') is None           # not below that frame
+    across = tree.mounting('laser', 'imu_mount')                 # another branch: via the top
+    rot_m, pos_m = _composed(IMU_MOUNT)
+    assert np.allclose(frames.rotation_matrix(across), rot_m.T @ rot)
+    assert np.allclose(across.translation, rot_m.T @ (pos - pos_m))
     assert tree.mounting('wheel', 'base_link') is None
     assert np.allclose(frames.rotation_matrix(tree.mounting('imu_link')),
                        _composed(IMU_MOUNT, IMU)[0])                # from the top of the chain
     assert sorted(tree.leaves()) == ['imu_link', 'laser']
+    # base_footprint -> base_link and base_footprint -> imu_link: base_link -> imu_link
+    feet = frames.StaticTree()
+    for tf in (_tf('base_footprint', 'base_link', (0, 0, 0.05), (0, 0, 0)),
+               _tf('base_footprint', 'imu', (0.1, 0, 0.2), (math.pi / 2, 0, 0))):
+        feet.add(tf)
+    m = feet.mounting('imu', 'base_link')
+    assert np.allclose(m.translation, (0.1, 0.0, 0.15))
+    assert np.allclose(frames.rotation_matrix(m), quat_to_matrix(quat_from_rpy(math.pi / 2, 0, 0)))
+    # base_frame in no transform (a tree whose body is base_footprint): from the top
+    assert tree.mounting('sensor_plate', 'robot_body') is MOUNT
+    tree.add(_tf('map', 'landmark', (1, 0, 0), (0, 0, 0)))      # a tree of its own
+    assert tree.mounting('laser', 'map') is None
     tree.add(_tf('laser', 'sensor_plate', (0, 0, 0), (0, 0, 0)))  # a cycle ends, not loops
     assert tree.mounting('laser', 'base_link') is None
 

@@ -72,33 +72,61 @@ class StaticTree:
 
     def mounting(self, frame: str, base: Optional[str] = None) -> Optional[StaticTransform]:
         """
-        Return the transform ``base -> frame`` along the chain of parents, or None.
+        Return the transform ``base -> frame`` through the tree, or None.
 
-        ``base`` None: from the top of the frame's chain. None when ``frame`` has
-        no transform or its chain does not reach ``base``.
+        Along the chain of parents when ``base`` is on it; through their common
+        top when ``base`` sits on another branch (``base_footprint -> base_link``
+        and ``base_footprint -> imu_link``); from the top of the frame's chain when
+        ``base`` is None or in no transform at all (a tree whose body frame has
+        another name). None when ``frame`` has no transform, or ``base`` is in a
+        tree of its own.
         """
+        chain = self._chain(frame, base)
+        if chain is None:
+            return None
+        top = chain[-1].parent
+        if base is not None and top != base:
+            if self._known(base):
+                up = self._chain(base, None)
+                if up is None or up[-1].parent != top:
+                    return None
+                rot_b, pos_b = _compose(up)
+                rot_f, pos_f = _compose(chain)
+                rot = rot_b.T @ rot_f
+                return StaticTransform(base, frame, rot_b.T @ (pos_f - pos_b),
+                                       matrix_to_quat(rot), chain[0].t, chain[0].stamp_ns)
+        if len(chain) == 1:
+            return chain[0]
+        rot, pos = _compose(chain)
+        return StaticTransform(top, frame, pos, matrix_to_quat(rot), chain[0].t,
+                               chain[0].stamp_ns)
+
+    def _known(self, frame: str) -> bool:
+        """Return True when ``frame`` is the parent or the child of a transform kept."""
+        return frame in self.by_child or any(tf.parent == frame for tf in self.by_child.values())
+
+    def _chain(self, frame: str, base: Optional[str]) -> Optional[list[StaticTransform]]:
+        """Return the transforms from ``frame`` up to ``base`` or the top (child first)."""
         chain: list[StaticTransform] = []
         f = frame
         while f != base:
             tf = self.by_child.get(f)
             if tf is None:
-                if base is None and chain:
-                    break
-                return None
+                break
             if len(chain) >= self.MAX_DEPTH:
                 return None
             chain.append(tf)
             f = tf.parent
-        if not chain:
-            return None
-        if len(chain) == 1:
-            return chain[0]
-        rot, pos = np.eye(3), np.zeros(3)
-        for tf in reversed(chain):
-            pos = pos + rot @ np.asarray(tf.translation, dtype=float)
-            rot = rot @ rotation_matrix(tf)
-        return StaticTransform(chain[-1].parent, frame, pos, matrix_to_quat(rot), chain[0].t,
-                               chain[0].stamp_ns)
+        return chain or None
+
+
+def _compose(chain: list[StaticTransform]) -> tuple[np.ndarray, np.ndarray]:
+    """Return the rotation and translation of a chain (child first) composed from its top."""
+    rot, pos = np.eye(3), np.zeros(3)
+    for tf in reversed(chain):
+        pos = pos + rot @ np.asarray(tf.translation, dtype=float)
+        rot = rot @ rotation_matrix(tf)
+    return rot, pos
 
 
 def upside_down(transform: StaticTransform) -> bool:
