@@ -245,6 +245,9 @@ def _replay(args: argparse.Namespace) -> int:
           f'summary.json, report.md')
     for name, why in summary['skipped'].items():
         print(f'skipped {name}: {why}')
+    for note in dict.fromkeys(n for node in summary['nodes'].values()
+                              for n in node.get('notes', ()) if n.startswith('input ')):
+        print(note)
     if summary['nodes'] and not summary['timing']['messages'] and summary.get('window'):
         start, length = summary['window']
         print(f'robot-calib replay: warning: no message in the time window from {start:g} s'

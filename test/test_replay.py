@@ -259,13 +259,14 @@ def test_remaps_both_ways(tmp_path):
     assert s['output']['topics']['/fixed/odom'] == 60
     # Bag-side remap: the bag's /imu/data is seen as /imu.
     s = replay(path, tmp_path / 'b', nodes=ECHO, remaps={'/imu/data': '/imu'}, progress=False)
-    assert s['nodes']['echo']['input_topics'] == {'imu': '/imu'}
-    assert 'odom' not in s['nodes']['echo']['inputs']
+    # (the optional odom reads the bag's only odometry, whose name ends like it)
+    assert s['nodes']['echo']['input_topics'] == {'imu': '/imu', 'odom': '/wheel/odom'}
     with pytest.raises(ReplayError, match='neither'):
         replay(path, tmp_path / 'c', nodes=ECHO, remaps=['/nothing:=/imu'], progress=False)
-    with pytest.raises(ReplayError, match='needs /imu'):
-        replay(path, tmp_path / 'c', nodes=ECHO, progress=False)
     assert not (tmp_path / 'c').exists()
+    # no remap: each input reads the bag's only topic of its type
+    s = replay(path, tmp_path / 'g', nodes=ECHO, progress=False)
+    assert s['nodes']['echo']['input_topics'] == {'imu': '/imu/data', 'odom': '/wheel/odom'}
     # the node's static transforms remapped away: none delivered (it was silently ignored)
     tf = replay(path, tmp_path / 'e', nodes=ECHO, remaps=['imu:=/imu/data',
                                                           '/tf_static:=/nothing'],
@@ -644,7 +645,7 @@ def test_messages_without_a_header_stamp_take_their_receive_time(tmp_path, capsy
     path = tmp_path / 'unstamped'
     with bags.BagWriter(path) as w:
         for i in range(200):
-            ns = 10**9 + i * 10**7
+            ns = 1_700_000_000 * 10**9 + i * 10**7  # a wall clock: recorded on a robot
             w.write('/imu', _imu(0), ns)          # stamp 0 every time
             if i % 5 == 0:
                 w.write('/odom', T.OdomSample(ns * 1e-9, 0.001 * i, 0.0, 0.0, 0.1,
@@ -657,10 +658,35 @@ def test_messages_without_a_header_stamp_take_their_receive_time(tmp_path, capsy
     assert s['nodes']['tilt_detection']['inputs']['imu']['accepted'] == 200
     assert s['nodes']['odometry_fusion']['inputs']['imu']['accepted'] == 200
     # set stamps are kept; a stamp of 0 with no receive time, and static transforms, too
-    assert restamp_unset([_imu(5)], 7) is None
+    assert restamp_unset([_imu(5)], 1_500_000_000 * 10**9) is None
     assert restamp_unset([_imu(0)], 0) is None
+    assert restamp_unset([_imu(0)], 10**9) is None     # simulated time: 0 is its start
     tf = T.StaticTransform('base_link', 'imu_link', (0.0, 0.0, 0.0), (1.0, 0.0, 0.0, 0.0),
                            stamp_ns=0)
-    assert restamp_unset([tf], 7) is None
-    fixed = restamp_unset([_imu(0)], 1_500_000_000)
-    assert fixed[0].stamp_ns == 1_500_000_000 and fixed[0].t == 1.5
+    assert restamp_unset([tf], 1_500_000_000 * 10**9) is None
+    fixed = restamp_unset([_imu(0)], 1_500_000_000 * 10**9)
+    assert fixed[0].stamp_ns == 1_500_000_000 * 10**9 and fixed[0].t == 1.5e9
+
+
+def test_inputs_read_the_only_topic_of_their_type(tmp_path):
+    """/imu/data and /wheel/odom (robot_localization's names): read without --remap, said."""
+    path = tmp_path / 'names'
+    with bags.BagWriter(path) as w:
+        for i in range(300):
+            ns = 10**9 + i * 10**7
+            w.write('/imu/data', _imu(ns), ns)
+            w.write('/imu/data_raw', _imu(ns), ns)
+            if i % 5 == 0:
+                w.write('/wheel/odom', T.OdomSample(ns * 1e-9, 0.001 * i, 0.0, 0.0, 0.1,
+                                                    stamp_ns=ns), ns)
+                w.write('/ground_truth/odom', T.OdomSample(ns * 1e-9, 0.001 * i, 0.0, 0.0,
+                                                           0.1, stamp_ns=ns), ns)
+    # two Imu topics: none is chosen for the node, which says what to remap
+    with pytest.raises(ReplayError, match='needs /imu'):
+        replay(path, tmp_path / 'o1', nodes='odometry_fusion', progress=False, plots=False)
+    s = replay(path, tmp_path / 'o2', nodes='odometry_fusion', remaps=['imu:=/imu/data'],
+               progress=False, plots=False)
+    node = s['nodes']['odometry_fusion']
+    assert node['inputs']['odom']['accepted'] == 60   # /wheel/odom, not the ground truth
+    assert any('input odom reads /wheel/odom' in n for n in node['notes'])
+    assert s['remaps'] == {'/odom': '/wheel/odom', '/imu': '/imu/data'}

@@ -209,6 +209,10 @@ class RateGuard:
         return True
 
 
+WALL_CLOCK_NS = 86_400 * 10**9
+"""A receive time later than one day after 1970 (ns) is a wall clock, not simulated time."""
+
+
 def restamp_unset(samples: list, time_ns: int) -> Optional[list]:
     """
     Return ``samples`` stamped at their receive time ``time_ns`` when their stamps are unset.
@@ -216,10 +220,12 @@ def restamp_unset(samples: list, time_ns: int) -> Optional[list]:
     A driver that never fills ``header.stamp`` leaves it 0: every message then has
     the same stamp and all but the first would be rejected as duplicates. Such
     samples take the receive time (the bag's log time, or the node's clock)
-    instead; None when the first sample's stamp is set (the usual case: one
-    attribute read) or the receive time is unknown. Static transforms keep theirs.
+    instead, when that is a wall clock (after :data:`WALL_CLOCK_NS`; in
+    simulated time a first stamp of 0 is the start, not unset). None when the
+    first sample's stamp is set (the usual case: one attribute read) or kept.
+    Static transforms keep theirs.
     """
-    if not samples or getattr(samples[0], 'stamp_ns', -1) != 0 or time_ns <= 0 or \
+    if not samples or getattr(samples[0], 'stamp_ns', -1) != 0 or time_ns < WALL_CLOCK_NS or \
             isinstance(samples[0], T.StaticTransform):
         return None
     t = time_ns * 1e-9

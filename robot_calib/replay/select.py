@@ -163,6 +163,39 @@ def check_inputs(cls: type, topic_of: Any, bag_topics: dict[str, tuple[str, int]
     return None, present, notes
 
 
+NOT_PAIRED = ('ground_truth', 'groundtruth', 'filtered', 'fused', 'corrected')
+"""Bag topics named like these are never read for a node's input by their type alone."""
+
+
+def _auto_inputs(candidates: list, node_map: dict[str, str], bag_topics: BagTopics
+                 ) -> dict[str, str]:
+    """
+    Return node input topic -> bag topic for inputs the bag holds under another name.
+
+    An input whose topic is neither in the bags nor remapped reads the bags' one
+    topic of an accepted type (``/imu/data`` for ``imu``), unless that topic is
+    any node's output, named like an estimate or a ground truth
+    (:data:`NOT_PAIRED`) or read already for another input; an optional input
+    only when the bag topic ends with its name (``/wheel/odom`` for ``odom``).
+    With two or more such topics it stays unpaired (``--remap`` chooses).
+    Required inputs are paired first.
+    """
+    outputs = {normalize_topic(s.topic) for _, cls in candidates for s in cls.outputs}
+    auto: dict[str, str] = {}
+    specs = [s for _, cls in candidates for s in cls.inputs if s.kind != 'tf_static']
+    for spec in sorted(specs, key=lambda s: s.optional):
+        topic = normalize_topic(spec.topic)
+        if topic in node_map or topic in bag_topics or topic in auto:
+            continue
+        found = [t for t, (msgtype, _) in bag_topics.items()
+                 if codec.accepts(spec.kind, msgtype) and t not in outputs
+                 and t not in auto.values() and not any(w in t.lower() for w in NOT_PAIRED)
+                 and (not spec.optional or t.endswith(topic))]
+        if len(found) == 1:
+            auto[topic] = found[0]
+    return auto
+
+
 def _select(candidates: list, topic_of: Callable[[str], str], bag_topics: BagTopics,
             explicit: bool, skipped: dict[str, str], bag_names: str) -> list[tuple]:
     """Return (name, class, inputs present, notes) of the nodes whose inputs are there."""
@@ -226,14 +259,29 @@ def plan(bagset: BagSet, nodes: Optional[Sequence[NodeSpec]], rules: list[tuple[
     node_map, bag_map = _split_remaps(rules, candidates, bagset.topics())
     topic_of_stream, bag_topics = _bag_topics(bagset, bag_map)
 
+    auto = _auto_inputs(candidates, node_map, bag_topics)
+
     def topic_of(topic: str) -> str:
         t = normalize_topic(topic)
         return node_map.get(t, t)
 
-    selected = _select(candidates, topic_of, bag_topics, nodes is not None, skipped, bag_names)
+    def input_of(topic: str) -> str:
+        t = normalize_topic(topic)
+        return node_map.get(t) or auto.get(t, t)
+
+    selected = _select(candidates, input_of, bag_topics, nodes is not None, skipped, bag_names)
+    for name, cls, present, notes in selected:
+        for key, topic in present.items():
+            source = next((t for t, bag in auto.items() if bag == topic), None)
+            if source is not None:
+                notes.append(f'input {key} reads {topic}, the only '
+                             f'{bag_topics[topic][0]} in the bag(s) ({source} is not there; '
+                             f'--remap {source}:=TOPIC chooses another)')
     check_override_nodes(by_node, {n for n, *_ in selected})
     _check_output_topics(selected, topic_of)
     runs = [_make_run(name, cls, present, notes,
                       params_for(name, cls, file_params, by_node.get(name, {})), topic_of)
             for name, cls, present, notes in selected]
-    return Plan(runs, skipped, topic_of_stream, bag_topics, {**node_map, **bag_map})
+    used = {t for _, _, present, _ in selected for t in present.values()}
+    auto = {src: dst for src, dst in auto.items() if dst in used}
+    return Plan(runs, skipped, topic_of_stream, bag_topics, {**auto, **node_map, **bag_map})
