@@ -121,3 +121,32 @@ def test_units_advice_from_the_yaw_rate_scale(scale, says):
     advice = units_advice({'status': 'ok', 'yaw_rate_scale': scale})
     assert (says in advice) if says else advice == ''
     assert units_advice({'status': 'too_little_motion', 'yaw_rate_scale': scale}) == ''
+
+
+def _fuse(drive, gyro=None, imu=True):
+    from robot_calib.methods.odometry_fusion.params import FusionParams
+    from robot_calib.methods.odometry_fusion.pipeline import FusionPipeline
+    pipe = FusionPipeline(FusionParams())
+    last = None
+    for topic, m in drive.messages:
+        if topic == '/imu' and imu:
+            pipe.process('imu', m if gyro is None else dataclasses.replace(m, gyro=gyro(m)))
+        elif topic == '/odom':
+            for key, out in pipe.process('odom', m):
+                if key == 'odom':
+                    last = out
+    return pipe, last
+
+
+def test_fusion_does_not_take_an_all_zero_gyro_for_a_gyro(drive):
+    """An IMU that fills no angular velocity: before, 'ok' with the pose driven straight."""
+    pipe, last = _fuse(drive, gyro=lambda m: np.zeros(3))
+    _, no_imu = _fuse(drive, imu=False)
+    est = pipe.estimator
+    assert est.gyro_missing and est.counts['gyro_missing_periods'] == 1
+    assert pipe.summary()['inputs']['imu']['rejected_no_angular_velocity'] > 10000
+    assert any('angular velocity exactly 0' in w for w in pipe.summary()['warnings'])
+    assert math.hypot(last.x - no_imu.x, last.y - no_imu.y) < 1.0   # the wheels alone
+    # a driver's deadband (exact zeros below 0.01 rad/s) is a gyro all the same
+    dead, _ = _fuse(drive, gyro=lambda m: np.where(np.abs(m.gyro) < 0.01, 0.0, m.gyro))
+    assert not dead.estimator.counts.get('gyro_missing_periods')

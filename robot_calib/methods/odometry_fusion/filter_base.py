@@ -27,6 +27,12 @@ from robot_calib.methods.odometry_fusion.common import (
 from robot_calib.methods.odometry_fusion.frontend import chain_rotation, ImuFrontEnd
 from robot_calib.methods.odometry_fusion.params import FusionParams
 
+ZERO_GYRO_TURN = 0.05
+"""Wheel yaw rate (rad/s) beyond which an all-zero gyro reading counts as missing."""
+
+ZERO_GYRO_SAMPLES = 20
+"""Such readings in a row after which the gyro is taken as not provided."""
+
 Log = Callable[[str, str], None]
 """A logger: (level 'info' or 'warn', message)."""
 
@@ -61,6 +67,11 @@ class FusionFilter(abc.ABC):
         self.initialised = False
         self._odom_last: Optional[T.OdomSample] = None
         self.twist_frame = TwistFrame()
+        self.wheel_turn = 0.0
+        """The wheels' last yaw rate (rad/s), as measured."""
+        self.gyro_missing = False
+        """The IMU gives no angular velocity (all zeros while the wheels turn)."""
+        self._zero_gyro_turning = 0
         self.odom_lateral = 0.0
         """The sideways speed (m/s) of the last odometry used (a holonomic robot's; else 0)."""
         self._joints_last: Optional[T.JointStateSample] = None
@@ -190,6 +201,14 @@ class FusionFilter(abc.ABC):
         reason = self._imu_invalid(gx, gy, gz, ax, ay, az, t)
         if reason is not None:
             return reason
+        if gx == 0.0 and gy == 0.0 and gz == 0.0:
+            if self._gyro_absent(t):
+                return 'no_angular_velocity'
+        elif self._zero_gyro_turning:
+            self._zero_gyro_turning = 0
+            if self.gyro_missing:
+                self.gyro_missing = False
+                self.warn(t, 'IMU angular velocity reads again: the gyro is used')
         last = self.last_imu_t
         if last is not None and t <= last:
             return 'out_of_order'
@@ -206,6 +225,35 @@ class FusionFilter(abc.ABC):
             self.count('imu_gaps')
             self.warn(t, f'IMU silent for {t - last:.2f} s; resumed')
         return self._imu_step(t, *conv)
+
+    def _gyro_absent(self, t: float) -> bool:
+        """
+        Return True when an all-zero gyro reading means the driver gives no angular velocity.
+
+        A gyro reads exactly 0 on every axis only when nothing is filled in (an
+        IMU that publishes orientation alone) or inside a driver's deadband at
+        rest; so the zeros count only while the wheels turn (ZERO_GYRO_TURN), and
+        after ZERO_GYRO_SAMPLES of them the gyro is not used until it reads again
+        (the filter then runs on the wheels, as with a silent IMU).
+        """
+        if self.gyro_missing:
+            return True
+        if abs(self.wheel_turn) <= ZERO_GYRO_TURN:
+            return False
+        self._zero_gyro_turning += 1
+        if self._zero_gyro_turning < ZERO_GYRO_SAMPLES:
+            return False
+        self.gyro_missing = True
+        self.last_imu_t = None  # stale from now on: the wheels carry the heading
+        self._on_gyro_missing(t)
+        self.count('gyro_missing_periods')
+        self.warn(t, f'IMU angular velocity exactly 0 on every axis in {ZERO_GYRO_SAMPLES} '
+                  'readings while the wheels turn (the driver fills none?): the gyro is not '
+                  'used until it reads again; wheel odometry only')
+        return True
+
+    def _on_gyro_missing(self, t: float) -> None:
+        """Forget what the all-zero gyro taught the filter (variants extend it)."""
 
     def _odom_sample(self, s: T.OdomSample) -> Optional[str]:
         """Check one wheel-odometry message and use it; return a rejection reason or None."""
@@ -251,6 +299,7 @@ class FusionFilter(abc.ABC):
         if max(abs(v), abs(lateral)) > 3.0 * self.p.max_speed:
             return 'speed_out_of_range'
         self.odom_lateral = lateral
+        self.wheel_turn = w
         if lateral:
             self.count('odometry_sideways')  # a holonomic robot's: used as an input
         return self._wheel_step(s.t, v, w)
@@ -271,6 +320,7 @@ class FusionFilter(abc.ABC):
             return 'non_finite'
         if abs(v) > 3.0 * self.p.max_speed:
             return 'speed_out_of_range'
+        self.wheel_turn = w
         return self._wheel_step(s.t, v, w)
 
     def _lidar_sample(self, s: T.OdomSample) -> None:

@@ -140,6 +140,17 @@ class ImprovedFusion(DelayedOdometry, FusionFilter):
         self.count('reinitialisations')
         self.warn(t, f'filter re-initialised ({reason})')
 
+    def _on_gyro_missing(self, t: float) -> None:
+        """Reset the odometry yaw-rate scale and per-speed terms: learnt against no gyro."""
+        p = self.p
+        self._flush()
+        self.x[IKW], self.x[IKV] = 1.0, 0.0
+        for i, var in ((IKW, p.yaw_rate_scale_init ** 2), (IKV, p.yaw_rate_offset_init ** 2)):
+            self.P[i, :] = 0.0
+            self.P[:, i] = 0.0
+            self.P[i, i] = var
+        self.yaw_fit = self._new_yaw_fit(self.delay_applied)
+
     # -- prediction ------------------------------------------------------------------------
     def _predict(self, t: float) -> None:
         """Integrate the state to ``t`` (s); the covariance follows in chunks (see _flush)."""
