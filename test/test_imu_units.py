@@ -150,3 +150,22 @@ def test_fusion_does_not_take_an_all_zero_gyro_for_a_gyro(drive):
     # a driver's deadband (exact zeros below 0.01 rad/s) is a gyro all the same
     dead, _ = _fuse(drive, gyro=lambda m: np.where(np.abs(m.gyro) < 0.01, 0.0, m.gyro))
     assert not dead.estimator.counts.get('gyro_missing_periods')
+
+
+def test_loop_closure_does_not_take_an_all_zero_gyro_for_a_gyro():
+    from robot_calib.methods.loop_closure_correction.params import LoopClosureParams
+    from robot_calib.methods.loop_closure_correction.pipeline import LoopClosurePipeline
+    from robot_calib.sim import run_scenario
+    res = run_scenario('revisit', seed=1, duration=60.0)
+    heading = {}
+    for zero in (False, True):
+        pipe = LoopClosurePipeline(LoopClosureParams())
+        for topic, s in res.messages:
+            key = topic.lstrip('/')
+            if key == 'imu' and zero:
+                s = dataclasses.replace(s, gyro=np.zeros(3))
+            for one in (s if isinstance(s, list) else [s]):
+                pipe.process(key, one)
+        result = pipe.estimator.result()
+        heading[zero] = (result.heading_source, result.counts.get('gyro_missing_periods'))
+    assert heading == {False: ('imu', None), True: ('odom', 1)}

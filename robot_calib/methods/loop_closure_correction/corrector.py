@@ -70,6 +70,7 @@ import time
 from typing import Any, ClassVar, Optional, Sequence
 
 import numpy as np
+from robot_calib.core.constants import ZERO_GYRO_SAMPLES, ZERO_GYRO_TURN
 from robot_calib.core.frames import (constant_motion, mirrored, planar_pose, rotation_matrix,
                                      scan_points, StaticTree, upside_down)
 from robot_calib.core.geometry import (rot2, se2_between, se2_compose, se2_inverse,
@@ -154,6 +155,10 @@ class LoopClosureBase(abc.ABC):
         """Its latest sideways speed (m/s; a holonomic robot's, else 0)."""
         self.twist_frame = TwistFrame()
         """Tells an odometry twist given in the odometry frame (a driver's mistake)."""
+        self.gyro_missing = False
+        """The IMU gives no yaw rate (exactly 0 while the wheels turn): odometry heading."""
+        self._zero_turning = 0
+        self._odom_turn = 0.0
         self._last_imu: Optional[tuple[float, float]] = None
         self._last_odom = None
         self._last_kf_pose: Optional[np.ndarray] = None
@@ -272,6 +277,12 @@ class LoopClosureBase(abc.ABC):
         """
         if self.params.heading_source == 'odom' or not math.isfinite(gyro_z):
             return
+        if gyro_z == 0.0:
+            if self._gyro_absent():
+                return
+        elif self._zero_turning:
+            self._zero_turning = 0
+            self.gyro_missing = False
         self.using_imu = True
         plain = self.gyro_scale == 0.0 and self.gyro_bias_rate == 0.0
         bias = self.gyro_bias if plain or self._bias_t is None \
@@ -291,6 +302,27 @@ class LoopClosureBase(abc.ABC):
                 self.sigma_yaw += self.params.motion.heading_drift_rate * dt
         self._last_imu = (t, gyro_z)
 
+    def _gyro_absent(self) -> bool:
+        """
+        Return True when a gyro z of exactly 0 means the IMU gives no yaw rate.
+
+        Counted only while the odometry turns (see ZERO_GYRO_TURN); after
+        ZERO_GYRO_SAMPLES of them the heading comes from the odometry until the
+        gyro reads again.
+        """
+        if self.gyro_missing:
+            return True
+        if abs(self._odom_turn) <= ZERO_GYRO_TURN:
+            return False
+        self._zero_turning += 1
+        if self._zero_turning < ZERO_GYRO_SAMPLES:
+            return False
+        self.gyro_missing = True
+        self.using_imu = False
+        self._last_imu = None
+        self.counts['gyro_missing_periods'] += 1
+        return True
+
     def _advance_odom(self, t: float, x: float, y: float, yaw: float) -> None:
         """Advance the dead reckoning with one odometry pose (m, m, rad) at ``t`` (s)."""
         m = self.params.motion
@@ -299,6 +331,8 @@ class LoopClosureBase(abc.ABC):
             t_prev, prev = self._last_odom
             d = se2_between(prev, cur)
             ds = math.hypot(d[0], d[1])
+            if t > t_prev:
+                self._odom_turn = d[2] / (t - t_prev)
             if self.using_imu:
                 heading = self.raw[2]
             else:

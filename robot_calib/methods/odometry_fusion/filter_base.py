@@ -20,18 +20,13 @@ from typing import Any, Callable, Optional, Union
 
 import numpy as np
 from robot_calib.core import types as T
+from robot_calib.core.constants import ZERO_GYRO_SAMPLES, ZERO_GYRO_TURN
 from robot_calib.core.geometry import wrap_scalar
 from robot_calib.core.odometry_twist import TwistFrame
 from robot_calib.methods.odometry_fusion.common import (
     FusionOutput, FusionResult, lidar_accuracy, LidarOdomSample, Rejected, wheel_twist)
 from robot_calib.methods.odometry_fusion.frontend import chain_rotation, ImuFrontEnd
 from robot_calib.methods.odometry_fusion.params import FusionParams
-
-ZERO_GYRO_TURN = 0.05
-"""Wheel yaw rate (rad/s) beyond which an all-zero gyro reading counts as missing."""
-
-ZERO_GYRO_SAMPLES = 20
-"""Such readings in a row after which the gyro is taken as not provided."""
 
 Log = Callable[[str, str], None]
 """A logger: (level 'info' or 'warn', message)."""
