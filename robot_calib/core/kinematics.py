@@ -91,6 +91,21 @@ def arc_pose_scalar(ds: float, dtheta: float) -> tuple[float, float, float]:
     return ds * t1, ds * t2, dtheta
 
 
+def off_arc(dx: float, dy: float, dtheta: float) -> float:
+    """
+    Return the sideways motion (m) of a planar step no rolling wheel gives (0 within it).
+
+    ``dx``, ``dy`` (m) in the frame of the step's start, ``dtheta`` (rad). An arc's
+    chord leaves the heading at half the turn, ``dy = dx tan(dtheta / 2)``; odometry
+    integrated to first order puts it anywhere from 0 to the whole turn, so up to
+    half the turn times the length counts as rolling. What is beyond (signed) is a
+    holonomic robot's sideways motion.
+    """
+    side = dy - dx * math.tan(0.5 * dtheta)
+    allowance = 0.5 * abs(dtheta) * math.hypot(dx, dy) + 1e-6
+    return side if abs(side) > allowance else 0.0
+
+
 def compose_scalar(a: tuple, b: tuple) -> tuple[float, float, float]:
     """Return :func:`compose` of two single poses as floats (b expressed in a)."""
     c, s = math.cos(a[2]), math.sin(a[2])

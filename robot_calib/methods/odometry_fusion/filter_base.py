@@ -22,6 +22,7 @@ import numpy as np
 from robot_calib.core import types as T
 from robot_calib.core.constants import ZERO_GYRO_SAMPLES, ZERO_GYRO_TURN
 from robot_calib.core.geometry import wrap_scalar
+from robot_calib.core.kinematics import off_arc
 from robot_calib.core.odometry_twist import TwistFrame
 from robot_calib.methods.odometry_fusion.common import (
     FusionOutput, FusionResult, lidar_accuracy, LidarOdomSample, Rejected, wheel_twist)
@@ -30,18 +31,6 @@ from robot_calib.methods.odometry_fusion.params import FusionParams
 
 Log = Callable[[str, str], None]
 """A logger: (level 'info' or 'warn', message)."""
-
-
-def _sideways(dx: float, dy: float, heading: float, arc_allowance: float) -> float:
-    """
-    Return the sideways part (m) of a pose increment (dx, dy m) at its mid ``heading`` (rad).
-
-    An arc leaves nothing sideways at its mid heading; odometry integrated to
-    first order leaves up to half its turn times its length (``arc_allowance`` /
-    2), which is not a holonomic robot's sideways motion: within it, 0.
-    """
-    side = math.cos(heading) * dy - math.sin(heading) * dx
-    return side if abs(side) > 0.5 * arc_allowance + 1e-6 else 0.0
 
 
 class FusionFilter(abc.ABC):
@@ -301,7 +290,7 @@ class FusionFilter(abc.ABC):
             elif twist_zero and (moved > 1e-6 or abs(dyaw) > 1e-6) and dt > 0:
                 # a driver that fills only the pose: velocity from pose increments
                 v, w = fwd / dt, dyaw / dt
-                lateral = _sideways(dx, dy, last.yaw + 0.5 * dyaw, abs(dyaw) * moved) / dt
+                lateral = off_arc(fwd, c * dy - sn * dx, dyaw) / dt
         else:
             self._init_pose(s)
         if max(abs(v), abs(lateral)) > 3.0 * self.p.max_speed:

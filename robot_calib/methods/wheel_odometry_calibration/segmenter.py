@@ -350,18 +350,15 @@ class DriveSegmenter:
         """
         Add one odometry increment ``rel`` (dx, dy m in the earlier pose's frame, dyaw rad).
 
-        A differential or steered drive's base moves along an arc, whose chord leaves
-        the heading at half the turn: ``dy = dx tan(dyaw / 2)``. Integrators of the
-        first order put it anywhere from 0 to the whole turn, so only the part beyond
-        ``|dyaw| / 2`` of the step counts as sideways (a holonomic robot's motion).
+        A differential or steered drive's base moves along an arc; what is beyond it
+        (:func:`robot_calib.core.kinematics.off_arc`) is a holonomic robot's motion.
         """
         dx, dy, dyaw = float(rel[0]), float(rel[1]), float(rel[2])
         step = math.hypot(dx, dy)
         if not (math.isfinite(step) and abs(dyaw) < 1.0):
             return
         self.odom_path += step
-        off_arc = abs(dy - dx * math.tan(0.5 * dyaw))
-        self.odom_sideways += max(0.0, off_arc - 0.5 * abs(dyaw) * step)
+        self.odom_sideways += abs(K.off_arc(dx, dy, dyaw))
 
     # -- scans ----------------------------------------------------------------------------
     def add_scan(self, scan: Any) -> None:
