@@ -143,7 +143,7 @@ def test_fusion_does_not_take_an_all_zero_gyro_for_a_gyro(drive):
     pipe, last = _fuse(drive, gyro=lambda m: np.zeros(3))
     _, no_imu = _fuse(drive, imu=False)
     est = pipe.estimator
-    assert est.gyro_missing and est.counts['gyro_missing_periods'] == 1
+    assert est.zero_gyro.missing and est.counts['gyro_missing_periods'] == 1
     assert pipe.summary()['inputs']['imu']['rejected_no_angular_velocity'] > 10000
     assert any('angular velocity exactly 0' in w for w in pipe.summary()['warnings'])
     assert math.hypot(last.x - no_imu.x, last.y - no_imu.y) < 1.0   # the wheels alone

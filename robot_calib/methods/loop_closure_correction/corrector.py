@@ -78,6 +78,7 @@ from robot_calib.core.odometry_twist import TwistFrame
 from robot_calib.core.scan_match import (MatchResult, PreparedScan, register,
                                          ScanMatchParams)
 from robot_calib.core.types import ImuSample, OdomSample, ScanSample, StaticTransform
+from robot_calib.core.zero_gyro import ZeroGyro
 from robot_calib.methods.loop_closure_correction.common import (Candidate, ClosureReport,
                                                                 frozen_counts, Keyframe,
                                                                 LoopClosureResult,
@@ -155,9 +156,8 @@ class LoopClosureBase(DeadReckoning, abc.ABC):
         """Its latest sideways speed (m/s; a holonomic robot's, else 0)."""
         self.twist_frame = TwistFrame()
         """Tells an odometry twist given in the odometry frame (a driver's mistake)."""
-        self.gyro_missing = False
-        """The IMU gives no yaw rate (exactly 0 while the wheels turn): odometry heading."""
-        self._zero_turning = 0
+        self.zero_gyro = ZeroGyro()
+        """Whether the IMU gives no yaw rate (exactly 0 while the wheels turn)."""
         self._odom_turn = 0.0
         self._last_imu: Optional[tuple[float, float]] = None
         self._last_odom = None

@@ -9,7 +9,7 @@ it expects of it ``params``, the raw pose ``raw`` (x m, y m, yaw rad), the
 learnt gyro terms (``gyro_bias``, ``gyro_bias_rate``, ``gyro_scale``,
 ``_bias_t``), the uncertainties ``sigma_yaw`` and ``sigma_xy``, ``path``,
 ``rate``, ``using_imu``, ``counts``, and the state ``_last_imu``,
-``_last_odom``, ``gyro_missing``, ``_zero_turning`` and ``_odom_turn``.
+``_last_odom``, ``zero_gyro`` and ``_odom_turn``.
 """
 
 from __future__ import annotations
@@ -17,7 +17,6 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from robot_calib.core.constants import ZERO_GYRO_SAMPLES, ZERO_GYRO_TURN
 from robot_calib.core.geometry import rot2, se2_between, wrap_angle
 
 
@@ -36,9 +35,8 @@ class DeadReckoning:
         if gyro_z == 0.0:
             if self._gyro_absent():
                 return
-        elif self._zero_turning:
-            self._zero_turning = 0
-            self.gyro_missing = False
+        else:
+            self.zero_gyro.reading()
         self.using_imu = True
         plain = self.gyro_scale == 0.0 and self.gyro_bias_rate == 0.0
         bias = self.gyro_bias if plain or self._bias_t is None \
@@ -62,21 +60,16 @@ class DeadReckoning:
         """
         Return True when a gyro z of exactly 0 means the IMU gives no yaw rate.
 
-        Counted only while the odometry turns (see ZERO_GYRO_TURN); after
-        ZERO_GYRO_SAMPLES of them the heading comes from the odometry until the
-        gyro reads again.
+        (:mod:`robot_calib.core.zero_gyro`.) The heading then comes from the
+        odometry until the gyro reads again.
         """
-        if self.gyro_missing:
-            return True
-        if abs(self._odom_turn) <= ZERO_GYRO_TURN:
+        was = self.zero_gyro.missing
+        if not self.zero_gyro.zero(self._odom_turn):
             return False
-        self._zero_turning += 1
-        if self._zero_turning < ZERO_GYRO_SAMPLES:
-            return False
-        self.gyro_missing = True
-        self.using_imu = False
-        self._last_imu = None
-        self.counts['gyro_missing_periods'] += 1
+        if not was:
+            self.using_imu = False
+            self._last_imu = None
+            self.counts['gyro_missing_periods'] += 1
         return True
 
     def _advance_odom(self, t: float, x: float, y: float, yaw: float) -> None:

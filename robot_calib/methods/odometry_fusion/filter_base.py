@@ -20,10 +20,10 @@ from typing import Any, Callable, Optional, Union
 
 import numpy as np
 from robot_calib.core import types as T
-from robot_calib.core.constants import ZERO_GYRO_SAMPLES, ZERO_GYRO_TURN
 from robot_calib.core.geometry import wrap_scalar
 from robot_calib.core.kinematics import off_arc
 from robot_calib.core.odometry_twist import TwistFrame
+from robot_calib.core.zero_gyro import READINGS, ZeroGyro
 from robot_calib.methods.odometry_fusion.common import (
     FusionOutput, FusionResult, lidar_accuracy, LidarOdomSample, Rejected, wheel_twist)
 from robot_calib.methods.odometry_fusion.frontend import chain_rotation, ImuFrontEnd
@@ -65,9 +65,8 @@ class FusionFilter(abc.ABC):
         self.twist_frame = TwistFrame()
         self.wheel_turn = 0.0
         """The wheels' last yaw rate (rad/s), as measured."""
-        self.gyro_missing = False
-        """The IMU gives no angular velocity (all zeros while the wheels turn)."""
-        self._zero_gyro_turning = 0
+        self.zero_gyro = ZeroGyro()
+        """Whether the IMU gives no angular velocity (all zeros while the wheels turn)."""
         self.odom_lateral = 0.0
         """The sideways speed (m/s) of the last odometry used (a holonomic robot's; else 0)."""
         self._joints_last: Optional[T.JointStateSample] = None
@@ -200,11 +199,8 @@ class FusionFilter(abc.ABC):
         if gx == 0.0 and gy == 0.0 and gz == 0.0:
             if self._gyro_absent(t):
                 return 'no_angular_velocity'
-        elif self._zero_gyro_turning:
-            self._zero_gyro_turning = 0
-            if self.gyro_missing:
-                self.gyro_missing = False
-                self.warn(t, 'IMU angular velocity reads again: the gyro is used')
+        elif self.zero_gyro.reading():  # it was missing until now
+            self.warn(t, 'IMU angular velocity reads again: the gyro is used')
         last = self.last_imu_t
         if last is not None and t <= last:
             return 'out_of_order'
@@ -226,26 +222,19 @@ class FusionFilter(abc.ABC):
         """
         Return True when an all-zero gyro reading means the driver gives no angular velocity.
 
-        A gyro reads exactly 0 on every axis only when nothing is filled in (an
-        IMU that publishes orientation alone) or inside a driver's deadband at
-        rest; so the zeros count only while the wheels turn (ZERO_GYRO_TURN), and
-        after ZERO_GYRO_SAMPLES of them the gyro is not used until it reads again
-        (the filter then runs on the wheels, as with a silent IMU).
+        (:mod:`robot_calib.core.zero_gyro`.) The filter then runs on the wheels,
+        as with a silent IMU, until the gyro reads again.
         """
-        if self.gyro_missing:
-            return True
-        if abs(self.wheel_turn) <= ZERO_GYRO_TURN:
+        was = self.zero_gyro.missing
+        if not self.zero_gyro.zero(self.wheel_turn):
             return False
-        self._zero_gyro_turning += 1
-        if self._zero_gyro_turning < ZERO_GYRO_SAMPLES:
-            return False
-        self.gyro_missing = True
-        self.last_imu_t = None  # stale from now on: the wheels carry the heading
-        self._on_gyro_missing(t)
-        self.count('gyro_missing_periods')
-        self.warn(t, f'IMU angular velocity exactly 0 on every axis in {ZERO_GYRO_SAMPLES} '
-                  'readings while the wheels turn (the driver fills none?): the gyro is not '
-                  'used until it reads again; wheel odometry only')
+        if not was:
+            self.last_imu_t = None  # stale from now on: the wheels carry the heading
+            self._on_gyro_missing(t)
+            self.count('gyro_missing_periods')
+            self.warn(t, f'IMU angular velocity exactly 0 on every axis in {READINGS} '
+                      'readings while the wheels turn (the driver fills none?): the gyro is '
+                      'not used until it reads again; wheel odometry only')
         return True
 
     def _on_gyro_missing(self, t: float) -> None:
