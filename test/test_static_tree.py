@@ -115,3 +115,17 @@ def test_loop_closure_takes_a_lidar_through_a_chain():
     lc.set_mounting(upside)
     lc._sensor_pose('laser')
     assert 'laser' in lc._upside_down
+
+
+def test_tilt_takes_an_imu_on_another_branch_of_the_tree():
+    """base_footprint -> base_link (pitched 90 deg) beside base_footprint -> imu_link (level)."""
+    from robot_calib.methods.tilt_detection.params import TiltParams
+    from robot_calib.methods.tilt_detection.pipeline import TiltPipeline
+    pipe = TiltPipeline(TiltParams())
+    pipe.on_static_transform(_tf('base_footprint', 'base_link', (0, 0, 0.1), (0, math.pi / 2, 0)))
+    pipe.on_static_transform(_tf('base_footprint', 'imu_link', (0, 0, 0.2), (0, 0, 0)))
+    for i in range(400):
+        pipe.process('imu', ImuSample(i * 0.005, np.zeros(3), np.array([0.0, 0.0, 9.81]),
+                                      'imu_link'))
+    # gravity along the footprint's z is along base_link's -x: base_link tilted 90 deg
+    assert pipe.summary()['final_tilt_deg'] == pytest.approx(90.0, abs=1.0)

@@ -231,7 +231,7 @@ class TiltEstimatorBase(abc.ABC):
         child frame (at once when they already do).
         """
         p = self.params
-        if not p.use_tf_static or transform.child == p.base_frame:
+        if not p.use_tf_static:
             return
         self._transforms.add(transform)
         if self._imu_frame is not None:
