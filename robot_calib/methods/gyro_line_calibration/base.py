@@ -38,6 +38,7 @@ from robot_calib.core.frames import (constant_motion, mirrored, planar_pose, rot
 from robot_calib.core.geometry import quat_from_rpy, quat_to_matrix, rot2, wrap_angle
 from robot_calib.core.lines import extract_lines, Line, ObstacleGrid
 from robot_calib.core.series import Thinned
+from robot_calib.core.zero_gyro import ZeroGyro
 from robot_calib.methods.gyro_line_calibration.common import (
     Correction, frozen_counts, GyroLineResult, PoseEstimate, Reference, within_hold)
 from robot_calib.methods.gyro_line_calibration.params import GyroLineParams
@@ -104,6 +105,8 @@ class GyroLineBase(abc.ABC):
         self._odom_speed = 0.0
         self._odom_v = 0.0
         self._odom_rate = 0.0
+        self.zero_gyro = ZeroGyro()
+        """Whether the IMU gives no yaw rate (exactly 0 while the odometry turns)."""
         self._acc_dt = 0.0
         self._acc_wdt = 0.0
         self._acc_q = 0.0
@@ -291,6 +294,15 @@ class GyroLineBase(abc.ABC):
         t = s.t
         self._start(t)
         rate = self._gyro_z(s.gyro)
+        if rate == 0.0:
+            was = self.zero_gyro.missing
+            if self.zero_gyro.zero(t, self._odom_rate):
+                if not was:  # a driver that fills no angular velocity: the odometry's heading,
+                    self._imu_t = None  # with the turn the zeros hid
+                    self._forget_gyro(self.zero_gyro.hidden_turn, self.zero_gyro.since)
+                return
+        else:
+            self.zero_gyro.reading()
         prev = self._imu_t
         prev_rate = self._last_imu_rate
         self._imu_t = t
@@ -311,6 +323,25 @@ class GyroLineBase(abc.ABC):
         self._integrate_rate(0.5 * (rate + prev_rate), dt,  # trapezoidal rule
                              p.improved.gyro_noise)
         self._carried_check(t)
+
+    def _forget_gyro(self, hidden_turn: float, since: Optional[float]) -> None:
+        """
+        Undo what an all-zero gyro did from ``since`` (s) on.
+
+        Add the turn (rad) it hid, reset the gyro terms it taught the filter and
+        drop the references made in the heading it left wrong.
+        """
+        ip = self.params.improved
+        self._flush_gyro()
+        if since is not None:
+            self.references = [r for r in self.references if r.t_created < since]
+        self.x[2] = wrap_angle(self.x[2] + hidden_turn)
+        self.x[3] = self.x[4] = 0.0
+        for i, var in ((3, ip.bias_sigma0 ** 2), (4, ip.scale_sigma0 ** 2)):
+            self.P[i, :] = 0.0
+            self.P[:, i] = 0.0
+            self.P[i, i] = var
+        self.count('gyro_missing_periods')
 
     def _gyro_z(self, gyro: np.ndarray) -> float:
         """Return the yaw rate (rad/s) in base_link of a gyro vector (rad/s, IMU frame)."""

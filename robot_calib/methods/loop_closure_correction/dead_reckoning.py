@@ -33,7 +33,7 @@ class DeadReckoning:
         if self.params.heading_source == 'odom' or not math.isfinite(gyro_z):
             return
         if gyro_z == 0.0:
-            if self._gyro_absent():
+            if self._gyro_absent(t):
                 return
         else:
             self.zero_gyro.reading()
@@ -56,7 +56,7 @@ class DeadReckoning:
                 self.sigma_yaw += self.params.motion.heading_drift_rate * dt
         self._last_imu = (t, gyro_z)
 
-    def _gyro_absent(self) -> bool:
+    def _gyro_absent(self, t: float) -> bool:
         """
         Return True when a gyro z of exactly 0 means the IMU gives no yaw rate.
 
@@ -64,9 +64,10 @@ class DeadReckoning:
         odometry until the gyro reads again.
         """
         was = self.zero_gyro.missing
-        if not self.zero_gyro.zero(self._odom_turn):
+        if not self.zero_gyro.zero(t, self._odom_turn):
             return False
-        if not was:
+        if not was:  # the heading from the odometry now, with the turn the zeros hid
+            self.raw[2] = wrap_angle(self.raw[2] + self.zero_gyro.hidden_turn)
             self.using_imu = False
             self._last_imu = None
             self.counts['gyro_missing_periods'] += 1

@@ -23,7 +23,7 @@ from robot_calib.core import types as T
 from robot_calib.core.geometry import wrap_scalar
 from robot_calib.core.kinematics import off_arc
 from robot_calib.core.odometry_twist import TwistFrame
-from robot_calib.core.zero_gyro import READINGS, ZeroGyro
+from robot_calib.core.zero_gyro import READINGS, SPAN, ZeroGyro
 from robot_calib.methods.odometry_fusion.common import (
     FusionOutput, FusionResult, lidar_accuracy, LidarOdomSample, Rejected, wheel_twist)
 from robot_calib.methods.odometry_fusion.frontend import chain_rotation, ImuFrontEnd
@@ -226,15 +226,15 @@ class FusionFilter(abc.ABC):
         as with a silent IMU, until the gyro reads again.
         """
         was = self.zero_gyro.missing
-        if not self.zero_gyro.zero(self.wheel_turn):
+        if not self.zero_gyro.zero(t, self.wheel_turn):
             return False
         if not was:
             self.last_imu_t = None  # stale from now on: the wheels carry the heading
             self._on_gyro_missing(t)
             self.count('gyro_missing_periods')
-            self.warn(t, f'IMU angular velocity exactly 0 on every axis in {READINGS} '
-                      'readings while the wheels turn (the driver fills none?): the gyro is '
-                      'not used until it reads again; wheel odometry only')
+            self.warn(t, f'IMU angular velocity exactly 0 on every axis in {READINGS} or '
+                      f'more readings over {SPAN} s while the wheels turn (the driver fills '
+                      'none?): the gyro is not used until it reads again; wheel odometry only')
         return True
 
     def _on_gyro_missing(self, t: float) -> None:

@@ -141,9 +141,10 @@ class ImprovedFusion(DelayedOdometry, FusionFilter):
         self.warn(t, f'filter re-initialised ({reason})')
 
     def _on_gyro_missing(self, t: float) -> None:
-        """Reset the odometry yaw-rate scale and per-speed terms: learnt against no gyro."""
+        """Add the turn the zeros hid; reset the yaw-rate terms, learnt against no gyro."""
         p = self.p
         self._flush()
+        self.x[IYAW] = wrap_scalar(self.x[IYAW] + self.zero_gyro.hidden_turn)
         self.x[IKW], self.x[IKV] = 1.0, 0.0
         for i, var in ((IKW, p.yaw_rate_scale_init ** 2), (IKV, p.yaw_rate_offset_init ** 2)):
             self.P[i, :] = 0.0
