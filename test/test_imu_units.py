@@ -193,3 +193,18 @@ def test_gyro_line_does_not_take_an_all_zero_gyro_for_a_gyro():
     err = np.degrees(np.abs(np.angle(np.exp(1j * (np.array(heading) - true)))))
     assert core.counts['gyro_missing_periods'] == 1
     assert err[-1] < 1.0 and np.median(err) < 1.0
+
+
+def test_tilt_says_an_alert_from_the_first_samples_may_be_the_mounting():
+    """An IMU on its side, no mounting given: the alert stands (a robot on its back must raise
+    it at once) but says what else reads the same; a later fall does not."""
+    from robot_calib.core.types import ImuSample
+    from robot_calib.sim import run_scenario
+    pipe, outs, _ = _run([ImuSample(i * 0.005, np.zeros(3), np.array([0.0, 9.81, 0.0]))
+                          for i in range(200)])
+    s = pipe.summary()
+    assert s['alerts'] == 1 and 'mounting' in s['mounting_caveat']
+    assert 'mounting' in [o for k, o in outs if k == 'diagnostics'][-1].statuses[0].message
+    tip = run_scenario('tip_over', seed=1, duration=30.0)
+    later, _, _ = _run([m for topic, m in tip.messages if topic == '/imu'])
+    assert later.summary()['alerts'] >= 1 and 'mounting_caveat' not in later.summary()

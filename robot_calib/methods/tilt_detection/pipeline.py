@@ -46,6 +46,9 @@ from robot_calib.pipelines.base import InputSpec, Output, OutputSpec, Pipeline
 
 STATUS_NAME = 'tilt_detection'
 
+EARLY_ALERT = 0.5
+"""An alert this soon (s) after the first sample may be the IMU's mounting, not a fall."""
+
 NO_ORIENTATION = np.diag([-1.0, 0.0, 0.0])
 """Orientation covariance of an IMU message without an orientation (REP-145: element 0 = -1)."""
 
@@ -72,6 +75,9 @@ class TiltPipeline(Pipeline):
         self.est = make_estimator(self.params)
         self.last: Optional[TiltState] = None
         self._first = True
+        self._t_first: Optional[float] = None
+        self.mounting_caveat = ''
+        """Said when the alert came with the first samples and no IMU mounting is known."""
         self._mount_updates = 0
         self._last_diag: Optional[float] = None
         self._rejected_at_diag = 0
@@ -123,6 +129,8 @@ class TiltPipeline(Pipeline):
             self.log('warn', f'IMU gap of {s.restart_gap:.2f} s (> max_dt {p.max_dt} s): '
                      'attitude filter restarted from the accelerometer')
         self.last = s
+        if self._t_first is None:
+            self._t_first = sample.t
         stamp = T.stamp_of(sample.t, sample.stamp_ns)
         outs: list[Output] = [('imu', self._imu_out(sample, s, stamp))]
         if s.changed or self._first:
@@ -175,6 +183,13 @@ class TiltPipeline(Pipeline):
             self._reason = (f'fallen: tilt {math.degrees(s.tilt):.1f} deg above fall_angle '
                             f'{math.degrees(p.fall_angle):.1f} deg for '
                             f'>= {p.fall_min_duration:.3f} s')
+            if s.t - self._t_first <= EARLY_ALERT and \
+                    self.est.result().mounting_source == 'none':
+                self.mounting_caveat = (
+                    'the alert came with the first samples and no IMU mounting is known '
+                    '(mounting_rpy or /tf_static): an IMU mounted rotated on an upright robot '
+                    'reads the same; give its mounting if so')
+                self._reason += '; ' + self.mounting_caveat
             self.log('warn', f'FALL ALERT at t = {s.t:.3f} s: {self._reason}')
         else:
             self._reason = (f'upright again: tilt below clear_angle '
@@ -268,6 +283,7 @@ class TiltPipeline(Pipeline):
             'filter_restarts': r.restarts,
             'mounting': r.mounting_source,
             'mounting_quat': list(r.mounting),
+            **({'mounting_caveat': self.mounting_caveat} if self.mounting_caveat else {}),
             'accel_units': r.accel_units,
         }
 
