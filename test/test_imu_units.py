@@ -196,8 +196,11 @@ def test_gyro_line_does_not_take_an_all_zero_gyro_for_a_gyro():
 
 
 def test_tilt_says_an_alert_from_the_first_samples_may_be_the_mounting():
-    """An IMU on its side, no mounting given: the alert stands (a robot on its back must raise
-    it at once) but says what else reads the same; a later fall does not."""
+    """
+    An IMU on its side, no mounting given: the alert stands but says what else reads the same.
+
+    (A robot on its back must raise it at once.) A later fall does not say it.
+    """
     from robot_calib.core.types import ImuSample
     from robot_calib.sim import run_scenario
     pipe, outs, _ = _run([ImuSample(i * 0.005, np.zeros(3), np.array([0.0, 9.81, 0.0]))
