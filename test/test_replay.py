@@ -638,18 +638,26 @@ def test_replay_keeps_freed_heap_under_glibc():
     assert out.stdout.split() == ['True', 'True']
 
 
+def _imu_odom_bag(path, n, imu_topics, odom_topics, start_ns=10**9, imu_stamped=True):
+    """Write ``n`` IMU messages at 100 Hz on each of ``imu_topics``, odometry at 20 Hz."""
+    with bags.BagWriter(path) as w:
+        for i in range(n):
+            ns = start_ns + i * 10**7
+            for topic in imu_topics:
+                w.write(topic, _imu(ns if imu_stamped else 0), ns)
+            if i % 5 == 0:
+                for topic in odom_topics:
+                    w.write(topic, T.OdomSample(ns * 1e-9, 0.001 * i, 0.0, 0.0, 0.1,
+                                                stamp_ns=ns), ns)
+
+
 def test_messages_without_a_header_stamp_take_their_receive_time(tmp_path, capsys):
     """Header stamps left 0 by the driver: the bag's log time stands in, and the user is told."""
     from robot_calib.cli import main
     from robot_calib.pipelines.validation import restamp_unset
     path = tmp_path / 'unstamped'
-    with bags.BagWriter(path) as w:
-        for i in range(200):
-            ns = 1_700_000_000 * 10**9 + i * 10**7  # a wall clock: recorded on a robot
-            w.write('/imu', _imu(0), ns)          # stamp 0 every time
-            if i % 5 == 0:
-                w.write('/odom', T.OdomSample(ns * 1e-9, 0.001 * i, 0.0, 0.0, 0.1,
-                                              stamp_ns=ns), ns)  # stamped
+    # a wall clock (recorded on a robot); IMU stamps 0 every time, odometry stamped
+    _imu_odom_bag(path, 200, ('/imu',), ('/odom',), 1_700_000_000 * 10**9, imu_stamped=False)
     assert main(['replay', str(path), '--out', str(tmp_path / 'o'), '--nodes',
                  'tilt_detection,odometry_fusion', '--no-plots', '--no-progress']) == 0
     assert 'warning: 200 message(s) on /imu have no header stamp' in capsys.readouterr().err
@@ -671,16 +679,7 @@ def test_messages_without_a_header_stamp_take_their_receive_time(tmp_path, capsy
 def test_inputs_read_the_only_topic_of_their_type(tmp_path):
     """/imu/data and /wheel/odom (robot_localization's names): read without --remap, said."""
     path = tmp_path / 'names'
-    with bags.BagWriter(path) as w:
-        for i in range(300):
-            ns = 10**9 + i * 10**7
-            w.write('/imu/data', _imu(ns), ns)
-            w.write('/imu/data_raw', _imu(ns), ns)
-            if i % 5 == 0:
-                w.write('/wheel/odom', T.OdomSample(ns * 1e-9, 0.001 * i, 0.0, 0.0, 0.1,
-                                                    stamp_ns=ns), ns)
-                w.write('/ground_truth/odom', T.OdomSample(ns * 1e-9, 0.001 * i, 0.0, 0.0,
-                                                           0.1, stamp_ns=ns), ns)
+    _imu_odom_bag(path, 300, ('/imu/data', '/imu/data_raw'), ('/wheel/odom', '/ground_truth/odom'))
     # two Imu topics: none is chosen for the node, which says what to remap
     with pytest.raises(ReplayError, match='needs /imu'):
         replay(path, tmp_path / 'o1', nodes='odometry_fusion', progress=False, plots=False)

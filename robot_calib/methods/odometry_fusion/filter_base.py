@@ -20,13 +20,14 @@ from typing import Any, Callable, Optional, Union
 
 import numpy as np
 from robot_calib.core import types as T
+from robot_calib.core.frames import rotation_matrix, StaticTree
 from robot_calib.core.geometry import wrap_scalar
 from robot_calib.core.kinematics import off_arc
 from robot_calib.core.odometry_twist import TwistFrame
 from robot_calib.core.zero_gyro import READINGS, SPAN, ZeroGyro
 from robot_calib.methods.odometry_fusion.common import (
     FusionOutput, FusionResult, lidar_accuracy, LidarOdomSample, Rejected, wheel_twist)
-from robot_calib.methods.odometry_fusion.frontend import chain_rotation, ImuFrontEnd
+from robot_calib.methods.odometry_fusion.frontend import ImuFrontEnd
 from robot_calib.methods.odometry_fusion.params import FusionParams
 
 Log = Callable[[str, str], None]
@@ -147,15 +148,19 @@ class FusionFilter(abc.ABC):
         self._mountings.append(transform)
         if self.p.imu_extrinsic not in ('auto', 'tf'):
             return
-        rot = chain_rotation(self._mountings, self.p.base_frame, self._imu_frame)
-        if rot is None:
+        tree = StaticTree()
+        for tf in self._mountings:
+            tree.add(tf)
+        base = self.p.base_frame
+        # before the IMU's own frame is known, the first sensor frame named like 'imu'
+        frame = self._imu_frame or next(
+            (f for f in tree.leaves() if 'imu' in f.lower() and tree.mounting(f, base)), None)
+        mounting = tree.mounting(frame, base) if frame else None
+        if mounting is None:
             return
-        self.front.set_rotation(rot, 'tf')
+        self.front.set_rotation(rotation_matrix(mounting), 'tf')
         if announce and self._log is not None:
-            # before the IMU's own frame is known, the first frame named like 'imu' was used
-            frame = self._imu_frame or next(
-                (tf.child for tf in self._mountings if 'imu' in tf.child.lower()), '?')
-            self._log('info', f'IMU extrinsic from /tf_static ({self.p.base_frame} -> {frame})')
+            self._log('info', f'IMU extrinsic from /tf_static ({base} -> {frame})')
 
     # -- input adapters --------------------------------------------------------------------
     def _update_imu(self, s: T.ImuSample) -> Optional[Union[FusionOutput, Rejected]]:

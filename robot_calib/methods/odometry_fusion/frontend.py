@@ -4,7 +4,7 @@
 The IMU front end of both fusion filters: acceleration units and mounting rotation.
 
 The mounting (IMU -> ``base_link`` rotation) comes from the ``imu_rpy``
-parameter, from ``/tf_static`` (:func:`chain_rotation` through the static
+parameter, from ``/tf_static`` (:class:`robot_calib.core.frames.StaticTree` through the static
 transforms, each turned into a rotation by :mod:`robot_calib.core.frames`) or,
 failing both, from the gravity direction at start (then only the up axis is
 known and the accelerometer is not used). The units (m/s^2 or g) are a
@@ -19,7 +19,6 @@ from typing import Optional
 import numpy as np
 from robot_calib.core import types as T
 from robot_calib.core.constants import GRAVITY
-from robot_calib.core.frames import rotation_matrix
 from robot_calib.core.geometry import quat_from_rpy, quat_to_matrix
 from robot_calib.methods.odometry_fusion.params import FusionParams
 
@@ -123,29 +122,3 @@ def rotation_to_up(up: np.ndarray) -> np.ndarray:
         return np.eye(3) if c > 0 else np.diag([1.0, -1.0, -1.0])
     vx = np.array([[0, -v[2], v[1]], [v[2], 0, -v[0]], [-v[1], v[0], 0]])
     return np.eye(3) + vx + vx @ vx * ((1 - c) / (s * s))
-
-
-def chain_rotation(known: list, base: str, target: Optional[str]) -> Optional[np.ndarray]:
-    """
-    Return the rotation base -> target through the static transforms (tree search), or None.
-
-    ``known`` are :class:`robot_calib.core.types.StaticTransform` s; with
-    ``target`` None the first child frame named like 'imu' is taken.
-    """
-    children: dict[str, list] = {}
-    for tf in known:
-        children.setdefault(tf.parent, []).append(tf)
-    stack = [(base, np.eye(3))]
-    seen = {base}
-    while stack:
-        frame, rot = stack.pop()
-        for tf in children.get(frame, []):
-            if tf.child in seen:
-                continue
-            r = rot @ rotation_matrix(tf)
-            if (target is not None and tf.child == target) or \
-                    (target is None and 'imu' in tf.child.lower()):
-                return r
-            seen.add(tf.child)
-            stack.append((tf.child, r))
-    return None
