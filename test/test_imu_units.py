@@ -211,3 +211,26 @@ def test_tilt_says_an_alert_from_the_first_samples_may_be_the_mounting():
     tip = run_scenario('tip_over', seed=1, duration=30.0)
     later, _, _ = _run([m for topic, m in tip.messages if topic == '/imu'])
     assert later.summary()['alerts'] >= 1 and 'mounting_caveat' not in later.summary()
+
+
+@pytest.mark.parametrize('norm, units', [
+    (GRAVITY, 'mps2'), (1.0, 'g'), (6.0, ''), (14.0, ''), (1.4, ''), (0.6, ''), (0.05, '')])
+def test_tilt_and_fusion_tell_the_units_by_one_rule(norm, units):
+    """
+    A level IMU reading |a| = ``norm``: both nodes say the same (core.imu_units).
+
+    Before, fusion took 5-15 for m/s^2 and 0.5-1.5 for g, tilt 30 % around either:
+    at 6 m/s^2 tilt said no gravity and fusion used the accelerometer.
+    """
+    from robot_calib.core.imu_units import accel_units_of
+    from robot_calib.core.types import ImuSample
+    from robot_calib.methods.odometry_fusion.params import FusionParams
+    from robot_calib.methods.odometry_fusion.variants import make_estimator
+    samples = [ImuSample(i * 0.01, np.zeros(3), np.array([0.0, 0.0, norm])) for i in range(30)]
+    pipe, _, _ = _run(samples)
+    fusion = make_estimator(FusionParams(imu_rpy=[0.0, 0.0, 0.1]))
+    for s in samples:
+        fusion.update(s)
+    assert accel_units_of(norm) == units
+    assert pipe.summary()['accel_units'] == ('detected_' + units if units else 'no_gravity')
+    assert fusion.result().accel_units == ('detected_' + units if units else 'unknown')
