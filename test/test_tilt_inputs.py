@@ -127,6 +127,28 @@ def test_a_mounting_sent_again_is_applied_and_logged_once(mode, rotation):
     assert pipe.est.result().mounting_updates == 2
 
 
+@pytest.mark.parametrize('rotation', [(0.7071, 0.0, 0.0, 0.7071), ROLL_125],
+                         ids=['hand_typed', 'roll_125'])
+def test_fusion_takes_a_mounting_sent_again_once(rotation):
+    """Fusion set and announced its IMU extrinsic again for every /tf_static transform."""
+    from robot_calib.methods.odometry_fusion.params import FusionParams
+    from robot_calib.methods.odometry_fusion.pipeline import FusionPipeline
+    logs = []
+    pipe = FusionPipeline(FusionParams(), log=lambda level, msg: logs.append(msg))
+    tf = T.StaticTransform('base_link', 'imu_link', np.zeros(3), np.array(rotation))
+    laser = T.StaticTransform('base_link', 'laser', np.zeros(3), np.array([1.0, 0, 0, 0]))
+    for i, s in enumerate(_level(500)):
+        if i % 100 == 0:
+            pipe.process('tf_static', tf if i % 200 == 0 else
+                         dataclasses.replace(tf, rotation=-tf.rotation))
+            pipe.process('tf_static', laser)
+        pipe.process('imu', s)
+    said = [m for m in logs if m.startswith('IMU extrinsic from /tf_static')]
+    assert len(said) == 1
+    pipe.process('tf_static', dataclasses.replace(tf, rotation=quat_from_rpy(0.0, 0.0, 0.1)))
+    assert len([m for m in logs if m.startswith('IMU extrinsic from /tf_static')]) == 2
+
+
 # -- 3. every path rejects what the live one rejects ---------------------------------------------
 @pytest.mark.parametrize('mode', MODES)
 def test_an_all_zero_first_sample_is_rejected_in_a_batch_run(mode):
