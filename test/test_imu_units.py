@@ -53,6 +53,7 @@ def test_gravity_removed_raises_no_alert_and_says_so(drive, mode):
     assert [m for level, m in logs if level == 'error' and 'no gravity' in m]
 
 
+@pytest.mark.slow
 def test_an_imu_in_g_is_told_and_scaled(drive):
     ref, ref_outs, _ = _run(_imu(drive))
     pipe, outs, logs = _run(_imu(drive, lambda a: a / GRAVITY))
@@ -94,6 +95,7 @@ def test_replay_of_a_gravity_free_imu(tmp_path, drive):
         'tilt_detection']['max_tilt_deg'] is None
 
 
+@pytest.mark.slow
 def test_fusion_names_a_gyro_in_degrees(drive):
     from robot_calib.methods.odometry_fusion.params import FusionParams
     from robot_calib.methods.odometry_fusion.pipeline import FusionPipeline
@@ -138,6 +140,7 @@ def _fuse(drive, gyro=None, imu=True):
     return pipe, last
 
 
+@pytest.mark.slow
 def test_fusion_does_not_take_an_all_zero_gyro_for_a_gyro(drive):
     """An IMU that fills no angular velocity: before, 'ok' with the pose driven straight."""
     pipe, last = _fuse(drive, gyro=lambda m: np.zeros(3))
@@ -152,6 +155,7 @@ def test_fusion_does_not_take_an_all_zero_gyro_for_a_gyro(drive):
     assert not dead.estimator.counts.get('gyro_missing_periods')
 
 
+@pytest.mark.slow
 def test_loop_closure_does_not_take_an_all_zero_gyro_for_a_gyro():
     from robot_calib.methods.loop_closure_correction.params import LoopClosureParams
     from robot_calib.methods.loop_closure_correction.pipeline import LoopClosurePipeline
@@ -171,6 +175,7 @@ def test_loop_closure_does_not_take_an_all_zero_gyro_for_a_gyro():
     assert heading == {False: ('imu', None), True: ('odom', 1)}
 
 
+@pytest.mark.slow
 def test_gyro_line_does_not_take_an_all_zero_gyro_for_a_gyro():
     """Before: 178 deg off after 150 s of a vacuum run (the zeros integrated as the heading)."""
     from robot_calib.methods.gyro_line_calibration.params import GyroLineParams
