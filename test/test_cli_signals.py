@@ -11,6 +11,8 @@ import time
 
 import pytest
 
+pytestmark = pytest.mark.slow  # over a few seconds each: left out by -m "not slow"
+
 
 def _run_until_partial(args, folder: Path, timeout: float = 120.0):
     """Start ``robot-calib args``; SIGTERM it once a hidden partial output shows up."""

@@ -11,6 +11,8 @@ import pytest
 from robot_calib.cli import main
 from robot_calib.fleet import FleetError, run_fleet
 
+pytestmark = pytest.mark.slow  # over a few seconds each: left out by -m "not slow"
+
 BIAS = {'r1': (0.01, 0.01, 0.05), 'r2': (0.01, 0.01, 0.01)}  # r1's gyro bias jumps on day 3
 NODES = ['odometry_fusion']
 

@@ -77,6 +77,7 @@ def _late_sim(seed, latency=0.3, duration=300.0):
     return seq, truth
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize('seed', [0, 2])
 def test_odometry_delay_takes_a_late_odometry_out_of_the_filter(seed):
     """
@@ -104,6 +105,7 @@ def test_odometry_delay_takes_a_late_odometry_out_of_the_filter(seed):
         assert fit['odometry_delay'] == pytest.approx(0.3, abs=0.03)
 
 
+@pytest.mark.slow
 def test_the_summary_advises_the_delay_it_found():
     """The summary's warnings and the diagnostics (WARN) say what to set, until it is set."""
     samples, _ = drive(duration=240.0, seed=5, odom_latency=0.3)
@@ -129,6 +131,7 @@ def test_imu_rejections_come_back_at_once_through_the_delay_line():
     assert len(f._delay.held) == 1  # only the good sample waits
 
 
+@pytest.mark.slow
 def test_a_delay_found_is_applied_once_when_asked():
     """
     fusion_drive seed 2, odometry 0.3 s late, ``odometry_delay_auto``: the delay is applied.

@@ -11,6 +11,8 @@ import pytest
 from robot_calib.cli import main
 from robot_calib.io.bags import read_messages
 
+pytestmark = pytest.mark.slow  # over a few seconds each: left out by -m "not slow"
+
 REPO = Path(__file__).resolve().parents[1]
 
 

@@ -53,6 +53,7 @@ def test_gravity_removed_raises_no_alert_and_says_so(drive, mode):
     assert [m for level, m in logs if level == 'error' and 'no gravity' in m]
 
 
+@pytest.mark.slow
 def test_an_imu_in_g_is_told_and_scaled(drive):
     ref, ref_outs, _ = _run(_imu(drive))
     pipe, outs, logs = _run(_imu(drive, lambda a: a / GRAVITY))
@@ -94,6 +95,7 @@ def test_replay_of_a_gravity_free_imu(tmp_path, drive):
         'tilt_detection']['max_tilt_deg'] is None
 
 
+@pytest.mark.slow
 def test_fusion_names_a_gyro_in_degrees(drive):
     from robot_calib.methods.odometry_fusion.params import FusionParams
     from robot_calib.methods.odometry_fusion.pipeline import FusionPipeline
@@ -138,6 +140,7 @@ def _fuse(drive, gyro=None, imu=True):
     return pipe, last
 
 
+@pytest.mark.slow
 def test_fusion_does_not_take_an_all_zero_gyro_for_a_gyro(drive):
     """An IMU that fills no angular velocity: before, 'ok' with the pose driven straight."""
     pipe, last = _fuse(drive, gyro=lambda m: np.zeros(3))
@@ -152,6 +155,7 @@ def test_fusion_does_not_take_an_all_zero_gyro_for_a_gyro(drive):
     assert not dead.estimator.counts.get('gyro_missing_periods')
 
 
+@pytest.mark.slow
 def test_loop_closure_does_not_take_an_all_zero_gyro_for_a_gyro():
     from robot_calib.methods.loop_closure_correction.params import LoopClosureParams
     from robot_calib.methods.loop_closure_correction.pipeline import LoopClosurePipeline
@@ -171,6 +175,7 @@ def test_loop_closure_does_not_take_an_all_zero_gyro_for_a_gyro():
     assert heading == {False: ('imu', None), True: ('odom', 1)}
 
 
+@pytest.mark.slow
 def test_gyro_line_does_not_take_an_all_zero_gyro_for_a_gyro():
     """Before: 178 deg off after 150 s of a vacuum run (the zeros integrated as the heading)."""
     from robot_calib.methods.gyro_line_calibration.params import GyroLineParams
@@ -211,3 +216,26 @@ def test_tilt_says_an_alert_from_the_first_samples_may_be_the_mounting():
     tip = run_scenario('tip_over', seed=1, duration=30.0)
     later, _, _ = _run([m for topic, m in tip.messages if topic == '/imu'])
     assert later.summary()['alerts'] >= 1 and 'mounting_caveat' not in later.summary()
+
+
+@pytest.mark.parametrize('norm, units', [
+    (GRAVITY, 'mps2'), (1.0, 'g'), (6.0, ''), (14.0, ''), (1.4, ''), (0.6, ''), (0.05, '')])
+def test_tilt_and_fusion_tell_the_units_by_one_rule(norm, units):
+    """
+    A level IMU reading |a| = ``norm``: both nodes say the same (core.imu_units).
+
+    Before, fusion took 5-15 for m/s^2 and 0.5-1.5 for g, tilt 30 % around either:
+    at 6 m/s^2 tilt said no gravity and fusion used the accelerometer.
+    """
+    from robot_calib.core.imu_units import accel_units_of
+    from robot_calib.core.types import ImuSample
+    from robot_calib.methods.odometry_fusion.params import FusionParams
+    from robot_calib.methods.odometry_fusion.variants import make_estimator
+    samples = [ImuSample(i * 0.01, np.zeros(3), np.array([0.0, 0.0, norm])) for i in range(30)]
+    pipe, _, _ = _run(samples)
+    fusion = make_estimator(FusionParams(imu_rpy=[0.0, 0.0, 0.1]))
+    for s in samples:
+        fusion.update(s)
+    assert accel_units_of(norm) == units
+    assert pipe.summary()['accel_units'] == ('detected_' + units if units else 'no_gravity')
+    assert fusion.result().accel_units == ('detected_' + units if units else 'unknown')

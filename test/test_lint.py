@@ -21,6 +21,7 @@ def _python_files():
 
 
 @pytest.mark.linter
+@pytest.mark.slow
 def test_flake8(monkeypatch):
     """Run ament_flake8 over the package, its tests and benchmarks."""
     from ament_flake8.main import main_with_errors
@@ -30,6 +31,7 @@ def test_flake8(monkeypatch):
 
 
 @pytest.mark.linter
+@pytest.mark.slow
 def test_pep257(monkeypatch):
     """Run ament_pep257 (the ament docstring convention)."""
     from ament_pep257.main import main

@@ -101,6 +101,7 @@ def _install_env(install: Path) -> dict:
     return env
 
 
+@pytest.mark.slow
 def test_colcon_install_is_found_like_ros2_run(install_space):
     """ament_index finds robot_calib and every executable sits in lib/robot_calib."""
     env = _install_env(install_space)
@@ -118,6 +119,7 @@ def test_colcon_install_is_found_like_ros2_run(install_space):
     assert (prefix / 'share' / 'robot_calib' / 'config' / 'robot_calib.yaml').is_file()
 
 
+@pytest.mark.slow
 def test_installed_node_starts_and_stops_cleanly(install_space):
     """Run an installed node executable, wait until it is up, interrupt it: exit status 0."""
     assert NODES, 'no method folder found'

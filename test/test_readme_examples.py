@@ -20,6 +20,7 @@ def _examples(verb: str) -> list[list[str]]:
     return out
 
 
+@pytest.mark.slow
 def test_simulate_then_replay_examples_run_as_written(tmp_path, monkeypatch):
     monkeypatch.chdir(tmp_path)
     sims = _examples('simulate')

@@ -142,6 +142,50 @@ def matrix_to_quat(m: np.ndarray) -> np.ndarray:
     return quat_normalize(np.array(q))
 
 
+SAME_ROTATION_TOLERANCE = 1e-6
+"""
+Rotations closer than this are the same (rad, 0.2 arcsecond).
+
+Far above rounding (a quaternion typed to 4 digits, or one whose last bit moves
+when normalised, is 1e-16 to 1e-5 from unit length, which normalising removes)
+and far below any mounting angle one can measure.
+"""
+
+
+def rotation_angle(a, b) -> float:
+    """
+    Return the angle (rad, [0, pi]) of the rotation from quaternion ``a`` to ``b`` (w, x, y, z).
+
+    Both are normalised first and ``q`` and ``-q`` are the same rotation; NaN when
+    either has no finite, non-zero norm.
+    """
+    aw, ax, ay, az = (float(v) for v in a)
+    bw, bx, by, bz = (float(v) for v in b)
+    na = math.sqrt(aw * aw + ax * ax + ay * ay + az * az)
+    nb = math.sqrt(bw * bw + bx * bx + by * by + bz * bz)
+    if not (0.0 < na < math.inf and 0.0 < nb < math.inf):
+        return math.nan
+    aw, ax, ay, az = aw / na, ax / na, ay / na, az / na
+    bw, bx, by, bz = bw / nb, bx / nb, by / nb, bz / nb
+    if aw * bw + ax * bx + ay * by + az * bz < 0.0:
+        bw, bx, by, bz = -bw, -bx, -by, -bz
+    # a . b = cos(angle / 2) = cos(phi), phi the arc between a and b on the unit sphere;
+    # phi = 2 atan2(|a - b|, |a + b|) stays accurate for small angles, unlike acos(a . b)
+    diff = math.sqrt((aw - bw) ** 2 + (ax - bx) ** 2 + (ay - by) ** 2 + (az - bz) ** 2)
+    total = math.sqrt((aw + bw) ** 2 + (ax + bx) ** 2 + (ay + by) ** 2 + (az + bz) ** 2)
+    return 4.0 * math.atan2(diff, total)
+
+
+def same_rotation(a, b, tolerance: float = SAME_ROTATION_TOLERANCE) -> bool:
+    """
+    Return True when quaternions ``a`` and ``b`` (w, x, y, z) are the same rotation.
+
+    The one comparison of mountings: normalised, ``q`` and ``-q`` equal, within
+    ``tolerance`` (rad). False when either is not a rotation (zero or not finite).
+    """
+    return rotation_angle(a, b) <= tolerance
+
+
 def quat_tuple_from_rpy(roll: float, pitch: float, yaw: float
                         ) -> tuple[float, float, float, float]:
     """Return (w, x, y, z) of R = Rz(yaw) Ry(pitch) Rx(roll) (rad) as a tuple of floats."""

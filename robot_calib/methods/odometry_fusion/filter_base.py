@@ -21,7 +21,7 @@ from typing import Any, Callable, Optional, Union
 import numpy as np
 from robot_calib.core import types as T
 from robot_calib.core.frames import rotation_matrix, StaticTree
-from robot_calib.core.geometry import wrap_scalar
+from robot_calib.core.geometry import same_rotation, wrap_scalar
 from robot_calib.core.kinematics import off_arc
 from robot_calib.core.odometry_twist import TwistFrame
 from robot_calib.core.zero_gyro import READINGS, SPAN, ZeroGyro
@@ -52,6 +52,7 @@ class FusionFilter(abc.ABC):
     def _start(self) -> None:
         """Set the state of a filter that has seen no sample (variants extend it)."""
         self.front = ImuFrontEnd(self.p)
+        self._tf_rotation: Any = None  # the /tf_static mounting in use (w, x, y, z)
         self._for_status = False  # set by result(): whether it serves a periodic status
         self.t: Optional[float] = None
         self.counts: dict[str, int] = {}
@@ -158,6 +159,9 @@ class FusionFilter(abc.ABC):
         mounting = tree.mounting(frame, base) if frame else None
         if mounting is None:
             return
+        if self.front.rot_source == 'tf' and same_rotation(mounting.rotation, self._tf_rotation):
+            return  # the mounting in use, sent again: nothing to apply, nothing to say
+        self._tf_rotation = mounting.rotation
         self.front.set_rotation(rotation_matrix(mounting), 'tf')
         if announce and self._log is not None:
             self._log('info', f'IMU extrinsic from /tf_static ({base} -> {frame})')

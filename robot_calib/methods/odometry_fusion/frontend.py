@@ -8,7 +8,8 @@ parameter, from ``/tf_static`` (:class:`robot_calib.core.frames.StaticTree` thro
 transforms, each turned into a rotation by :mod:`robot_calib.core.frames`) or,
 failing both, from the gravity direction at start (then only the up axis is
 known and the accelerometer is not used). The units (m/s^2 or g) are a
-parameter or detected from the median magnitude of the first 10 samples.
+parameter or told from the median magnitude of the first 10 samples by the
+rule of :mod:`robot_calib.core.imu_units` (the one tilt detection uses).
 """
 
 from __future__ import annotations
@@ -20,6 +21,7 @@ import numpy as np
 from robot_calib.core import types as T
 from robot_calib.core.constants import GRAVITY
 from robot_calib.core.geometry import quat_from_rpy, quat_to_matrix
+from robot_calib.core.imu_units import accel_units_of, UNITS_SAMPLES
 from robot_calib.methods.odometry_fusion.params import FusionParams
 
 G = GRAVITY
@@ -70,13 +72,14 @@ class ImuFrontEnd:
         """
         if self.accel_scale is None:
             self._norms.append(math.sqrt(acc[0] ** 2 + acc[1] ** 2 + acc[2] ** 2))
-            if len(self._norms) >= 10:
+            if len(self._norms) >= UNITS_SAMPLES:
                 med = float(np.median(self._norms))
-                if 0.5 < med < 1.5:
+                units = accel_units_of(med)
+                if units == 'g':
                     self.accel_scale, self.units_source = G, 'detected_g'
                     self.warnings.append(f'IMU acceleration is in g (|a| median {med:.3f}): '
                                          'converting to m/s^2')
-                elif 5.0 < med < 15.0:
+                elif units == 'mps2':
                     self.accel_scale, self.units_source = 1.0, 'detected_mps2'
                 else:
                     self.accel_scale, self.units_source = 1.0, 'unknown'

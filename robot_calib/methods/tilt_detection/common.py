@@ -18,7 +18,8 @@ Units: time s, rates rad/s, specific force m/s^2, angles rad. Quaternions are
 from __future__ import annotations
 
 import abc
-from dataclasses import dataclass
+import dataclasses
+from dataclasses import dataclass, field
 import math
 from typing import Any, ClassVar, Optional
 
@@ -26,26 +27,41 @@ import numpy as np
 
 from robot_calib.core.constants import GRAVITY
 from robot_calib.core.frames import rotation_matrix, StaticTree
+from robot_calib.core.geometry import quat_tuple_from_rpy, same_rotation
+from robot_calib.core.imu_units import accel_units_of, UNITS_SAMPLES
 from robot_calib.core.types import ImuSample, StaticTransform
 from robot_calib.methods.tilt_detection.params import TiltParams
-from robot_calib.methods.tilt_detection.quaternion import IDENTITY, qnorm, quat_from_rpy_tuple
+from robot_calib.methods.tilt_detection.quaternion import IDENTITY, qnorm
 
 NOMINAL_PERIOD = 0.005
 """Sampling period assumed before the first sample interval is known (s)."""
 
-UNITS_SAMPLES = 10
-"""Samples whose median |a| tells the units when the first one does not."""
-
-GRAVITY_BAND = (0.7, 1.3)
-"""|a| at rest within this share of 9.81 (m/s^2) or of 1 (g) tells the units."""
+ZERO_ACCEL2 = 1e-12
+"""A squared specific force below this ((m/s^2)^2 or g^2) is an all-zero accelerometer."""
 
 
-def accel_units_of(norm: float) -> str:
-    """Return 'mps2', 'g' or '' (neither) for a specific-force magnitude ``norm``."""
-    lo, hi = GRAVITY_BAND
-    if lo * GRAVITY <= norm <= hi * GRAVITY:
-        return 'mps2'
-    return 'g' if lo <= norm <= hi else ''
+def sample_problem(t: float, gx: float, gy: float, gz: float, ax: float, ay: float, az: float,
+                   params: TiltParams) -> Optional[str]:
+    """
+    Return why an IMU sample is rejected, or None: the one check of every path.
+
+    Time ``t`` (s), rates (rad/s) and specific force (as read, before any unit
+    scale). Reasons: ``non_finite``, ``accel_out_of_range`` (norm above
+    ``max_accel``), ``accel_zero`` (an all-zero accelerometer: no direction of
+    gravity), ``gyro_out_of_range`` (norm above ``max_gyro``).
+    """
+    a2 = ax * ax + ay * ay + az * az
+    g2 = gx * gx + gy * gy + gz * gz
+    if not math.isfinite(a2 + g2 + t) and not all(
+            math.isfinite(v) for v in (t, gx, gy, gz, ax, ay, az)):
+        return 'non_finite'
+    if a2 > params.max_accel * params.max_accel:
+        return 'accel_out_of_range'
+    if a2 < ZERO_ACCEL2:
+        return 'accel_zero'
+    if g2 > params.max_gyro * params.max_gyro:
+        return 'gyro_out_of_range'
+    return None
 
 
 # --------------------------------------------------------------------------------------------
@@ -119,9 +135,9 @@ class TiltState:
     on this sample, ``bias`` the gyro bias estimate (rad/s, IMU frame),
     ``rest`` True while the IMU counts as still. ``restart_gap`` is the gap
     (s) that restarted the filter on this sample (None otherwise).
-    ``gyro`` (rad/s) and ``accel`` (m/s^2) are the sample's vectors in
-    ``frame_id``: the base frame when ``mounted`` (a mounting rotation that is
-    not the identity), else the IMU frame as measured.
+    ``gyro`` (rad/s) and ``accel`` (m/s^2, an IMU in g scaled) are the
+    sample's vectors in ``frame_id``: the base frame when ``mounted`` (a
+    mounting rotation that is not the identity), else the IMU frame.
     """
 
     t: float
@@ -156,7 +172,9 @@ class TiltResult:
     y, z), ``mounting_source`` 'none', 'parameter' or '/tf_static',
     ``mounting_updates`` how often a static transform set it, ``imu_frame``
     the frame of the samples (None before the first one), ``accel_units`` the
-    accelerometer's units as given or detected (``no_gravity``: no tilt known).
+    accelerometer's units as given or detected (``no_gravity``: no tilt known),
+    ``rejected`` the samples turned down by reason (:func:`sample_problem`,
+    ``duplicate_stamp``, ``out_of_order``).
     """
 
     mode: str
@@ -179,6 +197,7 @@ class TiltResult:
     mounting_updates: int
     imu_frame: Optional[str]
     accel_units: str = 'mps2'
+    rejected: dict = field(default_factory=dict)
 
 
 # --------------------------------------------------------------------------------------------
@@ -197,9 +216,12 @@ class TiltEstimatorBase(abc.ABC):
     """
     Streaming tilt estimation and fall detection (the Estimator protocol); variants subclass.
 
-    The caller validates samples (finite, in range, increasing stamps); gaps
-    longer than ``max_dt`` restart the attitude filter from the accelerometer
-    (the alert and the gyro bias are kept). With ``accel_units: auto`` the first
+    A sample :func:`sample_problem` names, or whose stamp repeats or goes back
+    (by up to ``max_dt``), is rejected: :meth:`update` returns None and
+    :attr:`rejection` says why (what the live pipeline rejects, so a batch run
+    over raw data does too). Gaps longer than ``max_dt``, and steps back by
+    more (a clock that jumped), restart the attitude filter from the
+    accelerometer (the alert and the gyro bias are kept). With ``accel_units: auto`` the first
     sample's |a| tells the units (about 9.81: m/s^2, about 1: g); otherwise the
     median of the first ``UNITS_SAMPLES``, and when neither (a driver that took
     gravity out) ``accel_units`` is ``'no_gravity'``: the accelerometer cannot
@@ -219,7 +241,7 @@ class TiltEstimatorBase(abc.ABC):
         self._imu_frame: Optional[str] = None
         self._mount_source = 'parameter' if any(p.mounting_rpy) else 'none'
         self._mount_updates = 0
-        self._set_mount(quat_from_rpy_tuple(*p.mounting_rpy))
+        self._set_mount(quat_tuple_from_rpy(*p.mounting_rpy))
         self.reset()
 
     # -- the Estimator protocol ------------------------------------------------------------
@@ -261,6 +283,9 @@ class TiltEstimatorBase(abc.ABC):
         self._last: Optional[TiltState] = None
         self._samples = 0
         self._restarts = 0
+        self._rejected: dict[str, int] = {}
+        self.rejection = ''
+        """Why the last sample :meth:`update` turned down was rejected."""
         self._max_tilt = 0.0
         scale = {'mps2': 1.0, 'g': GRAVITY}.get(p.accel_units)
         self._accel_scale: Optional[float] = scale
@@ -271,13 +296,26 @@ class TiltEstimatorBase(abc.ABC):
         self._norms: list[float] = []
         self._new_filter()
 
-    def update(self, sample: ImuSample) -> TiltState:
-        """Process one IMU sample: time (s), gyro (rad/s) and specific force (m/s^2)."""
+    def update(self, sample: ImuSample) -> Optional[TiltState]:
+        """
+        Process one IMU sample: time (s), gyro (rad/s) and specific force (m/s^2 or g).
+
+        Return the state after it, or None when it is rejected (see :attr:`rejection`).
+        """
         g = sample.gyro
         a = sample.accel
         gx, gy, gz = float(g[0]), float(g[1]), float(g[2])
         ax, ay, az = float(a[0]), float(a[1]), float(a[2])
         t = sample.t
+        problem = sample_problem(t, gx, gy, gz, ax, ay, az, self.params)
+        last_t = self._last_t
+        if problem is None and last_t is not None and t <= last_t \
+                and t >= last_t - self.params.max_dt:
+            problem = 'duplicate_stamp' if t == last_t else 'out_of_order'
+        if problem is not None:
+            self.rejection = problem
+            self._rejected[problem] = self._rejected.get(problem, 0) + 1
+            return None
         scale = self._accel_scale
         if scale != 1.0:
             if scale is None:
@@ -288,9 +326,9 @@ class TiltEstimatorBase(abc.ABC):
             transform = self._transforms.mounting(sample.frame_id, self.params.base_frame)
             if transform is not None:
                 self._apply_transform(transform)
-        dt = self.ts if self._last_t is None else t - self._last_t
+        dt = self.ts if last_t is None else t - last_t
         gap = None
-        if dt > self.params.max_dt:
+        if dt > self.params.max_dt or dt < 0.0:
             gap = dt
             self._restart()
             dt = self.ts
@@ -304,7 +342,7 @@ class TiltEstimatorBase(abc.ABC):
         elif changed is False and self._episodes:
             self._episodes[-1] = (self._episodes[-1][0], t)
         state = TiltState(t, q, tilt, self._detector.alert, changed is not None, roll, pitch,
-                          bias, rest, gap, *self._in_base_frame(sample))
+                          bias, rest, gap, *self._in_base_frame(sample, scale))
         self._last = state
         self._samples += 1
         return state
@@ -321,7 +359,13 @@ class TiltEstimatorBase(abc.ABC):
             max_tilt=self._max_tilt, restarts=self._restarts, scale=self._gyro_scale(),
             rest_snaps=self._rest_snaps(), mounting=self._mount,
             mounting_source=self._mount_source, mounting_updates=self._mount_updates,
-            imu_frame=self._imu_frame, accel_units=self.accel_units)
+            imu_frame=self._imu_frame, accel_units=self.accel_units,
+            rejected=dict(self._rejected))
+
+    @property
+    def accel_scale(self) -> float:
+        """Return the factor (m/s^2 per unit read) applied to the specific force: 9.81 for g."""
+        return self._accel_scale if self._accel_scale is not None else 1.0
 
     # -- what a variant supplies -----------------------------------------------------------
     @abc.abstractmethod
@@ -389,31 +433,55 @@ class TiltEstimatorBase(abc.ABC):
             self._mount_matrix = rotation_matrix(transform)
 
     def _apply_transform(self, transform: StaticTransform) -> None:
-        """Take the rotation of a static transform base_frame -> IMU frame as the mounting."""
+        """
+        Take the rotation of a static transform base_frame -> IMU frame as the mounting.
+
+        A rotation the same as the one from /tf_static in use (compared as
+        rotations: :func:`robot_calib.core.geometry.same_rotation`) changes nothing.
+        """
         q = tuple(float(v) for v in transform.rotation)
-        if q == self._mount and self._mount_source == '/tf_static':
+        if self._mount_source == '/tf_static' and same_rotation(q, self._mount):
             return
         self._set_mount(qnorm(q))
         self._mount_source = '/tf_static'
         self._mount_updates += 1
 
-    def _in_base_frame(self, sample: ImuSample) -> tuple:
-        """Return (gyro, accel, frame, mounted): the sample's vectors in the base frame."""
+    def _in_base_frame(self, sample: ImuSample, scale: float) -> tuple:
+        """
+        Return (gyro, accel, frame, mounted): the sample's vectors in the base frame.
+
+        ``scale`` (m/s^2 per unit read) turns the specific force into m/s^2.
+        """
+        accel = sample.accel
+        if scale != 1.0:
+            accel = np.asarray(accel, dtype=float) * scale
         if not self._mounted:
-            return sample.gyro, sample.accel, sample.frame_id, False
+            return sample.gyro, accel, sample.frame_id, False
         m = self._mount_matrix
         return (m @ np.asarray(sample.gyro, dtype=float),
-                m @ np.asarray(sample.accel, dtype=float), self.params.base_frame, True)
+                m @ np.asarray(accel, dtype=float), self.params.base_frame, True)
 
 
-def outputs_as_arrays(outputs: list[TiltState]) -> dict[str, np.ndarray]:
+def outputs_as_arrays(outputs: list[Optional[TiltState]]) -> dict[str, np.ndarray]:
     """
-    Return per-sample outputs as arrays (e.g. the ``outputs`` of ``run_batch``).
+    Return per-sample outputs as arrays, one row per entry of ``outputs``.
 
     ``quat`` (N, 4) base_link-to-earth (w, x, y, z), ``tilt`` (N,) rad,
-    ``alert`` (N,) bool, ``bias`` (N, 3) rad/s, ``rest`` (N,) bool.
+    ``alert`` (N,) bool, ``bias`` (N, 3) rad/s, ``rest`` (N,) bool. A None entry
+    (a rejected sample) gives NaN in ``quat``, ``tilt`` and ``bias``, ``rest``
+    False and the alert as it stood.
     """
     n = len(outputs)
+    if any(o is None for o in outputs):
+        nan = math.nan
+        gap = TiltState(nan, (nan, nan, nan, nan), nan, False, bias=(nan, nan, nan))
+        filled, alert = [], False
+        for o in outputs:
+            if o is None:
+                o = dataclasses.replace(gap, alert=alert)
+            alert = o.alert
+            filled.append(o)
+        outputs = filled
     return {'quat': np.array([o.quat for o in outputs]).reshape(n, 4),
             'tilt': np.array([o.tilt for o in outputs], dtype=float),
             'alert': np.array([o.alert for o in outputs], dtype=bool),

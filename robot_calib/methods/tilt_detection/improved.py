@@ -51,9 +51,9 @@ class AttitudeEstimator:
         self.p = p
         self.ts = ts
         self._deg = math.pi / 180.0
-        self._still_rate2 = (p.rest_gyro_threshold * self._deg) ** 2
         th_g = p.rest_gyro_threshold * self._deg
         self._rest_gyr2 = th_g * th_g
+        """Squared rate threshold of rest, and of still enough to snap ((rad/s)^2)."""
         self._rest_acc2 = p.rest_accel_threshold ** 2
         # a mean rate beyond the largest bias accepted is a turn, however steady
         self._rest_mean2 = (max(p.bias_clip, p.rest_gyro_threshold) * self._deg) ** 2
@@ -137,7 +137,7 @@ class AttitudeEstimator:
         a0, a1, a2 = qrot(self.q_gyr, ax, ay, az)
         lp = self.acc_lp.step(a0, a1, a2)
         if self._snap_on and self.rest_time >= p.rest_snap_time and self.acc_lp.ready \
-                and self._turn_rate2(gx, gy, gz) < self._still_rate2:
+                and self._turn_rate2(gx, gy, gz) < self._rest_gyr2:
             lp = self._rest_snap(lp)
         # Into the earth frame; correct the inclination so that it points up.
         ex, ey, ez = qrot(self.q_inc, lp[0], lp[1], lp[2])

@@ -9,10 +9,10 @@ rotation; otherwise the ``mounting_rpy`` parameter).
 
 Outputs:
 
-- ``tilt/imu`` (sensor_msgs/Imu): the input rates and specific force with the
-  orientation filled (gravity-aligned attitude; yaw is not meaningful and has
-  a huge covariance). When a mounting rotation is set, vectors and
-  orientation are expressed in ``base_frame``.
+- ``tilt/imu`` (sensor_msgs/Imu): the input rates and specific force (m/s^2,
+  also from an IMU that reads g) with the orientation filled (gravity-aligned
+  attitude; yaw is not meaningful and has a huge covariance). When a mounting
+  rotation is set, vectors and orientation are expressed in ``base_frame``.
 - ``tilt/fall_alert`` (std_msgs/Bool, reliable + transient local, depth 1):
   False at the first sample, then on every change.
 - ``/diagnostics`` (diagnostic_msgs/DiagnosticArray): status
@@ -25,7 +25,8 @@ Outputs:
 
 Bad input: non-finite values, repeated or backwards stamps (base class),
 specific force above ``max_accel``, rates above ``max_gyro`` and an all-zero
-accelerometer are rejected and counted; a gap above ``max_dt`` restarts the
+accelerometer (the estimator's :func:`common.sample_problem`, so a batch run
+rejects them too) are rejected and counted; a gap above ``max_dt`` restarts the
 filter from the accelerometer with a warning (the alert state is kept), and
 so does a clock that jumps (the base class turns a jump into such a gap).
 """
@@ -109,18 +110,9 @@ class TiltPipeline(Pipeline):
         if key != 'imu':
             return []
         p = self.params
-        g = sample.gyro
-        a = sample.accel
-        gx, gy, gz = float(g[0]), float(g[1]), float(g[2])
-        ax, ay, az = float(a[0]), float(a[1]), float(a[2])
-        a2 = ax * ax + ay * ay + az * az
-        if a2 > p.max_accel * p.max_accel:
-            return self.reject(key, 'accel_out_of_range')
-        if a2 < 1e-12:
-            return self.reject(key, 'accel_zero')
-        if gx * gx + gy * gy + gz * gz > p.max_gyro * p.max_gyro:
-            return self.reject(key, 'gyro_out_of_range')
         s = self.est.update(sample)
+        if s is None:  # (common.sample_problem: the estimator's own check, in batch runs too)
+            return self.reject(key, self.est.rejection)
         if self.est.accel_units != self._units_told:
             self._tell_units()
         if self._first:
@@ -170,9 +162,12 @@ class TiltPipeline(Pipeline):
             return dataclasses.replace(sample, orientation=np.array([1.0, 0.0, 0.0, 0.0]),
                                        orientation_cov=NO_ORIENTATION, stamp_ns=stamp)
         if not s.mounted:
-            return T.ImuSample(sample.t, sample.gyro, sample.accel, sample.frame_id,
-                               np.array(s.quat), self._cov, sample.gyro_cov, sample.accel_cov,
-                               stamp)
+            accel_cov = sample.accel_cov
+            k = self.est.accel_scale
+            if k != 1.0 and accel_cov is not None:  # an IMU in g: m/s^2 out, and its variance
+                accel_cov = np.asarray(accel_cov, dtype=float) * (k * k)
+            return T.ImuSample(sample.t, sample.gyro, s.accel, sample.frame_id,
+                               np.array(s.quat), self._cov, sample.gyro_cov, accel_cov, stamp)
         return T.ImuSample(sample.t, s.gyro, s.accel, s.frame_id, np.array(s.quat), self._cov,
                            None, None, stamp)
 

@@ -5,7 +5,8 @@ Small quaternion helpers on tuples of Python floats (fast for one sample at a ti
 
 Quaternions are ``(w, x, y, z)``; angles rad. Both estimator variants use
 these (the NumPy versions of :mod:`robot_calib.core.geometry` are slower for
-single samples and would not round the same way).
+single samples and would not round the same way); roll, pitch and yaw to a
+quaternion is :func:`robot_calib.core.geometry.quat_tuple_from_rpy`.
 """
 
 from __future__ import annotations
@@ -50,15 +51,6 @@ def align_up(x: float, y: float, z: float) -> tuple:
         s = math.sqrt(2.0 * (1.0 + z))
         return (0.5 * s, y / s, -x / s, 0.0)
     return (0.0, 1.0, 0.0, 0.0)  # upside down: half turn about x
-
-
-def quat_from_rpy_tuple(roll: float, pitch: float, yaw: float) -> tuple:
-    """Return (w, x, y, z) of R = Rz(yaw) Ry(pitch) Rx(roll) (rad) as a tuple."""
-    cr, sr = math.cos(roll / 2), math.sin(roll / 2)
-    cp, sp = math.cos(pitch / 2), math.sin(pitch / 2)
-    cy, sy = math.cos(yaw / 2), math.sin(yaw / 2)
-    return (cr * cp * cy + sr * sp * sy, sr * cp * cy - cr * sp * sy,
-            cr * sp * cy + sr * cp * sy, cr * cp * sy - sr * sp * cy)
 
 
 def tilt_of(q: tuple) -> float:

@@ -19,10 +19,10 @@ from typing import Optional
 
 import numpy as np
 
+from robot_calib.core.geometry import quat_tuple_from_rpy
 from robot_calib.methods.tilt_detection.common import TiltEstimatorBase
 from robot_calib.methods.tilt_detection.params import SeedFilterParams
-from robot_calib.methods.tilt_detection.quaternion import (positive_w, qrot, quat_from_rpy_tuple,
-                                                           tilt_of)
+from robot_calib.methods.tilt_detection.quaternion import positive_w, qrot, tilt_of
 
 
 class SeedKalmanAxis:
@@ -103,7 +103,7 @@ class SeedEstimator:
             # The seed feeds each axis its own gyro rate (small-angle Euler rates).
             roll = self.roll.step(gx, r_acc, dt)
             pitch = self.pitch.step(gy, p_acc, dt)
-        return quat_from_rpy_tuple(roll, pitch, 0.0), roll, pitch
+        return quat_tuple_from_rpy(roll, pitch, 0.0), roll, pitch
 
 
 class SeedTiltEstimator(TiltEstimatorBase):

@@ -6,7 +6,6 @@ from __future__ import annotations
 
 from typing import Any, Optional
 
-from robot_calib.core.estimator import run_batch
 from robot_calib.core.types import imu_samples
 from robot_calib.methods.tilt_detection.common import (NOMINAL_PERIOD, nominal_period,
                                                        outputs_as_arrays, TiltEstimatorBase)
@@ -30,10 +29,11 @@ def make_estimator(params: Optional[TiltParams] = None,
 
 def track(t: Any, gyro: Any, accel: Any, params: Optional[TiltParams] = None) -> dict:
     """
-    Run the variant of ``params`` over a recording in arrays, through the generic batch runner.
+    Run the variant of ``params`` over a recording in arrays, one output row per sample.
 
     ``t`` (N,) s, ``gyro`` (N, 3) rad/s and ``accel`` (N, 3) m/s^2 in the IMU
-    frame; returns the per-sample outputs as arrays (:func:`common.outputs_as_arrays`).
+    frame; returns the per-sample outputs as arrays (:func:`common.outputs_as_arrays`):
+    a sample the estimator rejects (as the live node would) keeps its row, NaN.
     """
     est = make_estimator(params, nominal_period(t))
-    return outputs_as_arrays(run_batch(est, imu_samples(t, gyro, accel)).outputs)
+    return outputs_as_arrays([est.update(s) for s in imu_samples(t, gyro, accel)])
