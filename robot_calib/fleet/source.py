@@ -21,6 +21,8 @@ from typing import Optional
 
 import yaml
 
+from robot_calib.io.safe_yaml import load_yaml
+
 
 class FleetError(ValueError):
     """A fleet source or argument that cannot be used (one-line message)."""
@@ -70,7 +72,7 @@ def _from_manifest(path: Path) -> list[Job]:
             with open(path, newline='') as f:
                 rows = list(csv.DictReader(f))
         else:
-            rows = yaml.safe_load(path.read_text()) or []
+            rows = load_yaml(path) or []
     except (OSError, UnicodeDecodeError, csv.Error, yaml.YAMLError) as exc:
         raise FleetError(f'cannot read manifest {path}: {" ".join(str(exc).split())}') from None
     if not isinstance(rows, list) or not all(isinstance(r, dict) for r in rows):

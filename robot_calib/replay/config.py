@@ -110,12 +110,14 @@ def load_params_file(path: Union[str, os.PathLike, None]) -> dict[str, dict[str,
     if path is None:
         return {}
     import yaml
+
+    from robot_calib.io.safe_yaml import load_yaml
     p = Path(path)
     if not p.is_file():
         raise ReplayError(f'parameter file not found: {p} (expected a YAML file like '
                           'config/robot_calib.yaml)')
     try:
-        data = yaml.safe_load(p.read_text())
+        data = load_yaml(p)
     except (OSError, UnicodeDecodeError, yaml.YAMLError) as exc:
         first = ' '.join(str(exc).split())
         raise ReplayError(f'cannot read parameter file {p}: {first}') from None

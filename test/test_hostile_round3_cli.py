@@ -1,0 +1,152 @@
+# Copyright 2026 robot_calib contributors
+# SPDX-License-Identifier: Apache-2.0
+"""
+Hostile inputs, round 3, through the command line and the bag reader.
+
+YAML bombs and absurd nesting in every YAML a user hands us, a corrupt chunk
+in an mcap whose chunks overlap in time, a full disk, ``replay X --out X``,
+joint states naming a joint twice, and a set-up without a C tool chain.
+"""
+
+import errno
+import io
+import json
+import os
+from pathlib import Path
+import subprocess
+import sys
+
+import pytest
+
+from robot_calib.cli import main
+from robot_calib.sim.engine import simulate
+
+REPO = Path(__file__).resolve().parents[1]
+
+
+def one_line_error(capsys, code, expect=None):
+    """Assert a one-line error and exit status 2; return the line."""
+    out = capsys.readouterr()
+    assert code == 2, out.err
+    lines = out.err.strip().splitlines()
+    assert len(lines) == 1 and 'Traceback' not in out.err, out.err
+    assert 'internal error' not in lines[0] and 'error' in lines[0], lines[0]
+    if expect is not None:
+        assert expect in lines[0], lines[0]
+    return lines[0]
+
+
+@pytest.fixture(scope='module')
+def drive(tmp_path_factory):
+    """Return a 4 s simulated drive bag."""
+    folder = tmp_path_factory.mktemp('drive')
+    simulate('drive', folder / 'bag', seed=3, duration=4.0)
+    return folder / 'bag'
+
+
+# -- 1. YAML bombs and absurd nesting -------------------------------------------------------
+def alias_bomb(levels=9, width=10):
+    """Return a flow-style "billion laughs" of about 600 bytes: width ** levels nodes expanded."""
+    items = ['&a0 [' + ', '.join(['lol'] * width) + ']']
+    items += [f'&a{i} [' + ', '.join([f'*a{i - 1}'] * width) + ']' for i in range(1, levels + 1)]
+    return '[' + ', '.join(items) + ']'
+
+
+def run_limited(args, timeout=120.0, memory=1.5 * 2**30):
+    """
+    Run ``robot-calib args`` in a child limited to ``memory`` bytes of address space.
+
+    Returns ``(exit status, stderr, seconds)``; a child that overran ``timeout``
+    s counts as status None. Without the limit a bomb would take the machine.
+    """
+    import resource
+    import time
+
+    def limit():
+        resource.setrlimit(resource.RLIMIT_AS, (int(memory), int(memory)))
+    env = dict(os.environ, PYTHONPATH=f'{REPO}{os.pathsep}{os.environ.get("PYTHONPATH", "")}',
+               OPENBLAS_NUM_THREADS='1', OMP_NUM_THREADS='1')
+    t0 = time.monotonic()
+    try:
+        proc = subprocess.run([sys.executable, '-m', 'robot_calib.cli', *map(str, args)],
+                              capture_output=True, text=True, timeout=timeout, env=env,
+                              preexec_fn=limit)
+    except subprocess.TimeoutExpired:
+        return None, 'timed out', time.monotonic() - t0
+    return proc.returncode, proc.stderr, time.monotonic() - t0
+
+
+linux_only = pytest.mark.skipif(not sys.platform.startswith('linux'),
+                                reason='the address-space limit that keeps a bomb small')
+
+
+@linux_only
+def test_an_alias_bomb_in_params_is_refused_at_once(drive, tmp_path):
+    params = tmp_path / 'bomb.yaml'
+    params.write_text('tilt_detection:\n  ros__parameters:\n    fall_angle: 0.7\n'
+                      f'    clear_angle: {alias_bomb()}\n')
+    assert params.stat().st_size < 1024
+    code, err, seconds = run_limited(['replay', drive, '--out', tmp_path / 'out', '--nodes',
+                                      'tilt_detection', '--params', params, '--no-progress'])
+    assert code == 2, err
+    assert len(err.strip().splitlines()) == 1 and 'billion laughs' in err, err
+    assert str(params) in err and not (tmp_path / 'out').exists()
+    assert seconds < 60.0  # the interpreter's start-up on a shared machine; the check is ms
+
+
+@linux_only
+def test_an_alias_bomb_in_a_fleet_manifest_is_refused_at_once(drive, tmp_path):
+    manifest = tmp_path / 'fleet.yaml'
+    manifest.write_text(f'- robot: r1\n  bag: {alias_bomb()}\n')
+    code, err, _ = run_limited(['fleet', manifest, '--out', tmp_path / 'out', '--workers', 1,
+                                '--no-progress'])
+    assert code == 2 and len(err.strip().splitlines()) == 1, err
+    assert 'manifest' in err and 'billion laughs' in err, err
+    assert not (tmp_path / 'out').exists()
+
+
+def test_params_nested_100000_deep_is_refused(drive, tmp_path, capsys):
+    params = tmp_path / 'deep.yaml'
+    params.write_text('tilt_detection:\n  ros__parameters:\n    fall_angle: '
+                      + '[' * 100_000 + ']' * 100_000 + '\n')
+    code = main(['replay', str(drive), '--out', str(tmp_path / 'out'), '--nodes',
+                 'tilt_detection', '--params', str(params), '--no-progress'])
+    one_line_error(capsys, code, 'nested deeper than')
+    assert not (tmp_path / 'out').exists()
+
+
+@linux_only
+def test_a_fleet_row_params_file_with_a_bomb_is_refused(drive, tmp_path):
+    (tmp_path / 'bomb.yaml').write_text(f'tilt_detection:\n  ros__parameters:\n'
+                                        f'    clear_angle: {alias_bomb()}\n')
+    manifest = tmp_path / 'fleet.csv'
+    manifest.write_text(f'robot,bag,params\nr1,{drive},bomb.yaml\n')
+    code, err, _ = run_limited(['fleet', manifest, '--out', tmp_path / 'out', '--workers', 1,
+                                '--nodes', 'tilt_detection', '--no-progress'])
+    results = tmp_path / 'out' / 'results.csv'
+    # refused before any replay, or the bag's row failed with the reason: never a blow-up
+    assert 'billion laughs' in (err + (results.read_text() if results.exists() else '')), err
+    assert 'internal error' not in err and code in (1, 2), err
+
+
+def test_a_bag_whose_metadata_is_a_bomb_is_refused(drive, tmp_path, capsys):
+    import shutil
+    bag = tmp_path / 'bag'
+    shutil.copytree(drive, bag)
+    meta = bag / 'metadata.yaml'
+    meta.write_text(meta.read_text().rstrip('\n') + f'\n  custom_data_bomb: {alias_bomb(12)}\n')
+    code = main(['replay', str(bag), '--out', str(tmp_path / 'out'), '--nodes',
+                 'tilt_detection', '--no-progress'])
+    one_line_error(capsys, code, 'metadata.yaml')
+
+
+def test_ordinary_anchors_and_merge_keys_still_load(drive, tmp_path, capsys):
+    params = tmp_path / 'anchors.yaml'
+    params.write_text('tilt_detection:\n  ros__parameters:\n'
+                      '    <<: &common {fall_angle: 0.7, clear_duration: 0.5}\n'
+                      '    fall_min_duration: 0.05\n')
+    code = main(['replay', str(drive), '--out', str(tmp_path / 'out'), '--nodes',
+                 'tilt_detection', '--params', str(params), '--no-progress'])
+    assert code == 0, capsys.readouterr().err
+    got = json.loads((tmp_path / 'out' / 'summary.json').read_text())
+    assert got['nodes']['tilt_detection']['params']['fall_angle'] == 0.7
