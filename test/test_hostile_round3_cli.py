@@ -150,3 +150,64 @@ def test_ordinary_anchors_and_merge_keys_still_load(drive, tmp_path, capsys):
     assert code == 0, capsys.readouterr().err
     got = json.loads((tmp_path / 'out' / 'summary.json').read_text())
     assert got['nodes']['tilt_detection']['params']['fall_angle'] == 0.7
+
+
+# -- 8. a corrupt chunk in an mcap whose chunks overlap in time -----------------------------
+def chunk_index(bag):
+    """Return the chunk index of a one-file mcap bag folder."""
+    from robot_calib.io import bags
+    with bags.BagSet([bag]) as b:
+        return list(b._readers[0][0].storage.storages[0].chunks)
+
+
+@pytest.fixture(scope='module')
+def unordered(tmp_path_factory):
+    """
+    Return a 30 s fusion drive rewritten with /odom after everything else (its chunks overlap).
+
+    A recorder that buffers per topic writes such files: the messages are not in
+    time order in the file, so the chunks' time spans overlap.
+    """
+    from robot_calib.io import bags
+    folder = tmp_path_factory.mktemp('unordered')
+    simulate('fusion_drive', folder / 'ordered', seed=1, duration=30.0)
+    with bags.BagSet([folder / 'ordered']) as src:
+        messages = list(src.messages())
+    with bags.BagWriter(folder / 'bag') as out:
+        for stream, time_ns, raw in sorted(messages, key=lambda m: m[0].topic == '/odom'):
+            out.write_raw(stream.topic, stream.msgtype, raw, time_ns)
+    chunks = chunk_index(folder / 'bag')
+    assert any(b.message_start_time < a.message_end_time
+               for a, b in zip(chunks, chunks[1:]))
+    return folder / 'bag', messages
+
+
+def test_a_corrupt_chunk_among_overlapping_chunks_is_skipped_and_listed(unordered, tmp_path,
+                                                                        capsys):
+    import shutil
+    bag = tmp_path / 'bag'
+    shutil.copytree(unordered[0], bag)
+    chunk = chunk_index(bag)[1]
+    mcap = next(bag.glob('*.mcap'))
+    data = bytearray(mcap.read_bytes())
+    data[chunk.chunk_start_offset + 49 + len(chunk.compression) + chunk.compressed_size // 10] ^= 4
+    mcap.write_bytes(bytes(data))
+    out = tmp_path / 'out'
+    code = main(['replay', str(bag), '--out', str(out), '--nodes',
+                 'odometry_fusion,tilt_detection', '--no-progress'])
+    err = capsys.readouterr().err
+    assert code == 0, err
+    assert 'corrupt mcap chunk' in err and len(err.strip().splitlines()) == 1, err
+    summary = json.loads((out / 'summary.json').read_text())
+    [bad] = summary['corrupt_chunks']
+    assert bad['offset'] == chunk.chunk_start_offset and bad['messages']['/imu'] > 100
+    imu = summary['nodes']['tilt_detection']['inputs']['imu']
+    assert imu['read'] == summary['topics']['/imu']['count'] - bad['messages']['/imu']
+    # what is read is every other message, in time order (rosbags' merge: time, then chunk)
+    from robot_calib.io import bags
+    with bags.BagSet([bag]) as b:
+        got = [(s.topic, t, bytes(raw)) for s, t, raw in b.messages()]
+        [lost] = b.corrupt_chunks
+    assert [m[1] for m in got] == sorted(m[1] for m in got)
+    kept = [(s.topic, t, bytes(raw)) for s, t, raw in unordered[1]]
+    assert set(got) <= set(kept) and len(got) == len(kept) - sum(lost['messages'].values())
