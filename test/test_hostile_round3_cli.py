@@ -211,3 +211,28 @@ def test_a_corrupt_chunk_among_overlapping_chunks_is_skipped_and_listed(unordere
     assert [m[1] for m in got] == sorted(m[1] for m in got)
     kept = [(s.topic, t, bytes(raw)) for s, t, raw in unordered[1]]
     assert set(got) <= set(kept) and len(got) == len(kept) - sum(lost['messages'].values())
+
+
+# -- 11. replay X --out X -------------------------------------------------------------------
+@pytest.mark.parametrize('case', ['same', 'file_inside', 'symlink', 'inside', 'contains'])
+def test_replay_never_replaces_its_own_input(drive, tmp_path, capsys, case):
+    first = tmp_path / 'first'
+    assert main(['replay', str(drive), '--out', str(first), '--nodes', 'tilt_detection',
+                 '--no-plots', '--no-progress']) == 0
+    capsys.readouterr()
+    before = sorted((p.name, p.stat().st_size) for p in first.iterdir())
+    bag, out = first, first
+    if case == 'file_inside':
+        bag = first / 'output.mcap'
+    elif case == 'symlink':
+        (tmp_path / 'link').symlink_to(first)
+        out = tmp_path / 'link'
+    elif case == 'inside':
+        out = first / 'plots' / 'again'
+    elif case == 'contains':
+        out = tmp_path
+        (tmp_path / 'summary.json').write_text('{}')  # looks like an earlier output
+    code = main(['replay', str(bag), '--out', str(out), '--nodes', 'tilt_detection',
+                 '--no-progress'])
+    one_line_error(capsys, code, 'its own input')
+    assert sorted((p.name, p.stat().st_size) for p in first.iterdir()) == before

@@ -229,6 +229,27 @@ def check_out_dir(out_dir: Path) -> None:
                           'a writable folder); expected a writable folder')
 
 
+def check_out_not_input(out_dir: Path, bags: Iterable[Union[str, os.PathLike]]) -> None:
+    """
+    Raise ReplayError when ``out_dir`` is, contains or lies inside one of the input ``bags``.
+
+    A replay replaces its output folder, so ``replay X --out X`` (X an earlier
+    replay's output, itself a bag) would destroy its own input. Symbolic links
+    are resolved on both sides.
+    """
+    out = Path(out_dir).resolve()
+    for bag in bags:
+        path = Path(bag).resolve()
+        if out == path or out in path.parents:
+            where = 'is' if out == path else 'contains'
+        elif path in out.parents:
+            where = 'is inside'
+        else:
+            continue
+        raise ReplayError(f'output folder {out_dir} {where} the input bag {bag}: the replay '
+                          'would replace its own input; give another output folder')
+
+
 def prepare_out_dir(out_dir: Path) -> Path:
     """Check the output folder and return a fresh temporary folder next to it."""
     check_out_dir(out_dir)
