@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import errno
 import importlib
 import logging
 import os
@@ -368,16 +369,38 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
     except KeyboardInterrupt:
         print('robot-calib: interrupted', file=sys.stderr)
         return 130
+    except OSError as exc:
+        if exc.errno not in _DISK_FULL:
+            return _failure(args, exc)
+        print(f'robot-calib {args.verb}: error: cannot write into {_folder_of(args)}: '
+              f'{exc.strerror or os.strerror(exc.errno)} (nothing was left half-written; free '
+              'space there or write elsewhere)', file=sys.stderr)
+        return _EXIT_BAD_INPUT
     except Exception as exc:  # noqa: B902 - every failure ends in one line, no traceback
-        message = ' '.join(str(exc).split()) or type(exc).__name__
-        if isinstance(exc, KeyError) and message.startswith("'"):
-            message = message.strip("'")
-        if isinstance(exc, _bad_input_types()):
-            print(f'robot-calib {args.verb}: error: {message}', file=sys.stderr)
-            return _EXIT_BAD_INPUT
-        print(f'robot-calib {args.verb}: internal error: {type(exc).__name__}: {message}',
-              file=sys.stderr)
-        return 1
+        return _failure(args, exc)
+
+
+_DISK_FULL = (errno.ENOSPC, errno.EDQUOT, errno.EROFS)
+"""Write errors of the environment, not of the input: a full disk, a quota, a read-only mount."""
+
+
+def _folder_of(args: argparse.Namespace) -> str:
+    """Return the folder a verb writes into: its output folder, or a bag's parent folder."""
+    out = Path(getattr(args, 'out', None) or '.')
+    return str(out if args.verb in ('replay', 'mismatch', 'fleet') else out.parent)
+
+
+def _failure(args: argparse.Namespace, exc: Exception) -> int:
+    """Print the one line that ends a failed verb and return its exit status."""
+    message = ' '.join(str(exc).split()) or type(exc).__name__
+    if isinstance(exc, KeyError) and message.startswith("'"):
+        message = message.strip("'")
+    if isinstance(exc, _bad_input_types()):
+        print(f'robot-calib {args.verb}: error: {message}', file=sys.stderr)
+        return _EXIT_BAD_INPUT
+    print(f'robot-calib {args.verb}: internal error: {type(exc).__name__}: {message}',
+          file=sys.stderr)
+    return 1
 
 
 def entry() -> None:

@@ -236,3 +236,108 @@ def test_replay_never_replaces_its_own_input(drive, tmp_path, capsys, case):
                  '--no-progress'])
     one_line_error(capsys, code, 'its own input')
     assert sorted((p.name, p.stat().st_size) for p in first.iterdir()) == before
+
+
+# -- 9. a full disk -------------------------------------------------------------------------
+class FullDisk:
+    """
+    A file opened for writing on a disk that fills after ``budget`` bytes (shared by all).
+
+    Every write past the budget raises OSError(code), as the kernel does on a
+    full disk (ENOSPC), an exhausted quota (EDQUOT) or a read-only mount (EROFS).
+    """
+
+    def __init__(self, raw, state):
+        """Wrap the open file ``raw``; ``state`` holds the bytes left and the error code."""
+        self._raw, self._state = raw, state
+
+    def write(self, data):
+        """Write ``data`` or raise once the disk is full."""
+        if len(data) > self._state['left']:
+            raise OSError(self._state['code'], os.strerror(self._state['code']))
+        self._state['left'] -= len(data)
+        return self._raw.write(data)
+
+    def __enter__(self):
+        """Return self."""
+        return self
+
+    def __exit__(self, *exc):
+        """Close the file."""
+        self._raw.close()
+
+    def __iter__(self):
+        """Iterate the file's lines."""
+        return iter(self._raw)
+
+    def __getattr__(self, name):
+        """Everything else as the file does."""
+        return getattr(self._raw, name)
+
+
+@pytest.fixture
+def full_disk(monkeypatch):
+    """Return ``fill(budget, code)``: from then on, writes fail once ``budget`` bytes are used."""
+    import builtins
+    import pathlib
+    real_open, real_path_open = builtins.open, pathlib.Path.open
+    state = {'left': None, 'code': errno.ENOSPC, 'only': ''}
+
+    def wrap(f, file, mode):
+        if state['left'] is None or not any(c in mode for c in 'wax+') \
+                or state['only'] not in str(file):
+            return f
+        return FullDisk(f, state)
+
+    def fake_open(file, mode='r', *args, **kwargs):
+        return wrap(real_open(file, mode, *args, **kwargs), file, mode)
+
+    def fake_path_open(self, mode='r', *args, **kwargs):
+        return wrap(real_path_open(self, mode, *args, **kwargs), self, mode)
+    monkeypatch.setattr(builtins, 'open', fake_open)
+    monkeypatch.setattr(io, 'open', fake_open)
+    monkeypatch.setattr(pathlib.Path, 'open', fake_path_open)
+
+    def fill(budget, code=errno.ENOSPC, only=''):
+        state.update(left=budget, code=code, only=only)
+    return fill
+
+
+def no_partial_files(folder):
+    """Return the files and folders left in ``folder`` that a clean failure must not leave."""
+    return sorted(p.name for p in folder.iterdir() if p.name.startswith('.')
+                  or 'partial' in p.name or p.suffix == '.tmp')
+
+
+@pytest.mark.parametrize('code', [errno.ENOSPC, errno.EDQUOT, errno.EROFS])
+@pytest.mark.parametrize('budget', [200_000])
+def test_replay_on_a_full_disk_is_an_environment_error(drive, tmp_path, capsys, full_disk,
+                                                       code, budget):
+    target = tmp_path / 'results'
+    target.mkdir()
+    full_disk(budget, code)
+    rc = main(['replay', str(drive), '--out', str(target / 'out'), '--nodes',
+               'odometry_fusion,tilt_detection', '--no-progress'])
+    line = one_line_error(capsys, rc, str(target))
+    assert os.strerror(code) in line
+    assert not (target / 'out').exists() and no_partial_files(target) == []
+
+
+@pytest.mark.parametrize('budget,only', [(100_000, ''), (10, 'truth.json')])
+def test_simulate_on_a_full_disk_is_an_environment_error(tmp_path, capsys, full_disk, budget,
+                                                         only):
+    full_disk(budget, only=only)
+    rc = main(['simulate', 'drive', '--out', str(tmp_path / 'sim'), '--duration', '3'])
+    line = one_line_error(capsys, rc, str(tmp_path))
+    assert 'No space left' in line
+    assert sorted(p.name for p in tmp_path.iterdir()) == []
+
+
+@pytest.mark.parametrize('budget', [100_000])
+def test_ideal_on_a_full_disk_is_an_environment_error(drive, tmp_path, capsys, full_disk,
+                                                      budget):
+    full_disk(budget)
+    rc = main(['ideal', str(drive), '--out', str(tmp_path / 'ideal'), '--truth-topic',
+               '/ground_truth/odom'])
+    one_line_error(capsys, rc, str(tmp_path))
+    assert sorted(p.name for p in tmp_path.iterdir()) == []
