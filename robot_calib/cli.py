@@ -206,6 +206,20 @@ def _warn_corrupt(chunks: list) -> None:
               f'{chunks[0]["offset"]} of {chunks[0]["file"]})', file=sys.stderr)
 
 
+def _warn_duplicate_joints(summary: dict) -> None:
+    """Say on stderr how many joint states were rejected for naming a joint twice."""
+    counts: dict[str, int] = {}
+    for node in summary['nodes'].values():
+        for key, c in (node.get('inputs') or {}).items():
+            n = c.get('rejected_duplicate_joint', 0) if isinstance(c, dict) else 0
+            if n:
+                counts[key] = max(counts.get(key, 0), n)
+    for key, n in counts.items():
+        print(f'robot-calib replay: warning: {n} {key} message(s) name a joint twice and were '
+              'rejected (which value is the joint\'s cannot be told; inputs '
+              'rejected_duplicate_joint in summary.json)', file=sys.stderr)
+
+
 def _replay(args: argparse.Namespace) -> int:
     if args.live:
         from robot_calib import live
@@ -256,6 +270,7 @@ def _replay(args: argparse.Namespace) -> int:
               f' of the {summary["duration"]:.1f} s recording; the outputs are empty',
               file=sys.stderr)
     _warn_corrupt(summary['corrupt_chunks'])
+    _warn_duplicate_joints(summary)
     for topic, n in summary['restamped'].items():
         print(f'robot-calib replay: warning: {n} message(s) on {topic} have no header stamp '
               '(0): their receive time in the bag was used instead', file=sys.stderr)

@@ -341,3 +341,39 @@ def test_ideal_on_a_full_disk_is_an_environment_error(drive, tmp_path, capsys, f
                '/ground_truth/odom'])
     one_line_error(capsys, rc, str(tmp_path))
     assert sorted(p.name for p in tmp_path.iterdir()) == []
+
+
+# -- 13. a joint named twice in one JointState ----------------------------------------------
+def test_joint_states_naming_a_joint_twice_are_rejected_and_counted(tmp_path, capsys):
+    import numpy as np
+
+    from robot_calib.core import types as T
+    from robot_calib.io import bags
+    simulate('diff_segments', tmp_path / 'clean', seed=1, duration=12.0)
+    doubled = seen = 0
+    with bags.BagSet([tmp_path / 'clean']) as src, bags.BagWriter(tmp_path / 'bag') as out:
+        for stream, time_ns, raw, samples in src.decoded():
+            if stream.topic != '/joint_states':
+                out.write_raw(stream.topic, stream.msgtype, raw, time_ns)
+                continue
+            for js in samples:
+                seen += 1
+                if len(js.names) and seen % 10 == 3:
+                    # the same joint first with another value: "the first" would be wrong
+                    js = T.JointStateSample(js.t, (js.names[0],) + tuple(js.names),
+                                            np.r_[js.position[0] + 50.0, js.position],
+                                            np.r_[js.velocity[0] * 3, js.velocity],
+                                            js.stamp_ns)
+                    doubled += 1
+                out.write(stream.topic, js, time_ns)
+    assert doubled > 20
+    code = main(['replay', str(tmp_path / 'bag'), '--out', str(tmp_path / 'out'), '--nodes',
+                 'wheel_odometry_calibration,odometry_fusion', '--set',
+                 'odometry_fusion.wheel_source=joint_states', '--no-plots', '--no-progress'])
+    err = capsys.readouterr().err
+    assert code == 0, err
+    assert f'warning: {doubled} joint_states message(s) name a joint twice' in err, err
+    summary = json.loads((tmp_path / 'out' / 'summary.json').read_text())
+    for node in ('wheel_odometry_calibration', 'odometry_fusion'):
+        inputs = summary['nodes'][node]['inputs']['joint_states']
+        assert inputs['rejected_duplicate_joint'] == doubled, (node, inputs)

@@ -175,6 +175,11 @@ class PipelineNode(Node):
         if level == 2:
             self.log('warn', f'{message}: no output until valid input arrives',
                      throttle_s=10.0, key='all_rejected')
+        for key, c in counts.items():
+            if c.get('rejected_duplicate_joint', 0):
+                self.log('warn', f'{c["rejected_duplicate_joint"]} {key} message(s) name a '
+                         'joint twice and were rejected (which value is the joint\'s cannot '
+                         'be told)', throttle_s=30.0, key='duplicate_joint')
         stamp = self.get_clock().now().nanoseconds
         status = T.DiagnosticStatus(f'{self.get_fully_qualified_name()}: inputs', level, message,
                                     '', tuple(values))
