@@ -216,7 +216,7 @@ def _warn_duplicate_joints(summary: dict) -> None:
                 counts[key] = max(counts.get(key, 0), n)
     for key, n in counts.items():
         print(f'robot-calib replay: warning: {n} {key} message(s) name a joint twice and were '
-              'rejected (which value is the joint\'s cannot be told; inputs '
+              "rejected (which value is the joint's cannot be told; inputs "
               'rejected_duplicate_joint in summary.json)', file=sys.stderr)
 
 

@@ -19,9 +19,8 @@ from pathlib import Path
 import re
 from typing import Optional
 
-import yaml
-
 from robot_calib.io.safe_yaml import load_yaml
+import yaml
 
 
 class FleetError(ValueError):

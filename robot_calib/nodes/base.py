@@ -179,7 +179,7 @@ class PipelineNode(Node):
         for key, c in counts.items():
             if c.get('rejected_duplicate_joint', 0):
                 self.log('warn', f'{c["rejected_duplicate_joint"]} {key} message(s) name a '
-                         'joint twice and were rejected (which value is the joint\'s cannot '
+                         "joint twice and were rejected (which value is the joint's cannot "
                          'be told)', throttle_s=30.0, key='duplicate_joint')
         stamp = self.get_clock().now().nanoseconds
         status = T.DiagnosticStatus(f'{self.get_fully_qualified_name()}: inputs', level, message,
