@@ -379,6 +379,39 @@ def test_joint_states_naming_a_joint_twice_are_rejected_and_counted(tmp_path, ca
         assert inputs['rejected_duplicate_joint'] == doubled, (node, inputs)
 
 
+
+def test_a_live_node_counts_and_warns_of_a_joint_named_twice(ros, monkeypatch):
+    import numpy as np
+
+    from robot_calib import codec
+    from robot_calib.core import types as T
+    from robot_calib.methods.odometry_fusion.pipeline import FusionPipeline
+    from robot_calib.nodes import base
+    said = []
+
+    class Log:
+        def __init__(self, logger):
+            pass
+
+        def __call__(self, level, message, **kwargs):
+            said.append((level, message))
+    monkeypatch.setattr(base, 'NodeLog', Log)
+    node = base.PipelineNode(FusionPipeline)
+    try:
+        for i in range(3):
+            ns = (i + 1) * 10**8
+            names = ('left_wheel_joint', 'right_wheel_joint') + (('left_wheel_joint',) * (i > 0))
+            js = T.JointStateSample(ns * 1e-9, names, np.full(len(names), 0.1 * i),
+                                    np.zeros(len(names)), ns)
+            msgtype, raw = codec.serialize(js)
+            node._on_message('joint_states', msgtype, raw)
+        node._publish_health()
+    finally:
+        node.destroy_node()
+    assert node.pipeline.counts['joint_states']['rejected_duplicate_joint'] == 2
+    assert [m for level, m in said if level == 'warn' and 'name a joint twice' in m]
+
+
 # -- 14. set-up without cmake or a C compiler -----------------------------------------------
 def test_setup_without_build_tools_says_what_is_missing_and_goes_on(tmp_path):
     """

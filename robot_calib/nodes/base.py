@@ -170,14 +170,16 @@ class PipelineNode(Node):
         counts = {k: dict(v) for k, v in self.pipeline.counts.items()}
         idle = {k: now - t for k, t in self._last_input.items()}
         period = now - self._health_t if self._health_t is not None else 0.0
-        level, message, values = input_health(counts, self._health_prev, idle,
+        prev = self._health_prev
+        level, message, values = input_health(counts, prev, idle,
                                               self._required, STALE_AFTER, period, self._kinds)
         self._health_prev, self._health_t = counts, now
         if level == 2:
             self.log('warn', f'{message}: no output until valid input arrives',
                      throttle_s=10.0, key='all_rejected')
         for key, c in counts.items():
-            if c.get('rejected_duplicate_joint', 0):
+            if c.get('rejected_duplicate_joint', 0) > prev.get(key, {}).get(
+                    'rejected_duplicate_joint', 0):
                 self.log('warn', f'{c["rejected_duplicate_joint"]} {key} message(s) name a '
                          "joint twice and were rejected (which value is the joint's cannot "
                          'be told)', throttle_s=30.0, key='duplicate_joint')
