@@ -379,7 +379,6 @@ def test_joint_states_naming_a_joint_twice_are_rejected_and_counted(tmp_path, ca
         assert inputs['rejected_duplicate_joint'] == doubled, (node, inputs)
 
 
-
 def test_a_live_node_counts_and_warns_of_a_joint_named_twice(ros, monkeypatch):
     import numpy as np
 
