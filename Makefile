@@ -19,7 +19,8 @@ $(STAMP): requirements.txt requirements-bench.txt requirements-ray.txt requireme
 	$(PY) -m pip install --quiet --upgrade pip
 	$(PY) -m pip install --quiet -r requirements.txt -r requirements-bench.txt -r requirements-ray.txt
 	$(PY) -m pip install --quiet --no-deps -e .
-	# tf2_msgs (/tf, /tf_static) has no wheel: built from its message definition
+	# tf2_msgs (/tf, /tf_static) has no wheel: built from its message definition (where cmake
+	# and a C/C++ compiler are missing, a one-line note and the rest is set up all the same)
 	bash tools/build_tf2_msgs.sh $(VENV)
 	touch $(STAMP)
 

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import errno
 import importlib
 import logging
 import os
@@ -205,6 +206,20 @@ def _warn_corrupt(chunks: list) -> None:
               f'{chunks[0]["offset"]} of {chunks[0]["file"]})', file=sys.stderr)
 
 
+def _warn_duplicate_joints(summary: dict) -> None:
+    """Say on stderr how many joint states were rejected for naming a joint twice."""
+    counts: dict[str, int] = {}
+    for node in summary['nodes'].values():
+        for key, c in (node.get('inputs') or {}).items():
+            n = c.get('rejected_duplicate_joint', 0) if isinstance(c, dict) else 0
+            if n:
+                counts[key] = max(counts.get(key, 0), n)
+    for key, n in counts.items():
+        print(f'robot-calib replay: warning: {n} {key} message(s) name a joint twice and were '
+              "rejected (which value is the joint's cannot be told; inputs "
+              'rejected_duplicate_joint in summary.json)', file=sys.stderr)
+
+
 def _replay(args: argparse.Namespace) -> int:
     if args.live:
         from robot_calib import live
@@ -255,6 +270,7 @@ def _replay(args: argparse.Namespace) -> int:
               f' of the {summary["duration"]:.1f} s recording; the outputs are empty',
               file=sys.stderr)
     _warn_corrupt(summary['corrupt_chunks'])
+    _warn_duplicate_joints(summary)
     for topic, n in summary['restamped'].items():
         print(f'robot-calib replay: warning: {n} message(s) on {topic} have no header stamp '
               '(0): their receive time in the bag was used instead', file=sys.stderr)
@@ -368,16 +384,38 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
     except KeyboardInterrupt:
         print('robot-calib: interrupted', file=sys.stderr)
         return 130
+    except OSError as exc:
+        if exc.errno not in _DISK_FULL:
+            return _failure(args, exc)
+        print(f'robot-calib {args.verb}: error: cannot write into {_folder_of(args)}: '
+              f'{exc.strerror or os.strerror(exc.errno)} (nothing was left half-written; free '
+              'space there or write elsewhere)', file=sys.stderr)
+        return _EXIT_BAD_INPUT
     except Exception as exc:  # noqa: B902 - every failure ends in one line, no traceback
-        message = ' '.join(str(exc).split()) or type(exc).__name__
-        if isinstance(exc, KeyError) and message.startswith("'"):
-            message = message.strip("'")
-        if isinstance(exc, _bad_input_types()):
-            print(f'robot-calib {args.verb}: error: {message}', file=sys.stderr)
-            return _EXIT_BAD_INPUT
-        print(f'robot-calib {args.verb}: internal error: {type(exc).__name__}: {message}',
-              file=sys.stderr)
-        return 1
+        return _failure(args, exc)
+
+
+_DISK_FULL = (errno.ENOSPC, errno.EDQUOT, errno.EROFS)
+"""Write errors of the environment, not of the input: a full disk, a quota, a read-only mount."""
+
+
+def _folder_of(args: argparse.Namespace) -> str:
+    """Return the folder a verb writes into: its output folder, or a bag's parent folder."""
+    out = Path(getattr(args, 'out', None) or '.')
+    return str(out if args.verb in ('replay', 'mismatch', 'fleet') else out.parent)
+
+
+def _failure(args: argparse.Namespace, exc: Exception) -> int:
+    """Print the one line that ends a failed verb and return its exit status."""
+    message = ' '.join(str(exc).split()) or type(exc).__name__
+    if isinstance(exc, KeyError) and message.startswith("'"):
+        message = message.strip("'")
+    if isinstance(exc, _bad_input_types()):
+        print(f'robot-calib {args.verb}: error: {message}', file=sys.stderr)
+        return _EXIT_BAD_INPUT
+    print(f'robot-calib {args.verb}: internal error: {type(exc).__name__}: {message}',
+          file=sys.stderr)
+    return 1
 
 
 def entry() -> None:

@@ -48,7 +48,10 @@ def _choose(bagset: BagSet, rename: dict[str, str], wanted: Optional[set[str]],
             continue
         cls = message_class(s.msgtype) if s.msgtype.count('/') == 2 else None
         if cls is None:
-            skipped[topic] = f'message type {s.msgtype} is not installed'
+            from robot_calib.nodes.base import missing_type_hint
+            hint = f' ({missing_type_hint(s.msgtype)})' if s.msgtype.startswith('tf2_msgs/') \
+                else ''
+            skipped[topic] = f'message type {s.msgtype} is not installed{hint}'
             continue
         chosen.append((s, topic, cls))
     if wanted is not None:

@@ -358,7 +358,7 @@ def test_fast_mcap_reader_matches_rosbags(tmp_path, compress, shuffle):
     with bags.BagSet([path]) as bs:
         fast = mcap.messages(bs._readers[0][0], [s.conn for s in bs.streams],
                              {id(s.conn): s for s in bs.streams})
-        assert (fast is None) == (shuffle == 'random')
+        assert fast is not None  # overlapping chunks too: merged as rosbags merges them
         got = [(s.topic, t, bytes(raw)) for s, t, raw in bs.messages()]
         only_imu = [(s.topic, t) for s, t, _ in bs.messages([bs.streams[0]])]
     assert [g[:2] for g in got] == [e[:2] for e in expected]

@@ -13,6 +13,7 @@
 # requirements-build.txt) give the same C, C++ and Python type support, the same CDR bytes and
 # the same type hash as a robot's tf2_msgs. The services and the action of the real package
 # are left out. Idempotent: a build made by this very script is kept (about 1 s to check).
+# Without cmake, make or a C/C++ compiler it builds nothing, says so in one line and exits 0.
 set -euo pipefail
 
 REPO="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
@@ -27,9 +28,23 @@ if [[ -f "$STAMP" && "$(cat "$STAMP")" == "$HASH" ]] \
   exit 0
 fi
 
+# Without the build tools (an analyst's laptop, a slim container) everything else is set up all
+# the same: the offline tools (simulate, replay, mismatch, ideal, fleet) never need tf2_msgs; the
+# live nodes and replay --live say, where they would use /tf or /tf_static, that it is missing.
+missing=()
 for tool in cmake make cc c++; do
-  command -v "$tool" >/dev/null || { echo "tf2_msgs: $tool is needed to build it" >&2; exit 1; }
+  command -v "$tool" >/dev/null || missing+=("$tool")
 done
+if (( ${#missing[@]} )); then
+  if "$PY" -c 'from tf2_msgs.msg import TFMessage' 2>/dev/null; then
+    echo "tf2_msgs: not rebuilt (no ${missing[*]}); the one importable in $VENV is used"
+    exit 0
+  fi
+  echo "tf2_msgs: not built (${missing[*]} not found); everything else is set up, but the live" \
+       "nodes and replay --live cannot use /tf or /tf_static until it is: install" \
+       "${missing[*]}, then run tools/build_tf2_msgs.sh $VENV" >&2
+  exit 0
+fi
 "$PY" -m pip install --quiet -r "$REPO/requirements-build.txt"
 
 WORK="$(mktemp -d)"

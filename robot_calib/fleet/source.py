@@ -19,6 +19,7 @@ from pathlib import Path
 import re
 from typing import Optional
 
+from robot_calib.io.safe_yaml import load_yaml
 import yaml
 
 
@@ -70,7 +71,7 @@ def _from_manifest(path: Path) -> list[Job]:
             with open(path, newline='') as f:
                 rows = list(csv.DictReader(f))
         else:
-            rows = yaml.safe_load(path.read_text()) or []
+            rows = load_yaml(path) or []
     except (OSError, UnicodeDecodeError, csv.Error, yaml.YAMLError) as exc:
         raise FleetError(f'cannot read manifest {path}: {" ".join(str(exc).split())}') from None
     if not isinstance(rows, list) or not all(isinstance(r, dict) for r in rows):

@@ -27,7 +27,7 @@ import shutil
 from typing import AbstractSet, Any, Callable, Iterable, Iterator, Optional
 
 from robot_calib import codec
-from robot_calib.io import mcap
+from robot_calib.io import mcap, safe_yaml
 
 
 class BagError(RuntimeError):
@@ -54,6 +54,18 @@ def _one_line(exc: BaseException) -> str:
     return text or type(exc).__name__
 
 
+def _check_metadata(meta: Path) -> None:
+    """Raise BagError when a bag's metadata.yaml is hostile (an alias bomb, absurdly deep)."""
+    import yaml
+    try:
+        safe_yaml.check_yaml_file(meta)
+    except safe_yaml.YamlLimitError as exc:
+        raise BagError(f'cannot read bag {meta.parent}: metadata.yaml {_one_line(exc)}') \
+            from None
+    except (OSError, UnicodeDecodeError, yaml.YAMLError):
+        pass  # rosbags says what is wrong with it, as before
+
+
 def _reader_paths(paths: Iterable[os.PathLike | str]) -> list[Path]:
     out = []
     for p in paths:
@@ -70,6 +82,8 @@ def _reader_paths(paths: Iterable[os.PathLike | str]) -> list[Path]:
             # else: a bare ROS 2 .mcap file (its own index names the topics)
         if path.is_dir() and not (path / 'metadata.yaml').exists():
             raise BagError(f'{path}: not a ROS 2 bag (no metadata.yaml in the folder)')
+        if path.is_dir():
+            _check_metadata(path / 'metadata.yaml')
         out.append(path)
     if not out:
         raise BagError('no bag given')

@@ -22,6 +22,7 @@ Record layouts: the mcap specification (https://mcap.dev/spec), op codes
 from __future__ import annotations
 
 from collections import defaultdict
+import heapq
 from io import BytesIO
 from itertools import chain
 from operator import itemgetter
@@ -83,9 +84,9 @@ def messages(reader: Any, conns: list, streams: dict, corrupt: Optional[list] = 
     loop (BytesIO reads per field) with ``struct.unpack_from`` over each
     decompressed chunk, in the same order rosbags yields: files one after the
     other, chunks by start time, messages by log time (stable); it yields
-    ``(streams[id(connection)], time_ns, raw)``. Bags it does not
-    cover (per-message compression, unindexed files, chunks overlapping in time)
-    return None.
+    ``(streams[id(connection)], time_ns, raw)``; chunks that overlap in time
+    are merged by log time as rosbags merges them. Bags it does not cover
+    (per-message compression, unindexed files) return None.
 
     A chunk that fails its CRC-32 (when the writer stored one), does not
     decompress or whose records do not parse is skipped whole, never partly
@@ -114,12 +115,15 @@ def messages(reader: Any, conns: list, streams: dict, corrupt: Optional[list] = 
         chunks = sorted((c for c in sub.chunks
                          if any(c.channel_count.get(cid, 0) for cid in connmap)),
                         key=lambda c: c.message_start_time)
-        if any(b.message_start_time < a.message_end_time for a, b in zip(chunks, chunks[1:])):
-            return None
-        plans.append((sub, connmap, chunks))
+        overlap = any(b.message_start_time < a.message_end_time
+                      for a, b in zip(chunks, chunks[1:]))
+        plans.append((sub, connmap, chunks, overlap))
 
     def generate() -> Iterator[tuple[Any, int, bytes]]:
-        for sub, connmap, chunks in plans:
+        for sub, connmap, chunks, overlap in plans:
+            if overlap:
+                yield from _merged(sub, chunks, connmap, corrupt)
+                continue
             for chunk in chunks:
                 try:
                     out = _chunk_messages(sub.bio, chunk, connmap)
@@ -130,6 +134,34 @@ def messages(reader: Any, conns: list, streams: dict, corrupt: Optional[list] = 
                     continue
                 yield from out
     return generate()
+
+
+def _merged(sub: Any, chunks: list, connmap: dict, corrupt: Optional[list]
+            ) -> Iterator[tuple[Any, int, bytes]]:
+    """
+    Yield the messages of chunks that overlap in time, merged by log time as rosbags does.
+
+    Each chunk is decompressed only once the merge reaches its start time, and
+    ties go to the chunk earlier in the file (rosbags' order: log time, then
+    chunk offset, then the order within the chunk). A corrupt chunk is skipped
+    whole and described in ``corrupt``, as in the ordered case.
+    """
+    def source(chunk: Any) -> Iterator[tuple[int, int, int, Any]]:
+        offset = chunk.chunk_start_offset
+        yield chunk.message_start_time, offset, -1, None  # opens the chunk no earlier
+        try:
+            out = _chunk_messages(sub.bio, chunk, connmap)
+        except Exception as exc:  # noqa: B902 - any failure: the chunk is corrupt
+            if corrupt is None:
+                raise
+            corrupt.append(_corrupt_chunk(sub, chunk, connmap, exc))
+            return
+        for i, message in enumerate(out):
+            yield message[1], offset, i, message
+
+    for _, _, _, message in heapq.merge(*map(source, chunks)):
+        if message is not None:
+            yield message
 
 
 def _chunk_messages(bio: Any, chunk: Any, connmap: dict) -> list[tuple[Any, int, bytes]]:

@@ -112,7 +112,8 @@ class PipelineNode(Node):
             cls = message_class(msgtype)
             if cls is None:
                 self.log('warn', f'{msgtype} is not installed: not subscribing to '
-                         f'{spec.topic} (set the matching parameter instead)')
+                         f'{spec.topic} (set the matching parameter instead; '
+                         f'{missing_type_hint(msgtype)})')
                 continue
             qos = TF_STATIC_QOS if spec.kind == 'tf_static' else qos_profile_sensor_data
             self._subs.append(self.create_subscription(
@@ -169,12 +170,19 @@ class PipelineNode(Node):
         counts = {k: dict(v) for k, v in self.pipeline.counts.items()}
         idle = {k: now - t for k, t in self._last_input.items()}
         period = now - self._health_t if self._health_t is not None else 0.0
-        level, message, values = input_health(counts, self._health_prev, idle,
+        prev = self._health_prev
+        level, message, values = input_health(counts, prev, idle,
                                               self._required, STALE_AFTER, period, self._kinds)
         self._health_prev, self._health_t = counts, now
         if level == 2:
             self.log('warn', f'{message}: no output until valid input arrives',
                      throttle_s=10.0, key='all_rejected')
+        for key, c in counts.items():
+            if c.get('rejected_duplicate_joint', 0) > prev.get(key, {}).get(
+                    'rejected_duplicate_joint', 0):
+                self.log('warn', f'{c["rejected_duplicate_joint"]} {key} message(s) name a '
+                         "joint twice and were rejected (which value is the joint's cannot "
+                         'be told)', throttle_s=30.0, key='duplicate_joint')
         stamp = self.get_clock().now().nanoseconds
         status = T.DiagnosticStatus(f'{self.get_fully_qualified_name()}: inputs', level, message,
                                     '', tuple(values))
@@ -267,11 +275,18 @@ class PipelineNode(Node):
                 self.log('error', f'cannot write into {out_dir}: {exc.strerror or exc}')
 
 
+def missing_type_hint(msgtype: str) -> str:
+    """Return how to get the message package of ``msgtype`` (one clause, no full stop)."""
+    if msgtype.startswith('tf2_msgs/'):
+        return ('/tf and /tf_static need it: tools/build_tf2_msgs.sh builds it into the virtual '
+                'environment where cmake and a C/C++ compiler exist (`make venv` runs it), or '
+                'source a ROS 2 installation')
+    return 'install its message package'
+
+
 def missing_output_type(topic: str, msgtype: str) -> str:
     """Return the one-line reason a node cannot publish ``topic``: ``msgtype`` is not installed."""
-    how = ('`make venv` builds it into .venv (tools/build_tf2_msgs.sh); a ROS 2 installation '
-           'has it') if msgtype.startswith('tf2_msgs/') else 'install its message package'
-    return f'cannot publish {topic}: {msgtype} is not installed ({how})'
+    return f'cannot publish {topic}: {msgtype} is not installed ({missing_type_hint(msgtype)})'
 
 
 def check_output_dir(path: str) -> None:

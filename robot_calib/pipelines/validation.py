@@ -3,8 +3,10 @@
 """
 Validation of input samples at the pipeline boundary: finite, physically plausible, sane rate.
 
-:func:`sample_problem` names what is wrong with one sample (``'non_finite'``
-or ``'implausible'``), or returns None. The limits below are far outside what
+:func:`sample_problem` names what is wrong with one sample (``'non_finite'``,
+``'implausible'``, or ``'duplicate_joint'`` for a JointState naming one joint
+twice: which entry is the joint's cannot be told, so the message is not
+used), or returns None. The limits below are far outside what
 any real sensor on a ground robot reports, so they never reject real data;
 they stop corrupt or hostile values (a flipped bit, a wrong unit by orders of
 magnitude, a garbage driver) before any method integrates them.
@@ -142,6 +144,8 @@ def _joint_problem(s: T.JointStateSample) -> Optional[str]:
     pos, vel = _floats(s.position), _floats(s.velocity)
     if len(pos) != len(s.names) or len(vel) != len(s.names):
         return 'implausible'
+    if len(set(s.names)) != len(s.names):
+        return 'duplicate_joint'  # which of the two values is the joint's cannot be told
     big_p, big_v = MAX_JOINT_POSITION, MAX_JOINT_VELOCITY
     for p, v in zip(pos, vel):
         if -big_p <= p <= big_p and (-big_v <= v <= big_v or v != v):
@@ -170,7 +174,8 @@ def sample_problem(sample: Any) -> Optional[str]:
     ``'non_finite'``: a NaN or inf where a number must be finite (the stamp, a
     rate, a pose...); ``'implausible'``: a value outside the physical limits of
     this module (rates, forces, speeds, positions, quaternion norms, scan
-    geometry), or a malformed sample (vector lengths).
+    geometry), or a malformed sample (vector lengths); ``'duplicate_joint'``: a
+    JointState that names one joint twice.
     """
     if not math.isfinite(sample.t):
         return 'non_finite'

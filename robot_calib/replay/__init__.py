@@ -42,7 +42,8 @@ import time
 from typing import Any, Iterable, Mapping, Optional, Sequence, Union
 
 from robot_calib.io.bags import BagSet
-from robot_calib.replay.config import (check_out_dir, load_params_file, move_into_place,
+from robot_calib.replay.config import (check_out_dir, check_out_not_input, load_params_file,
+                                       move_into_place,
                                        NodeSpec, OUTPUT_BAG, parse_overrides, parse_remaps,
                                        prepare_out_dir, ReplayError, REPORT, resolve_node,
                                        SUMMARY)
@@ -108,6 +109,7 @@ def replay(bags: Union[str, os.PathLike, Sequence[Union[str, os.PathLike]]],
     out_dir = Path(out_dir)
     _check_window(start_offset, duration)
     check_out_dir(out_dir)
+    check_out_not_input(out_dir, bag_list)
     rules = parse_remaps(remaps)
     by_node = parse_overrides(overrides)
     file_params = load_params_file(params_file)

@@ -110,12 +110,14 @@ def load_params_file(path: Union[str, os.PathLike, None]) -> dict[str, dict[str,
     if path is None:
         return {}
     import yaml
+
+    from robot_calib.io.safe_yaml import load_yaml
     p = Path(path)
     if not p.is_file():
         raise ReplayError(f'parameter file not found: {p} (expected a YAML file like '
                           'config/robot_calib.yaml)')
     try:
-        data = yaml.safe_load(p.read_text())
+        data = load_yaml(p)
     except (OSError, UnicodeDecodeError, yaml.YAMLError) as exc:
         first = ' '.join(str(exc).split())
         raise ReplayError(f'cannot read parameter file {p}: {first}') from None
@@ -225,6 +227,27 @@ def check_out_dir(out_dir: Path) -> None:
     if not ancestor.is_dir() or not os.access(ancestor, os.W_OK | os.X_OK):
         raise ReplayError(f'output folder {out_dir.parent} is not writable ({ancestor} is not '
                           'a writable folder); expected a writable folder')
+
+
+def check_out_not_input(out_dir: Path, bags: Iterable[Union[str, os.PathLike]]) -> None:
+    """
+    Raise ReplayError when ``out_dir`` is, contains or lies inside one of the input ``bags``.
+
+    A replay replaces its output folder, so ``replay X --out X`` (X an earlier
+    replay's output, itself a bag) would destroy its own input. Symbolic links
+    are resolved on both sides.
+    """
+    out = Path(out_dir).resolve()
+    for bag in bags:
+        path = Path(bag).resolve()
+        if out == path or out in path.parents:
+            where = 'is' if out == path else 'contains'
+        elif path in out.parents:
+            where = 'is inside'
+        else:
+            continue
+        raise ReplayError(f'output folder {out_dir} {where} the input bag {bag}: the replay '
+                          'would replace its own input; give another output folder')
 
 
 def prepare_out_dir(out_dir: Path) -> Path:

@@ -27,6 +27,7 @@ import json
 import math
 import os
 from pathlib import Path
+import shutil
 from typing import Any, Iterable, Mapping, Optional, Union
 
 import numpy as np
@@ -421,8 +422,14 @@ def simulate(scenario: str, out: Union[str, os.PathLike], seed: int = 0,
     except BagError as exc:
         raise SimError(str(exc)) from None
     tmp = tpath.with_name('.' + tpath.name + '.partial')
-    tmp.write_text(json.dumps(result.truth, indent=1, sort_keys=False) + '\n')
-    os.replace(tmp, tpath)
+    try:
+        tmp.write_text(json.dumps(result.truth, indent=1, sort_keys=False) + '\n')
+        os.replace(tmp, tpath)
+    except BaseException:  # a full disk, an interrupt: neither half of the pair is left
+        tmp.unlink(missing_ok=True)
+        if Path(out).is_dir():
+            shutil.rmtree(out, ignore_errors=True)  # the bag just written (never one before)
+        raise
     return result.truth
 
 
