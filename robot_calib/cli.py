@@ -343,6 +343,8 @@ def _fleet(args: argparse.Namespace) -> int:
                     ray=args.ray, bag_plots=args.bag_plots)
     print(f'{res["bags"]} bags in {res["seconds"]:.1f} s: {res["failed"]} failed, '
           f'{res["flags"]} flags; wrote {args.out}/results.csv, flags.csv, report.md')
+    for note in res.get('notes', ()):
+        print(note)
     if res['bags'] and res['failed'] == res['bags']:
         print(f'robot-calib fleet: error: every bag failed; the reasons are in '
               f'{args.out}/results.csv', file=sys.stderr)
