@@ -6,7 +6,6 @@ import csv
 import os
 from pathlib import Path
 import shutil
-import signal
 import subprocess
 import sys
 import time
@@ -178,6 +177,8 @@ def test_one_run_at_a_time_in_an_output_folder(slow_fleet, tmp_path, capsys):
     time.sleep(0.5)
     res = run_fleet(slow_fleet, out, nodes=NODES, workers=2, progress=False)
     assert res['bags'] == 6 and res['failed'] == 0
+    # what the killed run left half-written is gone
+    assert not [p for p in out.rglob('*') if '.partial-' in p.name or p.suffix == '.tmp']
 
 
 def _hold_worker_lock(out: Path) -> subprocess.Popen:

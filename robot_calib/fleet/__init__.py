@@ -171,7 +171,7 @@ def _remove_leftovers(out: Path) -> None:
     stale = [p for p in out.glob('.*.tmp') if p.is_file()]
     for robot in (out / 'bags').glob('*'):
         stale += [p for p in robot.glob('.*') if '.partial-' in p.name or '.old-' in p.name]
-        stale += [p for p in robot.glob('*/fleet.tmp')]
+        stale += list(robot.glob('*/fleet.tmp'))
     for path in stale:
         if path.is_dir() and not path.is_symlink():
             shutil.rmtree(path, ignore_errors=True)

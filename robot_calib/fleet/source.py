@@ -168,7 +168,7 @@ def discover(source: Path, out: Optional[Path] = None,
     if escaping:
         raise FleetError('bag name(s) made only of dots, whose output folder would lie outside '
                          f'OUT/bags/<robot>/; rename them: {", ".join(escaping[:5])}')
-    jobs = _once(jobs, source.absolute() if source.is_dir() else None, notes)
+    jobs = _once(jobs, source if source.is_dir() else None, notes)
     names = [(j.robot, j.name) for j in jobs]
     dup = sorted({f'{r}/{n}' for r, n in names if names.count((r, n)) > 1})
     if dup:
