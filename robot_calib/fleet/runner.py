@@ -201,11 +201,11 @@ def run_noted(job: Job, settings: Settings) -> tuple[list[dict[str, Any]], str]:
     stamp = fingerprint(settings, job)
     done = out / FLEET_FILE
     try:
-        identity = bag_identity(job.bag)
-    except OSError as exc:   # gone or unreadable: the replay says what is wrong with it
-        identity = {'path': str(job.bag), 'content': f'unreadable {exc.errno}'}
+        identity: Optional[dict[str, str]] = bag_identity(job.bag)
+    except OSError:
+        identity = None   # gone or unreadable: not reused, the replay says what is wrong
     note = ''
-    if done.is_file() and not settings.force:
+    if identity is not None and done.is_file() and not settings.force:
         try:
             record = json.loads(done.read_text())
             if record.get('fingerprint') == stamp:
