@@ -350,6 +350,10 @@ def _sigterm_as_interrupt() -> Iterator[None]:
         signal.signal(signal.SIGTERM, previous)
 
 
+NOTES_SHOWN = 20
+"""Fleet notes printed at most (bags replayed again because they changed...); all in report.md."""
+
+
 def _fleet(args: argparse.Namespace) -> int:
     from robot_calib.fleet import run_fleet
     nodes = [n.strip() for n in args.nodes.split(',') if n.strip()] if args.nodes else None
@@ -359,6 +363,11 @@ def _fleet(args: argparse.Namespace) -> int:
                     ray=args.ray, bag_plots=args.bag_plots)
     print(f'{res["bags"]} bags in {res["seconds"]:.1f} s: {res["failed"]} failed, '
           f'{res["flags"]} flags; wrote {args.out}/results.csv, flags.csv, report.md')
+    notes = res.get('notes', [])
+    for note in notes[:NOTES_SHOWN]:
+        print(note)
+    if len(notes) > NOTES_SHOWN:
+        print(f'... and {len(notes) - NOTES_SHOWN} more notes in {args.out}/report.md')
     if res['bags'] and res['failed'] == res['bags']:
         print(f'robot-calib fleet: error: every bag failed; the reasons are in '
               f'{args.out}/results.csv', file=sys.stderr)

@@ -34,7 +34,11 @@ Draw = Callable[[list[tuple]], Iterable[str]]
 def draw(call: tuple) -> str:
     """Draw one figure: ``call`` is ``(plots function, its arguments)``; return the file name."""
     function, args = call
-    return function(*args)
+    try:
+        return function(*args)
+    except BaseException:
+        Path(args[-1]).unlink(missing_ok=True)   # no half-drawn figure (a full disk)
+        raise
 
 
 def _draw_here(calls: list[tuple]) -> list[str]:
@@ -86,13 +90,14 @@ def _figures(rows: list[dict[str, Any]], found: list[dict[str, Any]], out: Path,
 
 
 def write_report(rows: list[dict[str, Any]], found: list[dict[str, Any]], out: Path,
-                 seconds: float, draw_all: Draw = _draw_here) -> None:
+                 seconds: float, draw_all: Draw = _draw_here, notes: Iterable[str] = ()) -> None:
     """
     Write ``report.md`` and its figures into ``out``.
 
     ``draw_all`` runs the figure calls (a list of :func:`draw` arguments): the
     fleet hands them to its workers, since a figure costs about 0.3-0.5 s and a
-    fleet has one per robot.
+    fleet has one per robot. ``notes``: said under the summary line (bags counted
+    once, bags replayed again because they changed).
     """
     bags = {(r['robot'], r['bag']) for r in rows}
     failed = {(r['robot'], r['bag']) for r in rows if r['status'] == 'failed'}
@@ -100,6 +105,9 @@ def write_report(rows: list[dict[str, Any]], found: list[dict[str, Any]], out: P
     lines = ['# Fleet report', '',
              f'{len(bags)} bags of {len(robots)} robots in {seconds:.1f} s; '
              f'{len(failed)} failed; {len(found)} flags.', '']
+    notes = list(notes)
+    if notes:
+        lines += ['## Notes', ''] + [f'- {n}' for n in notes] + ['']
     lines += _flag_table(found)
     lines += _figures(rows, found, out, robots, draw_all)
     slow = sorted((r for r in rows if r['status'] == 'ok'), key=lambda r: -r['runtime_s'])[:5]

@@ -8,8 +8,10 @@ Flags, per robot and node, in date order:
 - ``moved``: an estimate that comes with its standard deviation (``<name>_std``)
   more than ``k`` sigma from the median of that robot's earlier bags (at least
   two), sigma combining the estimate's own standard deviation and the spread of
-  the earlier values; numbers without an uncertainty (counts, adaptive noise
-  scales) are tabled but not flagged, as their normal spread is unknown;
+  the earlier values; with one earlier bag, more than ``k`` sigma from it, sigma
+  combining both bags' standard deviations (a change is flagged from the second
+  bag on); numbers without an uncertainty (counts, adaptive noise scales) are
+  tabled but not flagged, as their normal spread is unknown;
 - ``trend``: with at least :data:`TREND_MIN_BAGS` bags, an estimate with a standard
   deviation whose straight-line fit over the dates has a slope more than ``k``
   sigma from zero (a tyre wearing, a bias creeping): each bag weighted by the
@@ -53,9 +55,14 @@ def columns(rows: list[dict[str, Any]]) -> list[str]:
 
 
 def atomic_write(path: Path, write: Any) -> None:
+    """Write ``path`` through ``write(temporary path)`` and move it into place; no half file."""
     tmp = path.with_name(f'.{path.name}.tmp')
-    write(tmp)
-    os.replace(tmp, path)
+    try:
+        write(tmp)
+        os.replace(tmp, path)
+    except BaseException:
+        tmp.unlink(missing_ok=True)
+        raise
 
 
 def write_table(rows: list[dict[str, Any]], out: Path) -> list[str]:
@@ -84,8 +91,22 @@ def _number(value: Any) -> float:
         else math.nan
 
 
-def _moved(history: list[float], value: float, std: float, k: float) -> str:
-    if len(history) < 2 or not (math.isfinite(value) and math.isfinite(std)):
+def _moved(history: list[float], value: float, std: float, k: float,
+           first_std: float = math.nan) -> str:
+    """
+    Return why ``value`` (standard deviation ``std``) moved from ``history``, or ''.
+
+    :param first_std: the standard deviation of the one earlier value, when there is one
+    """
+    if not (math.isfinite(value) and math.isfinite(std)):
+        return ''
+    if len(history) == 1:
+        sigma = math.hypot(std, first_std)
+        if math.isfinite(sigma) and sigma > 0.0 and abs(value - history[0]) > k * sigma:
+            return (f'moved to {value:.6g} from {history[0]:.6g} (the one earlier bag), '
+                    f'{abs(value - history[0]) / sigma:.1f} sigma of both bags')
+        return ''
+    if len(history) < 2:
         return ''
     centre = statistics.median(history)
     sigma = math.hypot(std, statistics.stdev(history))
@@ -153,6 +174,7 @@ def flags(rows: list[dict[str, Any]], k: float = 4.0) -> list[dict[str, Any]]:
     """Return the flags of the table's rows (see the module docstring)."""
     out = []
     history: dict[tuple, list[float]] = {}
+    first_std: dict[tuple, float] = {}
     series: dict[tuple, list] = {}
     converged: set[tuple] = set()
     corrupt: set[str] = set()
@@ -182,11 +204,12 @@ def flags(rows: list[dict[str, Any]], k: float = 4.0) -> list[dict[str, Any]]:
             elif name != 'alerts':
                 x = _number(value)
                 std = _number(r.get(f'{col}_std'))
-                why = _moved(history.get(key, []), x, std, k)
+                why = _moved(history.get(key, []), x, std, k, first_std.get(key, math.nan))
                 if why:
                     out.append({**where, 'parameter': name, 'reason': why})
                 if math.isfinite(x):
                     history.setdefault(key, []).append(x)
+                    first_std.setdefault(key, std)
                     if math.isfinite(std):
                         series.setdefault(key, []).append((where, days_of(r['date']), x, std))
     return sorted(out + _trend_flags(series, k),

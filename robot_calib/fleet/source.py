@@ -58,7 +58,8 @@ def _bags_below(folder: Path) -> list[Path]:
 def _from_folder(root: Path, skip: Optional[Path] = None) -> list[Job]:
     robots = sorted(p for p in root.iterdir() if p.is_dir() and not p.name.startswith('.')
                     and (skip is None or p.resolve() != skip))
-    return [Job(robot.name, bag) for robot in robots for bag in _bags_below(robot)]
+    return [Job(robot.name, bag) for robot in robots for bag in _bags_below(robot)
+            if skip is None or skip not in bag.resolve().parents]  # the output, through a link
 
 
 COLUMNS = ('robot', 'bag', 'date', 'params')
@@ -99,14 +100,57 @@ def _from_manifest(path: Path) -> list[Job]:
     return jobs
 
 
-def discover(source: Path, out: Optional[Path] = None) -> list[Job]:
+def _direct(job: Job, root: Optional[Path]) -> bool:
+    """Return whether ``job``'s path reaches its bag through no symbolic link below ``root``."""
+    if root is None:
+        return True
+    path = job.bag
+    while path != root and path != path.parent:
+        if path.is_symlink():
+            return False
+        path = path.parent
+    return True
+
+
+def _once(jobs: list[Job], root: Optional[Path], notes: list[str]) -> list[Job]:
+    """
+    Return ``jobs`` with each bag once, by its resolved path (symbolic links, manifest rows).
+
+    The job kept for a bag reached twice is the one whose path has no symbolic link
+    below the source folder (``robot000/day1``, not ``robotlink/day1``), else the
+    first; what was dropped is said in ``notes``.
+    """
+    first: dict[Path, Job] = {}
+    for job in sorted(jobs, key=lambda j: not _direct(j, root)):
+        first.setdefault(job.bag.resolve(), job)
+    kept = [j for j in jobs if first[j.bag.resolve()] is j]
+    dropped = [j for j in jobs if first[j.bag.resolve()] is not j]
+    if dropped:
+        shown = ', '.join(f'{j.robot}/{j.name} (= {first[j.bag.resolve()].robot}/'
+                          f'{first[j.bag.resolve()].name})' for j in dropped[:5])
+        notes.append(f'{len(dropped)} path(s) led to the same bag as another (symbolic links '
+                     f'or repeated manifest rows) and were counted once: {shown}'
+                     + (' ...' if len(dropped) > 5 else ''))
+    return kept
+
+
+def _safe_name(name: str) -> bool:
+    """Return whether ``name`` stays one folder below its parent (not empty, ``.``, ``..``)."""
+    return bool(name) and name.strip('.') != '' and '/' not in name and '\\' not in name \
+        and '\0' not in name
+
+
+def discover(source: Path, out: Optional[Path] = None,
+             notes: Optional[list[str]] = None) -> list[Job]:
     """
     Return the jobs of ``source`` (a folder tree or a manifest), robot by robot.
 
     ``out``: the fleet's output folder, never taken for a robot when it lies
-    in ``source`` (a second run would read its own results as bags).
+    in ``source`` (a second run would read its own results as bags). Each bag
+    is taken once, by its resolved path; ``notes`` receives what was dropped.
     """
     source = Path(source)
+    notes = [] if notes is None else notes
     if source.is_dir():
         jobs = _from_folder(source, Path(out).resolve() if out is not None else None)
     elif source.is_file() and source.suffix in ('.csv', '.yaml', '.yml'):
@@ -116,11 +160,18 @@ def discover(source: Path, out: Optional[Path] = None) -> list[Job]:
                          'nor a manifest (.csv or .yaml)')
     if not jobs:
         raise FleetError(f'no bags found in {source}')
+    bad = sorted({j.robot for j in jobs if not re.fullmatch(r'[\w.-]+', j.robot)
+                  or not _safe_name(j.robot)})
+    if bad:
+        raise FleetError(f'robot names must be letters, digits, _ . - and not only dots: '
+                         f'{", ".join(repr(b) for b in bad[:5])}')
+    escaping = sorted({str(j.bag) for j in jobs if not _safe_name(j.name)})
+    if escaping:
+        raise FleetError('bag name(s) made only of dots, whose output folder would lie outside '
+                         f'OUT/bags/<robot>/; rename them: {", ".join(escaping[:5])}')
+    jobs = _once(jobs, source if source.is_dir() else None, notes)
     names = [(j.robot, j.name) for j in jobs]
     dup = sorted({f'{r}/{n}' for r, n in names if names.count((r, n)) > 1})
     if dup:
         raise FleetError(f'two bags of one robot share a name: {", ".join(dup[:5])}')
-    bad = sorted({j.robot for j in jobs if not re.fullmatch(r'[\w.-]+', j.robot)})
-    if bad:
-        raise FleetError(f'robot names must be letters, digits, _ . -: {", ".join(bad[:5])}')
     return jobs
