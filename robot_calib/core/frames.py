@@ -206,6 +206,35 @@ def mirrored(scan: ScanSample) -> ScanSample:
                                angle_increment=-scan.angle_increment)
 
 
+MAX_BEAMS = 4096
+"""Most beams a scan keeps: a denser one is thinned (:func:`thinned`) before any method.
+
+Planar lidars give 360 to about 3,200 beams a turn (1,081 and 1,141 for the
+common 0.25 deg scanners); a scan made from a 3D lidar or a depth camera can
+give 100,000. Every method here works on a few thousand at most; memory and
+time then stay those of such a scan whatever the beam count."""
+
+
+def thinned(scan: ScanSample, max_beams: int = MAX_BEAMS) -> ScanSample:
+    """
+    Return ``scan`` with one beam in ``k`` kept when it has more than ``max_beams``.
+
+    ``k = ceil(n / max_beams)``: beams ``0, k, 2k ...`` over the whole field of
+    view (the angle and time increments times ``k``); a scan of ``max_beams``
+    or fewer is returned as it is.
+    """
+    n = scan.ranges.size
+    if n <= max_beams:
+        return scan
+    k = -(-n // max_beams)
+    inten = scan.intensities
+    return dataclasses.replace(
+        scan, ranges=np.ascontiguousarray(scan.ranges[::k]),
+        angle_increment=scan.angle_increment * k, time_increment=scan.time_increment * k,
+        intensities=None if inten is None or np.size(inten) != n
+        else np.ascontiguousarray(np.asarray(inten)[::k]))
+
+
 def pose_transform(parent: str, child: str, pose: Sequence[float], t: float,
                    stamp_ns: int = -1) -> StaticTransform:
     """

@@ -104,6 +104,8 @@ class Pipeline(abc.ABC):
         self.static_transforms: dict[tuple[str, str], T.StaticTransform] = {}
         self._same_frame_warned = False
         self._notes_said = 0
+        self.own_notes = InputNotes()
+        """Standing warnings about the inputs found here (dense scans thinned)."""
         self._notes_logged: set[str] = set()
 
     # -- logging ---------------------------------------------------------------------------
@@ -209,6 +211,8 @@ class Pipeline(abc.ABC):
         self._last_t[key] = t
         c = self.counts[key] if counts is None else counts
         rejected = c['rejected']
+        if isinstance(sample, T.ScanSample) and sample.ranges.size > frames.MAX_BEAMS:
+            sample = self._thinned(key, sample, c)
         outs = self.handle(key, sample)
         notes = self.input_notes()
         if notes is not None and notes.version != self._notes_said:
@@ -276,6 +280,19 @@ class Pipeline(abc.ABC):
                  'integrated across it)')
         return [replace(s, t=s.t + change) for s in samples]
 
+    def _thinned(self, key: str, scan: T.ScanSample, counts: dict) -> T.ScanSample:
+        """Return a dense scan thinned to :data:`frames.MAX_BEAMS` beams at most; say so once."""
+        out = frames.thinned(scan)
+        counts['thinned'] += 1
+        n = scan.ranges.size
+        note = (f'{key}: scans of {n} beams thinned to {out.ranges.size} (one beam in '
+                f'{-(-n // frames.MAX_BEAMS)} kept over the whole field of view; at most '
+                f'{frames.MAX_BEAMS} beams are used)')
+        if key not in self.own_notes.by_key:
+            self.log('warn', note)
+        self.own_notes.set(key, note)
+        return out
+
     def _say_notes(self, notes: InputNotes) -> None:
         """Log the input warnings said since last time (each once)."""
         self._notes_said = notes.version
@@ -293,7 +310,7 @@ class Pipeline(abc.ABC):
         ``/diagnostics`` (level WARN).
         """
         notes = self.input_notes()
-        return notes.messages() if notes is not None else []
+        return self.own_notes.messages() + (notes.messages() if notes is not None else [])
 
     # -- hooks -----------------------------------------------------------------------------
     def input_notes(self) -> Optional[InputNotes]:

@@ -34,7 +34,8 @@ import numpy as np
 
 from robot_calib.core import types as T
 from robot_calib.core.frames import (constant_motion, find_mounting, mirrored, planar_pose,
-                                     rotation_matrix, scan_points, StaticTree, upside_down)
+                                     rotation_matrix, scan_points, SENSOR_WORDS, StaticTree,
+                                     upside_down)
 from robot_calib.core.geometry import quat_from_rpy, quat_to_matrix, rot2, wrap_angle
 from robot_calib.core.lines import extract_lines, Line, ObstacleGrid
 from robot_calib.core.notes import InputNotes
@@ -153,6 +154,21 @@ class GyroLineBase(abc.ABC):
         """Set the IMU rotation and the laser pose of the frames seen from the tree."""
         self._param_mountings()
         tree, base = self._mountings, self.params.base_frame
+        if self._imu_frame is None or self._laser_frame is None:
+            # before a sensor's own frame is known: the tree's frames named like it
+            for frame in tree.leaves():
+                name = frame.lower()
+                imu = 'imu' in name
+                if not (imu or any(k in name for k in SENSOR_WORDS['lidar'])):
+                    continue
+                mounting = tree.mounting(frame, base)
+                if mounting is None:
+                    continue
+                if imu and self._imu_frame is None:
+                    self._imu_rot = rotation_matrix(mounting)
+                elif not imu and self._laser_frame is None:
+                    self.laser_pose = np.array(planar_pose(mounting))
+                    self._laser_upside_down = upside_down(mounting)
         if self._imu_frame is not None:
             found = find_mounting(tree, self._imu_frame, base, 'imu', 'the imu_rpy parameter '
                                   f'used ({list(self.params.imu_rpy)} rad)')
