@@ -299,7 +299,8 @@ def _ideal(args: argparse.Namespace) -> int:
     cleaned = [f'{info[k]} {what}' for k, what in (
         ('poses_dropped', 'poses dropped (zero or non-finite quaternion or position)'),
         ('quaternions_normalised', 'quaternions normalised (not unit length)'),
-        ('gaps', 'gaps in the truth, not differentiated across')) if info.get(k)]
+        ('gaps', 'gaps (in the truth or left by dropped poses), not differentiated across'))
+        if info.get(k)]
     if cleaned:
         print('truth: ' + '; '.join(cleaned))
     return 0

@@ -13,14 +13,14 @@ from __future__ import annotations
 
 
 class InputNotes:
-    """Warnings about the inputs by key (one per sensor frame or input); ``version`` counts changes."""
+    """Warnings about the inputs by key (a sensor frame, an input); ``version`` counts changes."""
 
     def __init__(self) -> None:
         """Start with nothing to say."""
         self.by_key: dict[str, str] = {}
         self.version = 0
 
-    def set(self, key: str, message: str) -> None:
+    def say(self, key: str, message: str) -> None:
         """Say ``message`` about ``key`` (an empty message takes back what was said)."""
         if message:
             if self.by_key.get(key) != message:

@@ -296,8 +296,9 @@ def derive(truth_bag: os.PathLike | str, out: os.PathLike | str,
     topic, t, p, q = read_truth(truth_bag, truth_topic)
     t, p, q, counts = clean_truth(t, p, q)
     if t.size < 50:
-        raise ChannelError(f'only {t.size} usable truth poses on {topic} ({counts["poses_dropped"]}'
-                           ' dropped: zero or non-finite quaternion or position); need 50 or more')
+        dropped = counts['poses_dropped']
+        raise ChannelError(f'only {t.size} usable truth poses on {topic} ({dropped} dropped: '
+                           'zero or non-finite quaternion or position); need 50 or more')
     rec = derive_recording(t, p, q, params)
     count = write_recording(rec, out)
     return {'truth_topic': topic, 'poses': int(t.size), 'span_s': float(t[-1] - t[0]),

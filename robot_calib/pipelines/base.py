@@ -290,7 +290,7 @@ class Pipeline(abc.ABC):
                 f'{frames.MAX_BEAMS} beams are used)')
         if key not in self.own_notes.by_key:
             self.log('warn', note)
-        self.own_notes.set(key, note)
+        self.own_notes.say(key, note)
         return out
 
     def _say_notes(self, notes: InputNotes) -> None:

@@ -67,13 +67,12 @@ class GyroLineBase(abc.ABC):
     def __init__(self, params: Optional[GyroLineParams] = None):
         """Create the estimator; the pose starts at the first odometry pose."""
         self.params = params if params is not None else GyroLineParams()
-        p = self.params
         self._param_mountings()
         self._mountings = StaticTree()
         self._imu_frame: Optional[str] = None
         self._laser_frame: Optional[str] = None
         self.input_notes = InputNotes()
-        """Standing warnings about the inputs (a sensor frame not in the tree, twist-only odometry)."""
+        """Standing warnings about the inputs (a frame not in the tree, twist-only odometry)."""
         self.reset()
 
     def _param_mountings(self) -> None:
@@ -120,7 +119,7 @@ class GyroLineBase(abc.ABC):
         """Whether the IMU gives no yaw rate (exactly 0 while the odometry turns)."""
         self.twist_only = TwistOnly()
         """Tells an odometry that fills only its twist, and integrates its poses then."""
-        self.input_notes.set('odom', '')
+        self.input_notes.say('odom', '')
         self._acc_dt = 0.0
         self._acc_wdt = 0.0
         self._acc_q = 0.0
@@ -172,13 +171,13 @@ class GyroLineBase(abc.ABC):
         if self._imu_frame is not None:
             found = find_mounting(tree, self._imu_frame, base, 'imu', 'the imu_rpy parameter '
                                   f'used ({list(self.params.imu_rpy)} rad)')
-            self.input_notes.set('imu', found.note)
+            self.input_notes.say('imu', found.note)
             if found.transform is not None:
                 self._imu_rot = rotation_matrix(found.transform)
         if self._laser_frame is not None:
             found = find_mounting(tree, self._laser_frame, base, 'lidar', 'the laser_pose '
                                   f'parameter used ({list(self.params.laser_pose)} m, m, rad)')
-            self.input_notes.set('lidar', found.note)
+            self.input_notes.say('lidar', found.note)
             if found.transform is not None:
                 self.laser_pose = np.array(planar_pose(found.transform))
                 self._laser_upside_down = upside_down(found.transform)
@@ -220,7 +219,7 @@ class GyroLineBase(abc.ABC):
         if self.twist_only.twist_only:
             self.count('odometry_twist_only')
             if not was:
-                self.input_notes.set('odom', self.twist_only.note())
+                self.input_notes.say('odom', self.twist_only.note())
         return sample
 
     def result(self) -> GyroLineResult:

@@ -126,7 +126,7 @@ class LoopClosureBase(DeadReckoning, abc.ABC):
         self._upside_down: set[str] = set()
         """Laser frames mounted upside down (their scans are mirrored)."""
         self.input_notes = InputNotes()
-        """Standing warnings about the inputs (a sensor frame not in the tree, twist-only odometry)."""
+        """Standing warnings about the inputs (a frame not in the tree, twist-only odometry)."""
         self.reset()
 
     def reset(self) -> None:
@@ -161,7 +161,7 @@ class LoopClosureBase(DeadReckoning, abc.ABC):
         """Tells an odometry twist given in the odometry frame (a driver's mistake)."""
         self.twist_only = TwistOnly()
         """Tells an odometry that fills only its twist, and integrates its poses then."""
-        self.input_notes.set('odom', '')
+        self.input_notes.say('odom', '')
         self.zero_gyro = ZeroGyro()
         """Whether the IMU gives no yaw rate (exactly 0 while the wheels turn)."""
         self._odom_turn = 0.0
@@ -256,7 +256,7 @@ class LoopClosureBase(DeadReckoning, abc.ABC):
         if self.twist_only.twist_only:
             self.counts['odometry_twist_only'] += 1
             if not was:
-                self.input_notes.set('odom', self.twist_only.note())
+                self.input_notes.say('odom', self.twist_only.note())
         return sample
 
     def _mount(self, frame: str, kind: str) -> Optional[StaticTransform]:
@@ -267,9 +267,9 @@ class LoopClosureBase(DeadReckoning, abc.ABC):
         which says when the frame is not in the tree what is used instead.
         """
         fallback = 'the IMU taken as level in the base frame' if kind == 'imu' else \
-            'the lidar taken at the base frame\'s origin'
+            "the lidar taken at the base frame's origin"
         found = find_mounting(self._mounts, frame, None, kind, fallback)
-        self.input_notes.set(f'{kind}:{frame}', found.note)
+        self.input_notes.say(f'{kind}:{frame}', found.note)
         return found.transform
 
     # -- what a variant supplies --------------------------------------------------------------

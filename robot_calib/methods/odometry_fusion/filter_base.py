@@ -21,9 +21,9 @@ from typing import Any, Callable, Optional, Union
 import numpy as np
 from robot_calib.core import types as T
 from robot_calib.core.frames import find_mounting, rotation_matrix, StaticTree
-from robot_calib.core.notes import InputNotes
 from robot_calib.core.geometry import wrap_scalar
 from robot_calib.core.kinematics import off_arc
+from robot_calib.core.notes import InputNotes
 from robot_calib.core.odometry_twist import TwistFrame, TwistOnly
 from robot_calib.core.zero_gyro import READINGS, SPAN, ZeroGyro
 from robot_calib.methods.odometry_fusion.common import (
@@ -49,7 +49,7 @@ class FusionFilter(abc.ABC):
         self._mountings: list[T.StaticTransform] = []
         self._imu_frame: Optional[str] = None
         self.input_notes = InputNotes()
-        """Standing warnings about the inputs (an IMU frame not in the tree, twist-only odometry)."""
+        """Standing warnings about the inputs (a frame not in the tree, twist-only odometry)."""
         self._start()
 
     def _start(self) -> None:
@@ -69,7 +69,7 @@ class FusionFilter(abc.ABC):
         self.twist_frame = TwistFrame()
         self.twist_only = TwistOnly()
         """Tells an odometry that fills only its twist (the filter uses the twist anyway)."""
-        self.input_notes.set('odom', '')
+        self.input_notes.say('odom', '')
         self.wheel_turn = 0.0
         """The wheels' last yaw rate (rad/s), as measured."""
         self.zero_gyro = ZeroGyro()
@@ -179,7 +179,7 @@ class FusionFilter(abc.ABC):
                         'the up axis taken from gravity at start (the forward axis unknown: '
                         'the accelerometer unused)')
             found = find_mounting(tree, self._imu_frame, base, 'imu', fallback)
-            self.input_notes.set('imu', found.note)
+            self.input_notes.say('imu', found.note)
             frame, mounting = found.frame, found.transform
             if mounting is None and self.front.rot_source == 'tf':
                 self.front.rot, self.front.rot_source = None, 'none'   # the guess did not hold
@@ -295,7 +295,7 @@ class FusionFilter(abc.ABC):
         if not self.twist_only.settled:
             self.twist_only.sample(s)
             if self.twist_only.twist_only:
-                self.input_notes.set('odom', 'odometry fills only its twist (pose all zero while '
+                self.input_notes.say('odom', 'odometry fills only its twist (pose all zero while '
                                              'the twist moves): fused from the twist, as always')
         if last is not None:
             dt = s.t - last.t

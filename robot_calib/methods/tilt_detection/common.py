@@ -249,7 +249,7 @@ class TiltEstimatorBase(abc.ABC):
                     if any(p.mounting_rpy) else
                     f'the IMU taken as level in {p.base_frame} (set mounting_rpy)')
         found = find_mounting(self._transforms, frame, p.base_frame, 'imu', fallback)
-        self.input_notes.set('imu', found.note)
+        self.input_notes.say('imu', found.note)
         return found.transform
 
     def set_alert_params(self, params: TiltParams) -> None:

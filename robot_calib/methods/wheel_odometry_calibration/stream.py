@@ -64,7 +64,7 @@ class StreamingCalibrator(abc.ABC):
         self.periodic = periodic
         self._mountings = frames.StaticTree()
         self.input_notes = InputNotes()
-        """Standing warnings about the inputs (a scan frame not in the tree, twist-only odometry)."""
+        """Standing warnings about the inputs (a frame not in the tree, twist-only odometry)."""
         self.reset()
 
     def reset(self) -> None:
@@ -77,7 +77,7 @@ class StreamingCalibrator(abc.ABC):
         """The lidar is mounted upside down: its scans are mirrored."""
         self.twist_only = TwistOnly()
         """Tells an odometry that fills only its twist, and integrates its poses then."""
-        self.input_notes.set('odom', '')
+        self.input_notes.say('odom', '')
         self._notes: list[tuple[str, str]] = []
         self._told_problem = ''
         self._told_stride = 1
@@ -148,7 +148,7 @@ class StreamingCalibrator(abc.ABC):
         was = self.twist_only.twist_only
         sample = self.twist_only.sample(sample)
         if self.twist_only.twist_only and not was:
-            self.input_notes.set('odom', self.twist_only.note())
+            self.input_notes.say('odom', self.twist_only.note())
         return sample
 
     def _apply_mounting(self, frame: str) -> None:
@@ -159,7 +159,7 @@ class StreamingCalibrator(abc.ABC):
         found = frames.find_mounting(
             self._mountings, frame, p.base_frame, 'lidar', 'the nominal lidar pose parameters '
             f'used (lidar_x {p.lidar_x} m, lidar_y {p.lidar_y} m, lidar_yaw {p.lidar_yaw} rad)')
-        self.input_notes.set('lidar', found.note)
+        self.input_notes.say('lidar', found.note)
         tf = found.transform
         if tf is None:
             return
