@@ -145,8 +145,9 @@ def find_mounting(tree: StaticTree, frame: str, base: Optional[str], kind: str,
     """
     Return the mounting of a sensor whose messages name ``frame``: the one rule of every node.
 
-    1. ``frame`` is ``base`` (the data are in the base frame already): no
-       transform, nothing to say.
+    1. ``frame`` is ``base``, or a frame other frames hang from but which has no
+       mounting itself (the top of the tree: the data are in a body frame
+       already): no transform, nothing to say.
     2. ``frame`` (or it without a leading ``/``) is in the tree and reaches
        ``base`` (:meth:`StaticTree.mounting`): its transform.
     3. Otherwise, when the tree holds exactly one frame of the sensor's ``kind``
@@ -167,6 +168,8 @@ def find_mounting(tree: StaticTree, frame: str, base: Optional[str], kind: str,
             found = tree.mounting(name, base)
             if found is not None:
                 return FoundMounting(found, name, '')
+    if frame and any(tf.parent == frame for tf in tree.by_child.values()):
+        return FoundMounting(None, frame, '')  # a body frame (the top of the tree): no mounting
     what = 'IMU' if kind == 'imu' else kind
     shown = repr(frame) if frame else '(empty)'
     if not tree.by_child:

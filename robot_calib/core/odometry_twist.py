@@ -16,6 +16,10 @@ differ by more than ``SEPARATION`` of the speed (the heading more than about
 is clearly nearer; once ``MIN_VOTES`` votes say the odometry frame, ``RATIO``
 times as many as say base_link, the twist is rotated into base_link by the
 odometry's yaw from then on.
+
+An odometry that fills only its twist (pose and quaternion all zero) is told
+and given the poses its twist integrates to by :class:`TwistOnly`, the same in
+every node that reads odometry poses.
 """
 
 from __future__ import annotations
@@ -101,6 +105,9 @@ TWIST_ONLY_SAMPLES = 5
 TWIST_ONLY_MOTION = 0.05
 """...while their twist, integrated, moved at least this far (m) or turned this much (rad)."""
 
+TWIST_MOVING = 0.01
+"""A sample moves when its speed exceeds this (m/s) or its yaw rate this (rad/s)."""
+
 TWIST_MAX_DT = 1.0
 """Longest interval (s) integrated between two odometry samples (a longer one is a gap)."""
 
@@ -115,8 +122,9 @@ class TwistOnly:
     still at the origin. The twist (base_link, ``child_frame_id`` as specified)
     is integrated from the first sample on, arc by arc (trapezoid of the speeds,
     no integration across a gap longer than :data:`TWIST_MAX_DT`). Once
-    :data:`TWIST_ONLY_SAMPLES` moving samples in a row kept the pose exactly
-    zero while the twist moved :data:`TWIST_ONLY_MOTION`, the odometry is taken
+    :data:`TWIST_ONLY_SAMPLES` moving samples (beyond :data:`TWIST_MOVING`) kept
+    the pose exactly zero while the twist moved :data:`TWIST_ONLY_MOTION`, with no
+    sample of an exactly zero twist between them, the odometry is taken
     as twist-only for good and :meth:`sample` returns it with the integrated
     pose (the motion before the decision included). A pose that is not exactly
     zero once settles it the other way: samples then pass unchanged, so an
@@ -154,6 +162,8 @@ class TwistOnly:
             if s.vx == 0.0 and s.vy == 0.0 and s.wz == 0.0:
                 self._run, self._moved, self._turned = 0, 0.0, 0.0
                 return s
+            if math.hypot(s.vx, s.vy) <= TWIST_MOVING and abs(s.wz) <= TWIST_MOVING:
+                return s     # a twist this small may be a driver's noise at rest
             self._run += 1
             if self._run < TWIST_ONLY_SAMPLES or max(self._moved, self._turned) \
                     < TWIST_ONLY_MOTION:
