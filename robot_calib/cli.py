@@ -312,6 +312,13 @@ def _ideal(args: argparse.Namespace) -> int:
                        info['kernels'].items() for f, k in list(ks.items())[:1])
     print(f'wrote {args.out}: {info["messages"]} messages from {info["poses"]} poses of '
           f'{info["truth_topic"]} ({info["span_s"]:.1f} s); smoothing {widths}')
+    cleaned = [f'{info[k]} {what}' for k, what in (
+        ('poses_dropped', 'poses dropped (zero or non-finite quaternion or position)'),
+        ('quaternions_normalised', 'quaternions normalised (not unit length)'),
+        ('gaps', 'gaps (in the truth or left by dropped poses), not differentiated across'))
+        if info.get(k)]
+    if cleaned:
+        print('truth: ' + '; '.join(cleaned))
     return 0
 
 

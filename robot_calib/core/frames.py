@@ -120,6 +120,75 @@ class StaticTree:
         return chain or None
 
 
+SENSOR_WORDS = {'imu': ('imu',), 'lidar': ('laser', 'scan', 'lidar')}
+"""What a frame's name contains when it is a sensor of each kind (lower case)."""
+
+
+@dataclasses.dataclass(frozen=True)
+class FoundMounting:
+    """
+    What :func:`find_mounting` found: the transform (None: no mounting known) and what to say.
+
+    ``frame`` is the frame whose transform is used (the sensor's own, or the one
+    taken in its place); ``note`` is '' when the sensor's frame was found as named
+    (or is the base frame itself), else the sentence a summary and the
+    diagnostics say.
+    """
+
+    transform: Optional[StaticTransform]
+    frame: str
+    note: str
+
+
+def find_mounting(tree: StaticTree, frame: str, base: Optional[str], kind: str,
+                  fallback: str) -> FoundMounting:
+    """
+    Return the mounting of a sensor whose messages name ``frame``: the one rule of every node.
+
+    1. ``frame`` is ``base``, or a frame other frames hang from but which has no
+       mounting itself (the top of the tree: the data are in a body frame
+       already): no transform, nothing to say.
+    2. ``frame`` (or it without a leading ``/``) is in the tree and reaches
+       ``base`` (:meth:`StaticTree.mounting`): its transform.
+    3. Otherwise, when the tree holds exactly one frame of the sensor's ``kind``
+       (a leaf whose name contains one of :data:`SENSOR_WORDS`) reaching ``base``,
+       that frame's transform, saying so: a driver and a URDF that name the
+       same sensor differently (``imu`` and ``imu_link``).
+    4. Otherwise no mounting is known (None), saying so and what the method does
+       instead (``fallback``, e.g. 'taken at base_link'); with no static
+       transform at all as well.
+
+    :param base: the base frame, or None for the top of the sensor's chain
+    :param kind: 'imu' or 'lidar'
+    """
+    if base is not None and frame == base:
+        return FoundMounting(None, frame, '')
+    for name in (frame, frame.lstrip('/')):
+        if name:
+            found = tree.mounting(name, base)
+            if found is not None:
+                return FoundMounting(found, name, '')
+    if frame and any(tf.parent == frame for tf in tree.by_child.values()):
+        return FoundMounting(None, frame, '')  # a body frame (the top of the tree): no mounting
+    what = 'IMU' if kind == 'imu' else kind
+    shown = repr(frame) if frame else '(empty)'
+    if not tree.by_child:
+        return FoundMounting(None, frame, f'{what} frame {shown}: no static transform '
+                                          f'(/tf_static) known, no mounting: {fallback}')
+    words = SENSOR_WORDS[kind]
+    candidates = [leaf for leaf in tree.leaves()
+                  if any(w in leaf.lower() for w in words) and tree.mounting(leaf, base)]
+    if len(candidates) == 1:
+        leaf = candidates[0]
+        found = tree.mounting(leaf, base)
+        return FoundMounting(found, leaf, f'{what} frame {shown} is not in /tf_static: using '
+                                          f'its only {what} frame {leaf!r} '
+                                          f'({found.parent} -> {leaf})')
+    there = ', '.join(repr(c) for c in candidates[:4]) if candidates else f'no {what} frame'
+    return FoundMounting(None, frame, f'{what} frame {shown} is not in /tf_static ({there} '
+                                      f'there): no mounting known, {fallback}')
+
+
 def _compose(chain: list[StaticTransform]) -> tuple[np.ndarray, np.ndarray]:
     """Return the rotation and translation of a chain (child first) composed from its top."""
     rot, pos = np.eye(3), np.zeros(3)
@@ -138,6 +207,35 @@ def mirrored(scan: ScanSample) -> ScanSample:
     """Return the scan of an upside-down lidar as an upright one at its planar pose sees it."""
     return dataclasses.replace(scan, angle_min=-scan.angle_min,
                                angle_increment=-scan.angle_increment)
+
+
+MAX_BEAMS = 4096
+"""Most beams a scan keeps: a denser one is thinned (:func:`thinned`) before any method.
+
+Planar lidars give 360 to about 3,200 beams a turn (1,081 and 1,141 for the
+common 0.25 deg scanners); a scan made from a 3D lidar or a depth camera can
+give 100,000. Every method here works on a few thousand at most; memory and
+time then stay those of such a scan whatever the beam count."""
+
+
+def thinned(scan: ScanSample, max_beams: int = MAX_BEAMS) -> ScanSample:
+    """
+    Return ``scan`` with one beam in ``k`` kept when it has more than ``max_beams``.
+
+    ``k = ceil(n / max_beams)``: beams ``0, k, 2k ...`` over the whole field of
+    view (the angle and time increments times ``k``); a scan of ``max_beams``
+    or fewer is returned as it is.
+    """
+    n = scan.ranges.size
+    if n <= max_beams:
+        return scan
+    k = -(-n // max_beams)
+    inten = scan.intensities
+    return dataclasses.replace(
+        scan, ranges=np.ascontiguousarray(scan.ranges[::k]),
+        angle_increment=scan.angle_increment * k, time_increment=scan.time_increment * k,
+        intensities=None if inten is None or np.size(inten) != n
+        else np.ascontiguousarray(np.asarray(inten)[::k]))
 
 
 def pose_transform(parent: str, child: str, pose: Sequence[float], t: float,

@@ -16,12 +16,19 @@ differ by more than ``SEPARATION`` of the speed (the heading more than about
 is clearly nearer; once ``MIN_VOTES`` votes say the odometry frame, ``RATIO``
 times as many as say base_link, the twist is rotated into base_link by the
 odometry's yaw from then on.
+
+An odometry that fills only its twist (pose and quaternion all zero) is told
+and given the poses its twist integrates to by :class:`TwistOnly`, the same in
+every node that reads odometry poses.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import math
-from typing import Any
+from typing import Any, Optional
+
+from robot_calib.core.kinematics import arc_pose_scalar
 
 SEPARATION = 0.3
 """Least difference of the two readings, relative to the speed, for an interval to vote (-)."""
@@ -90,3 +97,107 @@ class TwistFrame:
             self.in_odom_frame = self.settled = True
         elif self.votes_base >= SETTLED and self.votes_odom * RATIO < self.votes_base:
             self.settled = True
+
+
+TWIST_ONLY_SAMPLES = 5
+"""Moving samples in a row with the pose exactly zero that mean the pose is not filled..."""
+
+TWIST_ONLY_MOTION = 0.05
+"""...while their twist, integrated, moved at least this far (m) or turned this much (rad)."""
+
+TWIST_MOVING = 0.01
+"""A sample moves when its speed exceeds this (m/s) or its yaw rate this (rad/s)."""
+
+TWIST_MAX_DT = 1.0
+"""Longest interval (s) integrated between two odometry samples (a longer one is a gap)."""
+
+
+class TwistOnly:
+    """
+    Tells an odometry that fills only its twist and gives it the poses the twist integrates to.
+
+    Some drivers publish ``nav_msgs/Odometry`` with the twist alone: the pose
+    and its quaternion stay all zero (or identity). Fusion uses the twist and
+    is not misled; a method that reads the poses would see a robot standing
+    still at the origin. The twist (base_link, ``child_frame_id`` as specified)
+    is integrated from the first sample on, arc by arc (trapezoid of the speeds,
+    no integration across a gap longer than :data:`TWIST_MAX_DT`). Once
+    :data:`TWIST_ONLY_SAMPLES` moving samples (beyond :data:`TWIST_MOVING`) kept
+    the pose exactly zero while the twist moved :data:`TWIST_ONLY_MOTION`, with no
+    sample of an exactly zero twist between them, the odometry is taken
+    as twist-only for good and :meth:`sample` returns it with the integrated
+    pose (the motion before the decision included). A pose that is not exactly
+    zero once settles it the other way: samples then pass unchanged, so an
+    odometry that fills its pose costs one comparison per sample.
+    """
+
+    def __init__(self) -> None:
+        """Start undecided."""
+        self.twist_only = False
+        """True once the odometry is known to fill only its twist."""
+        self.settled = False
+        """True once decided (either way)."""
+        self.detected_t: Optional[float] = None
+        """Time (s) of the sample that decided twist-only."""
+        self.gaps = 0
+        """Intervals longer than :data:`TWIST_MAX_DT` not integrated."""
+        self._pose = (0.0, 0.0, 0.0)
+        self._last: Any = None
+        self._run = 0
+        self._moved = 0.0
+        self._turned = 0.0
+
+    def sample(self, s: Any) -> Any:
+        """Return odometry sample ``s``, with the integrated pose once it is twist-only."""
+        if self.settled and not self.twist_only:
+            return s
+        last, self._last = self._last, s
+        if last is not None:
+            self._integrate(last, s)
+        if not self.settled:
+            if s.x != 0.0 or s.y != 0.0 or s.yaw != 0.0:
+                self.settled = True
+                self._last = None
+                return s
+            if s.vx == 0.0 and s.vy == 0.0 and s.wz == 0.0:
+                self._run, self._moved, self._turned = 0, 0.0, 0.0
+                return s
+            if math.hypot(s.vx, s.vy) <= TWIST_MOVING and abs(s.wz) <= TWIST_MOVING:
+                return s     # a twist this small may be a driver's noise at rest
+            self._run += 1
+            if self._run < TWIST_ONLY_SAMPLES or max(self._moved, self._turned) \
+                    < TWIST_ONLY_MOTION:
+                return s
+            self.twist_only = self.settled = True
+            self.detected_t = s.t
+        x, y, yaw = self._pose
+        return dataclasses.replace(s, x=x, y=y, yaw=yaw, orientation_norm=1.0)
+
+    def _integrate(self, a: Any, b: Any) -> None:
+        """Add the arc the twist of samples ``a`` and ``b`` drove between them."""
+        dt = b.t - a.t
+        if not 0.0 < dt <= TWIST_MAX_DT:
+            if dt > 0.0:
+                self.gaps += 1
+            return
+        ds = 0.5 * (a.vx + b.vx) * dt
+        dl = 0.5 * (a.vy + b.vy) * dt
+        dth = 0.5 * (a.wz + b.wz) * dt
+        fx, fy, _ = arc_pose_scalar(ds, dth)
+        half = 0.5 * dth
+        fx -= math.sin(half) * dl
+        fy += math.cos(half) * dl
+        x, y, yaw = self._pose
+        c, sn = math.cos(yaw), math.sin(yaw)
+        self._pose = (x + c * fx - sn * fy, y + sn * fx + c * fy,
+                      math.remainder(yaw + dth, math.tau))
+        if self._run:
+            self._moved += math.hypot(fx, fy)
+            self._turned += abs(dth)
+
+    def note(self) -> str:
+        """Return what a summary says of it ('' unless twist-only)."""
+        if not self.twist_only:
+            return ''
+        return (f'odometry fills only its twist (pose all zero while the twist moves, decided at '
+                f't = {self.detected_t:.3f} s): poses integrated from the twist')

@@ -20,6 +20,12 @@ with the ideal sensors (:mod:`.ideal`):
 The smoothing each derived channel went through is written into the bag's
 metadata (``robot_calib.kernels``), so ``robot-calib mismatch`` compares the
 real channels through the same kernels.
+
+Truth poses are cleaned first (:func:`clean_truth`): a quaternion of another
+length than 1 is normalised (the same rotation), one that is zero or not
+finite, or a position not finite, drops the pose (counted); nothing is
+differentiated across the gaps that leaves or that the truth had
+(:func:`robot_calib.mismatch.ideal.segments`).
 """
 
 from __future__ import annotations
@@ -36,7 +42,8 @@ from robot_calib.core.constants import GRAVITY
 from robot_calib.core.params import param
 from robot_calib.mismatch.channels import (ChannelError, encode_kernels, IMU_TYPE,
                                            JOINT_STATE_TYPE, KERNELS_KEY, ODOM_TYPE, Topic)
-from robot_calib.mismatch.ideal import choose_half, ideal_imu, quat_products
+from robot_calib.mismatch.ideal import (choose_half, ideal_imu, per_segment, quat_products,
+                                        segments)
 
 TRUTH_TYPES = ('geometry_msgs/msg/PoseStamped', 'geometry_msgs/msg/PoseWithCovarianceStamped',
                'geometry_msgs/msg/TransformStamped', 'nav_msgs/msg/Odometry')
@@ -130,14 +137,52 @@ def read_truth(path: os.PathLike | str, topic: Optional[str] = None) -> tuple:
     return streams[0].topic, t[keep], p, q
 
 
+UNIT_TOLERANCE = 1e-6
+"""A quaternion whose length is further than this from 1 is normalised."""
+
+ZERO_QUATERNION = 1e-6
+"""A quaternion shorter than this is no rotation at all: its pose is dropped."""
+
+
+def clean_truth(t: np.ndarray, p: np.ndarray, q: np.ndarray) -> tuple:
+    """
+    Return (t, p, q, counts) of truth poses with the unusable dropped and the quaternions unit.
+
+    A pose is dropped when its stamp, position or quaternion is not finite or
+    its quaternion is (nearly) zero; a quaternion of another length is divided
+    by it. ``counts``: ``poses_dropped``, ``quaternions_normalised`` and
+    ``gaps`` (stretches the derivation does not cross, after the drops).
+    """
+    t = np.asarray(t, float)
+    p = np.asarray(p, float)
+    q = np.asarray(q, float)
+    norm = np.sqrt(np.sum(q * q, axis=1))
+    good = np.isfinite(t) & np.all(np.isfinite(p), axis=1) & np.isfinite(norm) \
+        & (norm > ZERO_QUATERNION)
+    dropped = int(t.size - np.count_nonzero(good))
+    if dropped:
+        t, p, q, norm = t[good], p[good], q[good], norm[good]
+    off = np.abs(norm - 1.0) > UNIT_TOLERANCE
+    normalised = int(np.count_nonzero(off))
+    if normalised:
+        q = q.copy()
+        q[off] /= norm[off, None]
+    gaps = len(segments(t)) - 1 if t.size else 0
+    return t, p, q, {'poses_dropped': dropped, 'quaternions_normalised': normalised,
+                     'gaps': gaps}
+
+
 def _planar(t: np.ndarray, p: np.ndarray, q: np.ndarray, prm: IdealParams) -> tuple:
     """Return (v, omega, half) of the planar motion: central differences over +-half samples."""
     w, x, y, z = q.T
     yaw = np.unwrap(np.arctan2(2 * (w * z + x * y), 1 - 2 * (y * y + z * z)))
+    parts = segments(t)
 
-    def twist(h: int) -> np.ndarray:
+    def twist_of(t: np.ndarray, p: np.ndarray, yaw: np.ndarray, h: int) -> np.ndarray:
         n = t.size
         out = np.full((n, 3), np.nan)
+        if n <= 2 * h:
+            return out
         span = t[2 * h:] - t[:-2 * h]
         vx, vy = (p[2 * h:, 0] - p[:-2 * h, 0]) / span, (p[2 * h:, 1] - p[:-2 * h, 1]) / span
         yc = yaw[h:n - h]
@@ -145,6 +190,9 @@ def _planar(t: np.ndarray, p: np.ndarray, q: np.ndarray, prm: IdealParams) -> tu
         out[h:n - h, 1] = (yaw[2 * h:] - yaw[:-2 * h]) / span
         out[h:n - h, 2] = 0.0
         return out
+
+    def twist(h: int) -> np.ndarray:
+        return per_segment(lambda ts, ps, ys: twist_of(ts, ps, ys, h), t, p, yaw, parts=parts)
     h = choose_half(twist, t, prm.rel_noise, prm.max_window)
     tw = twist(h)
     return tw[:, 0], tw[:, 1], h
@@ -156,6 +204,9 @@ def derive_recording(t: np.ndarray, p: np.ndarray, q: np.ndarray,
     prm = prm or IdealParams()
     if len(prm.imu_xyz) != 3 or len(prm.imu_rpy) != 3:
         raise ChannelError('imu_xyz and imu_rpy take three numbers each')
+    t, p, q, _ = clean_truth(t, p, q)
+    if t.size < 3:
+        raise ChannelError(f'only {t.size} usable truth poses')
     qm = _rpy_quat(*prm.imu_rpy)
     q_imu = quat_products(q, np.broadcast_to(qm, q.shape))
     lever = np.asarray(prm.imu_xyz, float)
@@ -243,7 +294,13 @@ def derive(truth_bag: os.PathLike | str, out: os.PathLike | str,
     if not Path(truth_bag).exists():
         raise ChannelError(f'truth bag not found: {truth_bag}')
     topic, t, p, q = read_truth(truth_bag, truth_topic)
+    t, p, q, counts = clean_truth(t, p, q)
+    if t.size < 50:
+        dropped = counts['poses_dropped']
+        raise ChannelError(f'only {t.size} usable truth poses on {topic} ({dropped} dropped: '
+                           'zero or non-finite quaternion or position); need 50 or more')
     rec = derive_recording(t, p, q, params)
     count = write_recording(rec, out)
     return {'truth_topic': topic, 'poses': int(t.size), 'span_s': float(t[-1] - t[0]),
-            'kernels': {k: dict(v.kernels) for k, v in rec.items()}, 'messages': count}
+            'kernels': {k: dict(v.kernels) for k, v in rec.items()}, 'messages': count,
+            **counts}

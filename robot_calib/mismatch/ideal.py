@@ -23,16 +23,49 @@ own sample-to-sample differences) below ``rel_noise`` of its RMS, at most
 ``max_half_s``. The kernel each channel went through is returned, so the real
 sensor can be compared through the same one (:func:`robot_calib.mismatch.
 channels.kernel_weights`). Samples whose truth is lost (NaN), and those whose
-window reaches a lost sample, are NaN.
+window reaches a lost sample, are NaN. Nothing is differentiated across a gap
+in the stamps (a step longer than :data:`GAP_FACTOR` times the median step: a
+tracking loss, or poses dropped as invalid): each stretch between gaps is
+derived on its own and the ``h`` samples at its ends are NaN.
 """
 
 from __future__ import annotations
 
-from typing import Optional
+from typing import Callable, Optional
 
 import numpy as np
 from robot_calib.core.constants import GRAVITY
 from robot_calib.core.geometry import quat_multiply
+
+
+GAP_FACTOR = 1.5
+"""A step between stamps longer than this many median steps is a gap (one sample missing)."""
+
+
+def segments(t: np.ndarray) -> list[slice]:
+    """Return the stretches of ``t`` (s) between gaps (see :data:`GAP_FACTOR`), in order."""
+    n = t.size
+    if n < 3:
+        return [slice(0, n)]
+    dt = np.diff(t)
+    cuts = np.flatnonzero(dt > GAP_FACTOR * float(np.median(dt))) + 1
+    bounds = [0, *cuts.tolist(), n]
+    return [slice(a, b) for a, b in zip(bounds[:-1], bounds[1:])]
+
+
+def per_segment(derive: Callable[..., np.ndarray], t: np.ndarray, *arrays: Optional[np.ndarray],
+                parts: Optional[list] = None) -> np.ndarray:
+    """
+    Return ``derive(t, *arrays)`` computed on each stretch between gaps on its own.
+
+    ``derive`` returns (n, k) rows for n stamps; a single stretch is derived
+    whole (exactly ``derive(t, *arrays)``). None arrays pass as None.
+    """
+    parts = segments(t) if parts is None else parts
+    if len(parts) == 1:
+        return derive(t, *arrays)
+    pieces = [derive(t[s], *(a[s] if a is not None else None for a in arrays)) for s in parts]
+    return np.concatenate(pieces, axis=0)
 
 
 def quat_products(a: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -122,12 +155,20 @@ def ideal_imu(t: np.ndarray, q: np.ndarray, p: Optional[np.ndarray] = None, g: f
         'accel': ('tri', s) or None}, 'half': {'gyro': h, 'accel': h}}``
     """
     t = np.asarray(t, float)
-    hg = choose_half(lambda h: body_rate(t, q, h), t, rel_noise, max_half_s)
+    parts = segments(t)
+
+    def rate(h: int) -> np.ndarray:
+        return per_segment(lambda ts, qs: body_rate(ts, qs, h), t, q, parts=parts)
+
+    def force(h: int) -> np.ndarray:
+        return per_segment(lambda ts, qs, ps: specific_force(ts, qs, ps, h, g), t, q, p,
+                           parts=parts)
+    hg = choose_half(rate, t, rel_noise, max_half_s)
     dt = float(np.median(np.diff(t)))
-    gyro = body_rate(t, q, hg)
+    gyro = rate(hg)
     if p is not None:
-        ha = choose_half(lambda h: specific_force(t, q, p, h, g), t, rel_noise, max_half_s)
-        accel = specific_force(t, q, p, ha, g)
+        ha = choose_half(force, t, rel_noise, max_half_s)
+        accel = force(ha)
         acc_kernel = ('tri', ha * dt)
     else:
         ha = 0

@@ -34,7 +34,7 @@ from rclpy.qos import (DurabilityPolicy, HistoryPolicy, qos_profile_sensor_data,
 from robot_calib import codec
 from robot_calib.core import types as T
 from robot_calib.core.params import from_flat, ParamError, to_flat
-from robot_calib.nodes.health import input_health, NodeLog
+from robot_calib.nodes.health import input_health, NodeLog, WARN
 from robot_calib.nodes.ros_params import declare_params
 from robot_calib.pipelines.base import Pipeline
 from robot_calib.pipelines.validation import restamp_unset
@@ -174,6 +174,11 @@ class PipelineNode(Node):
         level, message, values = input_health(counts, prev, idle,
                                               self._required, STALE_AFTER, period, self._kinds)
         self._health_prev, self._health_t = counts, now
+        warnings = self.pipeline.input_warnings()
+        if warnings:   # standing facts about the inputs (a frame not in /tf_static...)
+            level = max(level, WARN)
+            message = '; '.join(([] if message == 'inputs OK' else [message]) + warnings)
+            values = list(values) + [(f'input_warning.{i}', w) for i, w in enumerate(warnings)]
         if level == 2:
             self.log('warn', f'{message}: no output until valid input arrives',
                      throttle_s=10.0, key='all_rejected')

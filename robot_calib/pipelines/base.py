@@ -27,6 +27,7 @@ from typing import Any, Callable, ClassVar, Optional
 
 from robot_calib.core import frames, types as T
 from robot_calib.core.jsonable import jsonable
+from robot_calib.core.notes import InputNotes
 from robot_calib.core.params import to_flat
 from robot_calib.pipelines.validation import RateGuard, sample_problem, UNCHECKED
 
@@ -102,6 +103,10 @@ class Pipeline(abc.ABC):
         self.n_outputs: dict[str, int] = defaultdict(int)
         self.static_transforms: dict[tuple[str, str], T.StaticTransform] = {}
         self._same_frame_warned = False
+        self._notes_said = 0
+        self.own_notes = InputNotes()
+        """Standing warnings about the inputs found here (dense scans thinned)."""
+        self._notes_logged: set[str] = set()
 
     # -- logging ---------------------------------------------------------------------------
     def log(self, level: str, message: str) -> None:
@@ -206,7 +211,12 @@ class Pipeline(abc.ABC):
         self._last_t[key] = t
         c = self.counts[key] if counts is None else counts
         rejected = c['rejected']
+        if isinstance(sample, T.ScanSample) and sample.ranges.size > frames.MAX_BEAMS:
+            sample = self._thinned(key, sample, c)
         outs = self.handle(key, sample)
+        notes = self.input_notes()
+        if notes is not None and notes.version != self._notes_said:
+            self._say_notes(notes)
         if c['rejected'] == rejected:  # the method did not turn it down either
             c['accepted'] += 1
         if outs:
@@ -270,7 +280,43 @@ class Pipeline(abc.ABC):
                  'integrated across it)')
         return [replace(s, t=s.t + change) for s in samples]
 
+    def _thinned(self, key: str, scan: T.ScanSample, counts: dict) -> T.ScanSample:
+        """Return a dense scan thinned to :data:`frames.MAX_BEAMS` beams at most; say so once."""
+        out = frames.thinned(scan)
+        counts['thinned'] += 1
+        n = scan.ranges.size
+        note = (f'{key}: scans of {n} beams thinned to {out.ranges.size} (one beam in '
+                f'{-(-n // frames.MAX_BEAMS)} kept over the whole field of view; at most '
+                f'{frames.MAX_BEAMS} beams are used)')
+        if key not in self.own_notes.by_key:
+            self.log('warn', note)
+        self.own_notes.say(key, note)
+        return out
+
+    def _say_notes(self, notes: InputNotes) -> None:
+        """Log the input warnings said since last time (each once)."""
+        self._notes_said = notes.version
+        said = self._notes_logged
+        for message in notes.messages():
+            if message not in said and len(said) < 100:
+                said.add(message)
+                self.log('warn', message)
+
+    def input_warnings(self) -> list[str]:
+        """
+        Return the standing warnings about the inputs (frames, odometry); [] when none.
+
+        Said in ``summary.json`` (``input_warnings``) and, by a live node, on
+        ``/diagnostics`` (level WARN).
+        """
+        notes = self.input_notes()
+        return self.own_notes.messages() + (notes.messages() if notes is not None else [])
+
     # -- hooks -----------------------------------------------------------------------------
+    def input_notes(self) -> Optional[InputNotes]:
+        """Return the method's standing warnings about its inputs, or None (none kept)."""
+        return None
+
     @abc.abstractmethod
     def handle(self, key: str, sample: Any) -> list[Output]:
         """Process one accepted sample; return outputs."""
@@ -347,9 +393,13 @@ class Pipeline(abc.ABC):
     # -- summary ---------------------------------------------------------------------------
     def summary(self) -> dict[str, Any]:
         """Return the JSON-ready summary: parameters, inputs read/rejected, outputs, results."""
-        return {
+        out = {
             'params': {k: jsonable(v) for k, v in to_flat(self.params).items()},
             'inputs': {k: dict(v) for k, v in self.counts.items()},
             'outputs': dict(self.n_outputs),
             **{k: jsonable(v) for k, v in self.method_summary().items()},
         }
+        warnings = self.input_warnings()
+        if warnings:
+            out['input_warnings'] = warnings
+        return out

@@ -33,10 +33,13 @@ from typing import Any, Optional, Union
 import numpy as np
 
 from robot_calib.core import types as T
-from robot_calib.core.frames import (constant_motion, mirrored, planar_pose, rotation_matrix,
-                                     scan_points, StaticTree, upside_down)
+from robot_calib.core.frames import (constant_motion, find_mounting, mirrored, planar_pose,
+                                     rotation_matrix, scan_points, SENSOR_WORDS, StaticTree,
+                                     upside_down)
 from robot_calib.core.geometry import quat_from_rpy, quat_to_matrix, rot2, wrap_angle
 from robot_calib.core.lines import extract_lines, Line, ObstacleGrid
+from robot_calib.core.notes import InputNotes
+from robot_calib.core.odometry_twist import TwistOnly
 from robot_calib.core.series import Thinned
 from robot_calib.core.zero_gyro import ZeroGyro
 from robot_calib.methods.gyro_line_calibration.common import (
@@ -49,7 +52,6 @@ KEPT_CORRECTIONS = 2000
 
 Every correction counts in :attr:`GyroLineBase.correction_total`, ``correction_abs_max``
 and ``correction_trace``, which do not grow with the run."""
-_LASER_WORDS = ('laser', 'scan', 'lidar')
 
 
 class GyroLineBase(abc.ABC):
@@ -65,14 +67,22 @@ class GyroLineBase(abc.ABC):
     def __init__(self, params: Optional[GyroLineParams] = None):
         """Create the estimator; the pose starts at the first odometry pose."""
         self.params = params if params is not None else GyroLineParams()
+        self._param_mountings()
+        self._mountings = StaticTree()
+        self._imu_frame: Optional[str] = None
+        self._laser_frame: Optional[str] = None
+        self.input_notes = InputNotes()
+        """Standing warnings about the inputs (a frame not in the tree, twist-only odometry)."""
+        self.reset()
+
+    def _param_mountings(self) -> None:
+        """Take the IMU rotation and the laser pose from the parameters."""
         p = self.params
         r, pi_, y = (list(p.imu_rpy) + [0.0, 0.0, 0.0])[:3]
         self._imu_rot = quat_to_matrix(quat_from_rpy(r, pi_, y))
         lp = (list(p.laser_pose) + [0.0, 0.0, 0.0])[:3]
         self.laser_pose = np.array(lp, dtype=float)
         self._laser_upside_down = False
-        self._mountings = StaticTree()
-        self.reset()
 
     def reset(self) -> None:
         """Forget the state (pose, references, counters); keep the parameters and mountings."""
@@ -107,6 +117,9 @@ class GyroLineBase(abc.ABC):
         self._odom_rate = 0.0
         self.zero_gyro = ZeroGyro()
         """Whether the IMU gives no yaw rate (exactly 0 while the odometry turns)."""
+        self.twist_only = TwistOnly()
+        """Tells an odometry that fills only its twist, and integrates its poses then."""
+        self.input_notes.say('odom', '')
         self._acc_dt = 0.0
         self._acc_wdt = 0.0
         self._acc_q = 0.0
@@ -129,24 +142,45 @@ class GyroLineBase(abc.ABC):
         """
         Take a static transform; the IMU's and the laser's mountings in base_frame follow.
 
-        A sensor frame is a leaf of the transform tree named like an IMU or a laser,
-        whose chain of links reaches base_frame.
+        Each sensor's frame (from its first sample) is looked up by the rule of
+        :func:`robot_calib.core.frames.find_mounting`; with no mounting known the
+        ``imu_rpy`` and ``laser_pose`` parameters are used, and said.
         """
-        tree = self._mountings
-        tree.add(transform)
-        for frame in tree.leaves():
-            name = frame.lower()
-            imu = 'imu' in name
-            if not (imu or any(k in name for k in _LASER_WORDS)):
-                continue
-            mounting = tree.mounting(frame, self.params.base_frame)
-            if mounting is None:
-                continue
-            if imu:
-                self._imu_rot = rotation_matrix(mounting)
-            else:
-                self.laser_pose = np.array(planar_pose(mounting))
-                self._laser_upside_down = upside_down(mounting)
+        self._mountings.add(transform)
+        self._apply_mountings()
+
+    def _apply_mountings(self) -> None:
+        """Set the IMU rotation and the laser pose of the frames seen from the tree."""
+        self._param_mountings()
+        tree, base = self._mountings, self.params.base_frame
+        if self._imu_frame is None or self._laser_frame is None:
+            # before a sensor's own frame is known: the tree's frames named like it
+            for frame in tree.leaves():
+                name = frame.lower()
+                imu = 'imu' in name
+                if not (imu or any(k in name for k in SENSOR_WORDS['lidar'])):
+                    continue
+                mounting = tree.mounting(frame, base)
+                if mounting is None:
+                    continue
+                if imu and self._imu_frame is None:
+                    self._imu_rot = rotation_matrix(mounting)
+                elif not imu and self._laser_frame is None:
+                    self.laser_pose = np.array(planar_pose(mounting))
+                    self._laser_upside_down = upside_down(mounting)
+        if self._imu_frame is not None:
+            found = find_mounting(tree, self._imu_frame, base, 'imu', 'the imu_rpy parameter '
+                                  f'used ({list(self.params.imu_rpy)} rad)')
+            self.input_notes.say('imu', found.note)
+            if found.transform is not None:
+                self._imu_rot = rotation_matrix(found.transform)
+        if self._laser_frame is not None:
+            found = find_mounting(tree, self._laser_frame, base, 'lidar', 'the laser_pose '
+                                  f'parameter used ({list(self.params.laser_pose)} m, m, rad)')
+            self.input_notes.say('lidar', found.note)
+            if found.transform is not None:
+                self.laser_pose = np.array(planar_pose(found.transform))
+                self._laser_upside_down = upside_down(found.transform)
 
     def update(self, sample: Any) -> Union[None, PoseEstimate, tuple[Correction, ...]]:
         """
@@ -156,12 +190,20 @@ class GyroLineBase(abc.ABC):
         a scan made (None when it made none), and None for the other samples.
         """
         if isinstance(sample, T.ImuSample):
+            if self._imu_frame is None:
+                self._imu_frame = sample.frame_id
+                self._apply_mountings()
             self._update_imu(sample)
         elif isinstance(sample, T.OdomSample):
+            if not self.twist_only.settled or self.twist_only.twist_only:
+                sample = self._twist_only(sample)
             self._update_odom(sample)
             return PoseEstimate(self.initialized, self.pose, np.array(self.P[:3, :3]),
                                 self.rate, self.counts.get('odom_resets', 0))
         elif isinstance(sample, T.ScanSample):
+            if self._laser_frame is None:
+                self._laser_frame = sample.frame_id
+                self._apply_mountings()
             out = self._update_scan(mirrored(sample) if self._laser_upside_down else sample)
             return tuple(out) if out else None
         elif isinstance(sample, T.StaticTransform):
@@ -169,6 +211,16 @@ class GyroLineBase(abc.ABC):
         elif isinstance(sample, T.BoolSample):
             self.set_phase(sample.value, sample.t)
         return None
+
+    def _twist_only(self, sample: T.OdomSample) -> T.OdomSample:
+        """Return an odometry sample with the poses its twist integrates to when twist-only."""
+        was = self.twist_only.twist_only
+        sample = self.twist_only.sample(sample)
+        if self.twist_only.twist_only:
+            self.count('odometry_twist_only')
+            if not was:
+                self.input_notes.say('odom', self.twist_only.note())
+        return sample
 
     def result(self) -> GyroLineResult:
         """Return the estimates so far (does not change the state)."""

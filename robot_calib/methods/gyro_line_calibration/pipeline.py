@@ -66,6 +66,10 @@ class GyroLinePipeline(Pipeline):
         self._lock_lost_episodes = 0
         self._trace = Thinned()  # (t, x, y, yaw) for the plot
 
+    def input_notes(self) -> Any:
+        """Return the estimator's standing warnings about its inputs."""
+        return self.core.input_notes
+
     def on_static_transform(self, transform: T.StaticTransform) -> None:
         """Forward a /tf_static mounting (IMU or laser) to the estimator."""
         self.core.set_mounting(transform)

@@ -70,11 +70,12 @@ import time
 from typing import Any, ClassVar, Optional, Sequence
 
 import numpy as np
-from robot_calib.core.frames import (constant_motion, mirrored, planar_pose, rotation_matrix,
-                                     scan_points, StaticTree, upside_down)
+from robot_calib.core.frames import (constant_motion, find_mounting, mirrored, planar_pose,
+                                     rotation_matrix, scan_points, StaticTree, upside_down)
 from robot_calib.core.geometry import (rot2, se2_between, se2_compose, se2_inverse,
                                        wrap_angle)
-from robot_calib.core.odometry_twist import TwistFrame
+from robot_calib.core.notes import InputNotes
+from robot_calib.core.odometry_twist import TwistFrame, TwistOnly
 from robot_calib.core.scan_match import (MatchResult, PreparedScan, register,
                                          ScanMatchParams)
 from robot_calib.core.types import ImuSample, OdomSample, ScanSample, StaticTransform
@@ -124,6 +125,8 @@ class LoopClosureBase(DeadReckoning, abc.ABC):
         self._sensor_poses: dict[str, Optional[tuple[float, float, float]]] = {}
         self._upside_down: set[str] = set()
         """Laser frames mounted upside down (their scans are mirrored)."""
+        self.input_notes = InputNotes()
+        """Standing warnings about the inputs (a frame not in the tree, twist-only odometry)."""
         self.reset()
 
     def reset(self) -> None:
@@ -156,6 +159,9 @@ class LoopClosureBase(DeadReckoning, abc.ABC):
         """Its latest sideways speed (m/s; a holonomic robot's, else 0)."""
         self.twist_frame = TwistFrame()
         """Tells an odometry twist given in the odometry frame (a driver's mistake)."""
+        self.twist_only = TwistOnly()
+        """Tells an odometry that fills only its twist, and integrates its poses then."""
+        self.input_notes.say('odom', '')
         self.zero_gyro = ZeroGyro()
         """Whether the IMU gives no yaw rate (exactly 0 while the wheels turn)."""
         self._odom_turn = 0.0
@@ -187,6 +193,8 @@ class LoopClosureBase(DeadReckoning, abc.ABC):
         if isinstance(sample, ImuSample):
             self._integrate_gyro(sample.t, self._gyro_z(sample))
         elif isinstance(sample, OdomSample):
+            if not self.twist_only.settled or self.twist_only.twist_only:
+                sample = self._twist_only(sample)
             self._advance_odom(sample.t, sample.x, sample.y, sample.yaw)
             vx, vy = self.twist_frame.body_twist(sample)
             self.speed, self.speed_lateral = float(vx), float(vy)
@@ -234,16 +242,35 @@ class LoopClosureBase(DeadReckoning, abc.ABC):
         try:
             return self._imu_rotations[frame]
         except KeyError:
-            mount = self._mount(frame)
+            mount = self._mount(frame, 'imu')
             rotation = rotation_matrix(mount) if mount is not None else None
             if rotation is not None and np.array_equal(rotation, _LEVEL):
                 rotation = _LEVEL
             self._imu_rotations[frame] = rotation
             return rotation
 
-    def _mount(self, frame: str) -> Optional[StaticTransform]:
-        """Return the mounting of ``frame`` (through any chain, from its top), or None."""
-        return self._mounts.mounting(frame)
+    def _twist_only(self, sample: OdomSample) -> OdomSample:
+        """Return an odometry sample with the poses its twist integrates to when twist-only."""
+        was = self.twist_only.twist_only
+        sample = self.twist_only.sample(sample)
+        if self.twist_only.twist_only:
+            self.counts['odometry_twist_only'] += 1
+            if not was:
+                self.input_notes.say('odom', self.twist_only.note())
+        return sample
+
+    def _mount(self, frame: str, kind: str) -> Optional[StaticTransform]:
+        """
+        Return the mounting of ``frame`` (through any chain, from its top), or None.
+
+        By :func:`robot_calib.core.frames.find_mounting` (``kind`` 'imu' or 'lidar'),
+        which says when the frame is not in the tree what is used instead.
+        """
+        fallback = 'the IMU taken as level in the base frame' if kind == 'imu' else \
+            "the lidar taken at the base frame's origin"
+        found = find_mounting(self._mounts, frame, None, kind, fallback)
+        self.input_notes.say(f'{kind}:{frame}', found.note)
+        return found.transform
 
     # -- what a variant supplies --------------------------------------------------------------
     @abc.abstractmethod
@@ -289,7 +316,7 @@ class LoopClosureBase(DeadReckoning, abc.ABC):
         try:
             return self._sensor_poses[frame]
         except KeyError:
-            mount = self._mount(frame)
+            mount = self._mount(frame, 'lidar')
             pose = planar_pose(mount) if mount is not None else None
             self._sensor_poses[frame] = pose
             if mount is not None and upside_down(mount):

@@ -55,6 +55,10 @@ class LoopClosurePipeline(Pipeline):
         self._refused_scans = 0
         self._track = Thinned()  # (t, x, y, yaw, raw x, raw y) for the plot
 
+    def input_notes(self) -> Any:
+        """Return the estimator's standing warnings about its inputs."""
+        return self.estimator.input_notes
+
     def on_static_transform(self, transform: T.StaticTransform) -> None:
         """Hand a mounting to the estimator."""
         self.estimator.set_mounting(transform)

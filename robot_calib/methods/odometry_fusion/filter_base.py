@@ -20,10 +20,11 @@ from typing import Any, Callable, Optional, Union
 
 import numpy as np
 from robot_calib.core import types as T
-from robot_calib.core.frames import rotation_matrix, StaticTree
+from robot_calib.core.frames import find_mounting, rotation_matrix, StaticTree
 from robot_calib.core.geometry import same_rotation, wrap_scalar
 from robot_calib.core.kinematics import off_arc
-from robot_calib.core.odometry_twist import TwistFrame
+from robot_calib.core.notes import InputNotes
+from robot_calib.core.odometry_twist import TwistFrame, TwistOnly
 from robot_calib.core.zero_gyro import READINGS, SPAN, ZeroGyro
 from robot_calib.methods.odometry_fusion.common import (
     FusionOutput, FusionResult, lidar_accuracy, LidarOdomSample, Rejected, wheel_twist)
@@ -47,6 +48,8 @@ class FusionFilter(abc.ABC):
         self._log = log
         self._mountings: list[T.StaticTransform] = []
         self._imu_frame: Optional[str] = None
+        self.input_notes = InputNotes()
+        """Standing warnings about the inputs (a frame not in the tree, twist-only odometry)."""
         self._start()
 
     def _start(self) -> None:
@@ -65,6 +68,9 @@ class FusionFilter(abc.ABC):
         self.initialised = False
         self._odom_last: Optional[T.OdomSample] = None
         self.twist_frame = TwistFrame()
+        self.twist_only = TwistOnly()
+        """Tells an odometry that fills only its twist (the filter uses the twist anyway)."""
+        self.input_notes.say('odom', '')
         self.wheel_turn = 0.0
         """The wheels' last yaw rate (rad/s), as measured."""
         self.zero_gyro = ZeroGyro()
@@ -147,16 +153,38 @@ class FusionFilter(abc.ABC):
     def _apply_mounting(self, transform: T.StaticTransform, announce: bool) -> None:
         """Use the static transform chain base_frame -> IMU frame as the IMU mounting."""
         self._mountings.append(transform)
+        self._find_mounting(announce)
+
+    def _find_mounting(self, announce: bool) -> None:
+        """
+        Set the IMU mounting from the transforms kept.
+
+        Before the IMU's own frame is known, the first sensor frame named like
+        'imu'; then the IMU's frame by the rule of every node
+        (:func:`robot_calib.core.frames.find_mounting`), which also takes back
+        that first guess when it does not hold.
+        """
         if self.p.imu_extrinsic not in ('auto', 'tf'):
             return
         tree = StaticTree()
         for tf in self._mountings:
             tree.add(tf)
         base = self.p.base_frame
-        # before the IMU's own frame is known, the first sensor frame named like 'imu'
-        frame = self._imu_frame or next(
-            (f for f in tree.leaves() if 'imu' in f.lower() and tree.mounting(f, base)), None)
-        mounting = tree.mounting(frame, base) if frame else None
+        if self._imu_frame is None:
+            frame = next(
+                (f for f in tree.leaves() if 'imu' in f.lower() and tree.mounting(f, base)), None)
+            mounting = tree.mounting(frame, base) if frame else None
+        else:
+            fallback = ('the IMU unused until one is known (imu_extrinsic tf)'
+                        if self.p.imu_extrinsic == 'tf' else
+                        'the up axis taken from gravity at start (the forward axis unknown: '
+                        'the accelerometer unused)')
+            found = find_mounting(tree, self._imu_frame, base, 'imu', fallback)
+            self.input_notes.say('imu', found.note)
+            frame, mounting = found.frame, found.transform
+            if mounting is None and self.front.rot_source == 'tf':
+                self.front.rot, self.front.rot_source = None, 'none'   # the guess did not hold
+                self.front.forward_known = False
         if mounting is None:
             return
         if self.front.rot_source == 'tf' and same_rotation(mounting.rotation, self._tf_rotation):
@@ -172,8 +200,8 @@ class FusionFilter(abc.ABC):
         if self._imu_frame is None:
             # the IMU's frame is known now: a mounting may be found that was not before
             self._imu_frame = s.frame_id.lstrip('/')
-            if self._mountings and self.front.rot_source != 'tf':
-                self._apply_mounting(self._mountings.pop(), announce=False)
+            if self._mountings:
+                self._find_mounting(announce=False)
         reason = self._imu_sample(s)
         if reason == 'initialising':
             return None
@@ -268,6 +296,11 @@ class FusionFilter(abc.ABC):
                                f'so in {self.twist_frame.votes_odom} intervals): rotated into '
                                'base_link by the odometry yaw from now on')
         self._odom_last = s
+        if not self.twist_only.settled:
+            self.twist_only.sample(s)
+            if self.twist_only.twist_only:
+                self.input_notes.say('odom', 'odometry fills only its twist (pose all zero while '
+                                             'the twist moves): fused from the twist, as always')
         if last is not None:
             dt = s.t - last.t
             c, sn = math.cos(last.yaw), math.sin(last.yaw)

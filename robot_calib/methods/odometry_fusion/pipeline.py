@@ -65,6 +65,10 @@ class FusionPipeline(Pipeline):
         self._cov_next = -math.inf
 
     # -- inputs ----------------------------------------------------------------------------
+    def input_notes(self) -> Any:
+        """Return the filter's standing warnings about its inputs."""
+        return self.estimator.input_notes
+
     def on_static_transform(self, transform: T.StaticTransform) -> None:
         """Give a static transform to the filter (the IMU mounting: base_frame -> IMU frame)."""
         self.estimator.set_mounting(transform)

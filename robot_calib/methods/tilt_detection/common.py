@@ -26,9 +26,10 @@ from typing import Any, ClassVar, Optional
 import numpy as np
 
 from robot_calib.core.constants import GRAVITY
-from robot_calib.core.frames import rotation_matrix, StaticTree
+from robot_calib.core.frames import find_mounting, rotation_matrix, StaticTree
 from robot_calib.core.geometry import quat_tuple_from_rpy, same_rotation
 from robot_calib.core.imu_units import accel_units_of, UNITS_SAMPLES
+from robot_calib.core.notes import InputNotes
 from robot_calib.core.types import ImuSample, StaticTransform
 from robot_calib.methods.tilt_detection.params import TiltParams
 from robot_calib.methods.tilt_detection.quaternion import IDENTITY, qnorm
@@ -239,6 +240,8 @@ class TiltEstimatorBase(abc.ABC):
         self.ts = ts
         self._transforms = StaticTree()
         self._imu_frame: Optional[str] = None
+        self.input_notes = InputNotes()
+        """Standing warnings about the input (an IMU frame not in the tree)."""
         self._mount_source = 'parameter' if any(p.mounting_rpy) else 'none'
         self._mount_updates = 0
         self._set_mount(quat_tuple_from_rpy(*p.mounting_rpy))
@@ -257,9 +260,19 @@ class TiltEstimatorBase(abc.ABC):
             return
         self._transforms.add(transform)
         if self._imu_frame is not None:
-            mounting = self._transforms.mounting(self._imu_frame, p.base_frame)
+            mounting = self._find_mounting(self._imu_frame)
             if mounting is not None:
                 self._apply_transform(mounting)
+
+    def _find_mounting(self, frame: str) -> Optional[StaticTransform]:
+        """Return the mounting of IMU frame ``frame`` by the one rule of every node, or None."""
+        p = self.params
+        fallback = (f'the mounting_rpy parameter used ({list(p.mounting_rpy)} rad)'
+                    if any(p.mounting_rpy) else
+                    f'the IMU taken as level in {p.base_frame} (set mounting_rpy)')
+        found = find_mounting(self._transforms, frame, p.base_frame, 'imu', fallback)
+        self.input_notes.say('imu', found.note)
+        return found.transform
 
     def set_alert_params(self, params: TiltParams) -> None:
         """
@@ -323,7 +336,8 @@ class TiltEstimatorBase(abc.ABC):
             ax, ay, az = ax * scale, ay * scale, az * scale
         if self._imu_frame is None:
             self._imu_frame = sample.frame_id
-            transform = self._transforms.mounting(sample.frame_id, self.params.base_frame)
+            transform = self._find_mounting(sample.frame_id) if self.params.use_tf_static \
+                else None
             if transform is not None:
                 self._apply_transform(transform)
         dt = self.ts if last_t is None else t - last_t

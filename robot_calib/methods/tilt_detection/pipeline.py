@@ -105,6 +105,10 @@ class TiltPipeline(Pipeline):
                  f'{r.imu_frame}: q = ({", ".join(f"{v:.4f}" for v in r.mounting)})')
 
     # -- samples ---------------------------------------------------------------------------
+    def input_notes(self) -> Any:
+        """Return the estimator's standing warnings about its input."""
+        return self.est.input_notes
+
     def handle(self, key: str, sample: Any) -> list[Output]:
         """Process one IMU sample; return tilt/imu plus alert, diagnostics and stop outputs."""
         if key != 'imu':

@@ -54,6 +54,10 @@ class WheelCalibrationPipeline(Pipeline):
         self._latest_t = math.nan
         self._latest_stamp = -1
 
+    def input_notes(self) -> Any:
+        """Return the estimator's standing warnings about its inputs."""
+        return self.estimator.input_notes
+
     def on_static_transform(self, transform: T.StaticTransform) -> None:
         """Forward a static transform (base_frame -> scan frame: the nominal lidar pose)."""
         self.estimator.set_mounting(transform)

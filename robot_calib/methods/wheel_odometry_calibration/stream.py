@@ -23,6 +23,8 @@ from typing import Any, Callable, Optional
 import numpy as np
 from robot_calib.core import frames
 from robot_calib.core import types as T
+from robot_calib.core.notes import InputNotes
+from robot_calib.core.odometry_twist import TwistOnly
 from robot_calib.methods.wheel_odometry_calibration.common import (CalibResult,
                                                                    WheelCalibResult,
                                                                    WheelUpdate)
@@ -61,6 +63,8 @@ class StreamingCalibrator(abc.ABC):
         self.matcher, self.prepare, self.max_range = matcher, prepare, max_range
         self.periodic = periodic
         self._mountings = frames.StaticTree()
+        self.input_notes = InputNotes()
+        """Standing warnings about the inputs (a frame not in the tree, twist-only odometry)."""
         self.reset()
 
     def reset(self) -> None:
@@ -71,6 +75,9 @@ class StreamingCalibrator(abc.ABC):
         self._sensor_frame: Optional[str] = None
         self._upside_down = False
         """The lidar is mounted upside down: its scans are mirrored."""
+        self.twist_only = TwistOnly()
+        """Tells an odometry that fills only its twist, and integrates its poses then."""
+        self.input_notes.say('odom', '')
         self._notes: list[tuple[str, str]] = []
         self._told_problem = ''
         self._told_stride = 1
@@ -99,6 +106,8 @@ class StreamingCalibrator(abc.ABC):
         if isinstance(sample, T.JointStateSample):
             rejected = self._joint_state(sample)
         elif isinstance(sample, T.OdomSample):
+            if not self.twist_only.settled or self.twist_only.twist_only:
+                sample = self._twist_only(sample)
             rejected = '' if self.front.add_odom(sample) else ODOM_UNUSED
         elif isinstance(sample, T.ScanSample):
             if self._sensor_frame is None:
@@ -134,9 +143,25 @@ class StreamingCalibrator(abc.ABC):
         return self._final[1]
 
     # -- internals ------------------------------------------------------------------------
+    def _twist_only(self, sample: T.OdomSample) -> T.OdomSample:
+        """Return an odometry sample with the poses its twist integrates to when twist-only."""
+        was = self.twist_only.twist_only
+        sample = self.twist_only.sample(sample)
+        if self.twist_only.twist_only and not was:
+            self.input_notes.say('odom', self.twist_only.note())
+        return sample
+
     def _apply_mounting(self, frame: str) -> None:
-        tf = self._mountings.mounting(frame, self.params.base_frame)
-        if tf is None or self.front.segments:
+        """Take the nominal lidar pose of scan frame ``frame`` from the tree (the one rule)."""
+        if self.front.segments:
+            return
+        p = self.params
+        found = frames.find_mounting(
+            self._mountings, frame, p.base_frame, 'lidar', 'the nominal lidar pose parameters '
+            f'used (lidar_x {p.lidar_x} m, lidar_y {p.lidar_y} m, lidar_yaw {p.lidar_yaw} rad)')
+        self.input_notes.say('lidar', found.note)
+        tf = found.transform
+        if tf is None:
             return
         x, y, yaw = frames.planar_pose(tf)
         self.front.set_sensor_pose(x, y, yaw)
