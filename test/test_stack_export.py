@@ -41,9 +41,8 @@ def _replay(bag, out, nodes, *sets):
 def _static_tf(path):
     """Return the static_transform_publisher arguments of a script as a dict."""
     text = path.read_text()
-    line = next(ln for ln in text.splitlines() if 'static_transform_publisher' in ln and
-                not ln.startswith('#'))
-    words = shlex.split(line)
+    assert text.startswith('#!/bin/sh\n')
+    words = shlex.split(text[text.index('\nexec ') + 1:])
     assert words[:5] == ['exec', 'ros2', 'run', 'tf2_ros', 'static_transform_publisher']
     args = dict(zip(words[5::2], words[6::2]))
     assert set(args) == {'--x', '--y', '--z', '--roll', '--pitch', '--yaw', '--frame-id',
@@ -201,3 +200,20 @@ def test_wheel_node_writes_the_stack_files_beside_its_yaml(tmp_path):
         node.destroy_node()
     finally:
         rclpy.try_shutdown()
+
+
+def test_frame_names_from_the_data_cannot_break_out_of_the_files(tmp_path):
+    """A scan frame named like a shell command or XML stays a name in every file."""
+    from robot_calib.pipelines import stack_export as SE
+    evil = 'laser"/><x a="1$(touch pwned); `id` -->\n# '
+    result = {'drive_type': 'differential', 'left_wheel_radius': 0.05, 'right_wheel_radius': 0.05,
+              'track_width': 0.3, 'lidar_x': 0.1, 'lidar_y': 0.0, 'lidar_yaw': 0.0,
+              'verdict': 'converged'}
+    out = SE.wheel_files(result, 'wheel_odometry_calibration', 'bag -->\n$(id)',
+                         base_frame='base_link', lidar_frame=evil)
+    (tmp_path / 'tf.sh').write_text(out.files['lidar_static_tf.sh'])
+    args = _static_tf(tmp_path / 'tf.sh')
+    assert args['--child-frame-id'] == evil
+    (tmp_path / 'j.xml').write_text(out.files['lidar_joint.urdf.xml'])
+    assert _joint(tmp_path / 'j.xml')[1] == evil
+    assert yaml.safe_load(out.files['diff_drive_controller.yaml'])['diff_drive_controller']

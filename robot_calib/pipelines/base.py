@@ -345,7 +345,7 @@ class Pipeline(abc.ABC):
 
     def static_mounting(self, frame: Optional[str],
                         base: str) -> Optional[T.StaticTransform]:
-        """Return the static transform ``base`` -> ``frame`` seen so far (through chains), or None."""
+        """Return the static transform ``base`` -> ``frame`` seen so far (through chains)."""
         if not frame:
             return None
         tree = frames.StaticTree()

@@ -31,8 +31,11 @@ written either. Angles in rad, lengths in m; rpy as URDF and tf2 take them
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+import json
 import math
+import shlex
 from typing import Any, Mapping, Optional, Sequence
+from xml.sax.saxutils import quoteattr
 
 import numpy as np
 from robot_calib.core.geometry import quat_to_matrix
@@ -69,7 +72,8 @@ def header(node: str, recording: str, lines: Sequence[str], prefix: str = '# ') 
     """Return the comment header of a stack file: the node, the recording, then ``lines``."""
     text = [f'Written by robot_calib {node} from {recording or "an unnamed recording"}.'] + \
         [ln for ln in lines if ln]
-    return ''.join(f'{prefix}{ln}'.rstrip() + '\n' for ln in text)
+    # a name from the data (a frame, a bag path) must not end the comment early
+    return ''.join(f'{prefix}{" ".join(ln.split())}'.rstrip() + '\n' for ln in text)
 
 
 def _xml_comment(node: str, recording: str, lines: Sequence[str]) -> str:
@@ -99,21 +103,21 @@ def static_transform_script(node: str, recording: str, parent: str, child: str,
     args += ' ' + ' '.join(f'--{k} {_num(v)}' for k, v in zip(('roll', 'pitch', 'yaw'), rpy))
     return ('#!/bin/sh\n' + header(node, recording, [
         f'The transform {parent} -> {child} (x y z m, roll pitch yaw rad). Run this script, or',
-        'put the same arguments in a launch file\'s static_transform_publisher node.',
+        "put the same arguments in a launch file's static_transform_publisher node.",
         *notes]) +
         f'exec ros2 run tf2_ros static_transform_publisher {args} '
-        f'--frame-id {parent} --child-frame-id {child}\n')
+        f'--frame-id {shlex.quote(parent)} --child-frame-id {shlex.quote(child)}\n')
 
 
 def urdf_joint(node: str, recording: str, parent: str, child: str, xyz: Sequence[float],
                rpy: Sequence[float], notes: Sequence[str] = ()) -> str:
     """Return a URDF fixed-joint snippet placing ``child`` in ``parent``."""
     return ('<?xml version="1.0"?>\n' + _xml_comment(node, recording, [
-        f'A fixed joint placing {child} in {parent} (xyz m, rpy rad): paste it into the robot\'s',
+        f"A fixed joint placing {child} in {parent} (xyz m, rpy rad): paste it into the robot's",
         'URDF (xacro) in place of the joint that places this link now.', *notes]) +
-        f'<joint name="{child}_joint" type="fixed">\n'
-        f'  <parent link="{parent}"/>\n'
-        f'  <child link="{child}"/>\n'
+        f'<joint name={quoteattr(child + "_joint")} type="fixed">\n'
+        f'  <parent link={quoteattr(parent)}/>\n'
+        f'  <child link={quoteattr(child)}/>\n'
         f'  <origin xyz="{" ".join(_num(v) for v in xyz)}" '
         f'rpy="{" ".join(_num(v) for v in rpy)}"/>\n'
         '</joint>\n')
@@ -124,7 +128,7 @@ def mounting_files(stem: str, node: str, recording: str, parent: str, child: str
                    notes: Sequence[str] = ()) -> dict:
     """Return ``{stem_static_tf.sh, stem_joint.urdf.xml}`` of one mounting."""
     return {f'{stem}_static_tf.sh': static_transform_script(node, recording, parent, child,
-                                                             xyz, rpy, notes),
+                                                            xyz, rpy, notes),
             f'{stem}_joint.urdf.xml': urdf_joint(node, recording, parent, child, xyz, rpy,
                                                  notes)}
 
@@ -193,7 +197,7 @@ def _diff_drive(result: Mapping[str, Any], node: str, recording: str, notes: lis
     names = [f'Wheel joints in the recording: left {joints["left"]}, right {joints["right"]}.'] \
         if joints.get('left') and joints.get('right') else []
     return header(node, recording, [
-        'ros2_control diff_drive_controller parameters: load this file after the controller\'s',
+        "ros2_control diff_drive_controller parameters: load this file after the controller's",
         'own parameter file (a later file overrides the same keys), and rename the top key if',
         'your controller has another name. The effective wheel radii are wheel_radius times',
         'each multiplier.', *names, *notes]) + (
@@ -214,7 +218,7 @@ def _tricycle(result: Mapping[str, Any], node: str, recording: str, notes: list,
     offset_note = []
     if _finite(result, ('steering_offset', 'steering_scale')):
         offset_note = [
-            'tricycle_controller takes no steering offset or scale: the steering joint\'s',
+            "tricycle_controller takes no steering offset or scale: the steering joint's",
             f'position must already be the true wheel angle. Found: true = '
             f'{_num(result["steering_scale"])} * reading + {_num(result["steering_offset"])} rad',
             f'(offset{_std(result, "steering_offset")}, scale{_std(result, "steering_scale")}).',
@@ -225,7 +229,7 @@ def _tricycle(result: Mapping[str, Any], node: str, recording: str, notes: list,
         else []
     return header(node, recording, [
         'ros2_control tricycle_controller parameters (a steered drive wheel): load this file',
-        'after the controller\'s own parameter file, and rename the top key if your controller',
+        "after the controller's own parameter file, and rename the top key if your controller",
         'has another name.', *offset_note, *names, *notes]) + (
         'tricycle_controller:\n'
         '  ros__parameters:\n'
@@ -246,10 +250,10 @@ def _steering_transmission(result: Mapping[str, Any], node: str, recording: str,
         'the reading already went through a transmission with reduction r0 and offset o0, use',
         'r0 / steering_scale and steering_scale * o0 + steering_offset instead. Rename the',
         'actuator to yours.', *notes]) + (
-        f'<transmission name="{joint}_transmission">\n'
+        f'<transmission name={quoteattr(joint + "_transmission")}>\n'
         '  <plugin>transmission_interface/SimpleTransmission</plugin>\n'
-        f'  <actuator name="{joint}_actuator" role="actuator1"/>\n'
-        f'  <joint name="{joint}" role="joint1">\n'
+        f'  <actuator name={quoteattr(joint + "_actuator")} role="actuator1"/>\n'
+        f'  <joint name={quoteattr(joint)} role="joint1">\n'
         f'    <mechanical_reduction>{_num(1.0 / scale)}</mechanical_reduction>\n'
         f'    <offset>{_num(offset)}</offset>\n'
         '  </joint>\n'
@@ -268,14 +272,14 @@ def _lidar(result: Mapping[str, Any], node: str, recording: str, base_frame: str
         c, s = math.cos(yaw - yaw0), math.sin(yaw - yaw0)
         rot = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]]) @ rot
         z = float(pos[2])
-        kept = ['z, roll and pitch are those of the recording\'s /tf_static (planar scan',
+        kept = ["z, roll and pitch are those of the recording's /tf_static (planar scan",
                 'matching cannot see them); x, y and yaw are calibrated.']
     else:
         rot = np.array([[math.cos(yaw), -math.sin(yaw), 0.0], [math.sin(yaw), math.cos(yaw), 0.0],
                         [0.0, 0.0, 1.0]])
         z = 0.0
         kept = ['The recording had no /tf_static for the lidar: z is 0 here and the scanner is',
-                'taken as level; set z from the robot\'s drawing (planar scan matching cannot see',
+                "taken as level; set z from the robot's drawing (planar scan matching cannot see",
                 'it). x, y and yaw are calibrated.']
     return mounting_files('lidar', node, recording, base_frame, lidar_frame, (x, y, z),
                           rpy_from_matrix(rot), found + kept + notes)
@@ -302,7 +306,7 @@ def imu_mounting_files(stem: str, node: str, recording: str, parent: str,
              'writes it in the form the rest of the stack reads, so that both agree.']
     if translation is None:
         translation = (0.0, 0.0, 0.0)
-        notes.append('Position not known (0 here): set it from the robot\'s drawing.')
+        notes.append("Position not known (0 here): set it from the robot's drawing.")
     out.files.update(mounting_files(stem, node, recording, parent, child, translation,
                                     rpy_from_matrix(rotation), notes))
     return out
@@ -332,7 +336,7 @@ def gyro_bias_file(name: str, node: str, recording: str, frame: str, axis: str,
                           if differs else 'It does not differ from zero by twice its standard '
                           'deviation: leaving the bias at 0 is as good.')]) + (
         'gyro_bias:\n'
-        f'  frame_id: {frame}\n'
+        f'  frame_id: {json.dumps(frame)}\n'
         f'  axis: {axis}\n'
         f'  bias: {_num(bias)}  # rad/s\n'
         f'  bias_std: {_num(std)}  # rad/s\n'
