@@ -217,3 +217,15 @@ def test_frame_names_from_the_data_cannot_break_out_of_the_files(tmp_path):
     (tmp_path / 'j.xml').write_text(out.files['lidar_joint.urdf.xml'])
     assert _joint(tmp_path / 'j.xml')[1] == evil
     assert yaml.safe_load(out.files['diff_drive_controller.yaml'])['diff_drive_controller']
+
+
+def test_upside_down_lidar_keeps_its_roll_and_gets_the_calibrated_yaw(tmp_path):
+    bag, truth = _simulate(tmp_path, 'ud', 'drive', 60, 'lidar.upside_down=true', 'lidar.yaw=0.05')
+    out = tmp_path / 'out'
+    _replay(bag, out, 'wheel_odometry_calibration')
+    calib = yaml.safe_load((out / 'wheel_calibration.yaml').read_text())
+    assert calib['verdict'] == 'converged'
+    tf = _static_tf(out / 'stack' / 'lidar_static_tf.sh')
+    assert abs(abs(float(tf['--roll'])) - math.pi) < 1e-6 and float(tf['--pitch']) == 0.0
+    assert float(tf['--yaw']) == pytest.approx(calib['lidar_yaw'], abs=1e-8)
+    assert float(tf['--yaw']) == pytest.approx(truth['lidar_yaw'], abs=0.005)

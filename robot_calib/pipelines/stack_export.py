@@ -64,8 +64,9 @@ class StackFiles:
 
 
 def _num(x: float) -> str:
-    """Return a number as YAML and URDF read it back exactly enough (9 significant digits)."""
-    return f'{float(x) + 0.0:.9g}'  # (+ 0.0: no '-0')
+    """Return a number as YAML and URDF read it (9 significant digits; below 1e-12: 0)."""
+    x = float(x)
+    return f'{(x if abs(x) > 1e-12 else 0.0) + 0.0:.9g}'  # no '-0', no rounding dust
 
 
 def header(node: str, recording: str, lines: Sequence[str], prefix: str = '# ') -> str:
