@@ -180,6 +180,14 @@ def render(summary: dict, generic: list[str], node_plots: dict[str, list[str]]) 
     if summary.get('artifacts'):
         lines += ['', '## Files', '']
         lines += [f'- [{f}]({f})' for f in summary['artifacts']]
+    stack = summary.get('stack') or {}
+    if stack.get('files') or stack.get('withheld'):
+        lines += ['', "## For the robot's stack", '',
+                  f'In `{stack.get("folder", "stack")}/`: ros2_control parameters, static '
+                  'transforms and URDF joints of what the nodes found (each file says which '
+                  'node and which recording it came from).', '']
+        lines += [f'- [{f}]({f}) ({node})' for f, node in stack.get('files', {}).items()]
+        lines += [f'- not written: {why}' for why in stack.get('withheld', [])]
     if generic:
         lines += ['', '## Plots', '']
         lines += [f'![{Path(p).stem}]({p})' for p in generic]

@@ -133,18 +133,21 @@ class Clock:
 
     ``method`` is ``'stamps'`` (the recordings share a clock) or ``'motion'``
     (found from the motion); ``confidence`` is the correlation peak over the
-    next-best one (1 for stamps).
+    next-best one (1 for stamps); ``correspondence`` how well the real motion
+    follows the simulated one once aligned (:func:`correspondence`, NaN when
+    nothing moves).
     """
 
     offset: float = 0.0
     method: str = 'stamps'
     confidence: float = 1.0
     correlation: float = float('nan')
+    correspondence: float = float('nan')
 
     def as_dict(self) -> dict:
         """Return the findings.json form."""
         return {'offset': self.offset, 'method': self.method, 'confidence': self.confidence,
-                'correlation': self.correlation}
+                'correlation': self.correlation, 'correspondence': self.correspondence}
 
 
 def topic_start(rec: Recording) -> float:
@@ -310,7 +313,8 @@ def _bridged(a: Topic, b: Topic, asked: bool,
 
 
 def pair_topics(sim: Recording, real: Recording, max_lag: float = 0.5,
-                remaps: Optional[list] = None) -> tuple[list, list, float, list, Clock]:
+                remaps: Optional[list] = None,
+                min_correspondence: float = 0.4) -> tuple[list, list, float, list, Clock]:
     """
     Pair, align and resample the compared topics of two recordings.
 
@@ -318,10 +322,13 @@ def pair_topics(sim: Recording, real: Recording, max_lag: float = 0.5,
     :param real: the real recording
     :param max_lag: largest time offset (s) the cross-correlation searches
     :param remaps: ``[(sim topic, real topic)]`` pairs given by the user
+    :param min_correspondence: least :func:`correspondence` (0..1) of a pair
+        that moves; below it the recordings are not the same run
     :returns: (paired topics, not-judged entries ``{'channel', 'reason'}``,
         the sim start (s) used as time zero, notes, the clock mapping)
     :raises ChannelError: when nothing at all can be compared, a remap names a
-        missing topic, or the clocks differ and the motion cannot align them
+        missing topic, the clocks differ and the motion cannot align them, or
+        the real motion does not follow the simulated one
     """
     notes: list = []
     not_judged: list = []
@@ -362,6 +369,14 @@ def pair_topics(sim: Recording, real: Recording, max_lag: float = 0.5,
         pt = _pair_one(a, b, s0, clock.offset, max_lag, not_judged)
         if pt is not None:
             paired.append(pt)
+    score, per = correspondence(paired)
+    clock.correspondence = round(score, 3) if np.isfinite(score) else float('nan')
+    if np.isfinite(score) and score < min_correspondence:
+        worst = ', '.join(f'{k} {v:.2f}' for k, v in sorted(per.items(), key=lambda kv: kv[1])[:3])
+        raise ChannelError(f'the real motion does not follow the simulated one (correspondence '
+                           f'{score:.2f} < {min_correspondence:.2f} over {len(per)} moving '
+                           f'channels; lowest {worst}): these are not recordings of the same '
+                           'run, so no effect can explain their difference')
     return paired, not_judged, s0, notes, clock
 
 
@@ -409,3 +424,95 @@ def _pair_one(a: Topic, b: Topic, t0: float, shift: float, max_lag: float,
     return PairedTopic(a.name, a.msgtype, grid - t0, sim_f, real_f, dt, tau, gain, notes,
                        sim_src=(a.t - t0, a.fields), kernels=kernels, dt_sim=float(dta),
                        dt_real=float(dtb))
+
+
+def _blocks(x: np.ndarray, step: int) -> np.ndarray:
+    """Return the means of consecutive blocks of ``step`` samples (NaN where none is finite)."""
+    n = x.size // step
+    if n == 0:
+        return np.zeros(0)
+    b = x[:n * step].reshape(n, step)
+    ok = np.isfinite(b)
+    with np.errstate(invalid='ignore'):
+        return np.where(ok.any(axis=1), np.where(ok, b, 0.0).sum(axis=1) /
+                        np.maximum(ok.sum(axis=1), 1), np.nan)
+
+
+def slow_share(x: np.ndarray, width: int) -> float:
+    """
+    Return the share (0..1) of a signal's variance left after a ``width``-sample moving average.
+
+    Motion varies over seconds and keeps most of its variance; white noise
+    keeps about ``1 / width`` of it. NaN samples are left out; 0 for a constant.
+    """
+    ok = np.isfinite(x)
+    if ok.sum() < 2 * width:
+        return 0.0
+    y = x[ok] - float(np.mean(x[ok]))
+    v = float(np.mean(y * y))
+    if not v > 0.0:
+        return 0.0
+    s = np.convolve(y, np.ones(width) / width, mode='valid')
+    return float(np.clip(np.mean(s * s) / v, 0.0, 1.0))
+
+
+def _multiple_correlation(y: np.ndarray, X: np.ndarray) -> float:
+    """Return the multiple correlation (0..1) of ``y`` on the columns of ``X`` with a constant."""
+    ok = np.isfinite(y) & np.all(np.isfinite(X), axis=1)
+    if ok.sum() < max(20, 4 * (X.shape[1] + 1)):
+        return float('nan')
+    yy, XX = y[ok] - y[ok].mean(), X[ok] - X[ok].mean(axis=0)
+    vy = float(yy @ yy)
+    if not vy > 0.0:
+        return float('nan')
+    beta, *_ = np.linalg.lstsq(XX, yy, rcond=None)
+    e = yy - XX @ beta
+    return float(np.sqrt(np.clip(1.0 - float(e @ e) / vy, 0.0, 1.0)))
+
+
+def correspondence(paired: list, max_shift: float = 1.0, rate: float = 20.0,
+                   min_slow: float = 0.3) -> tuple[float, dict]:
+    """
+    Return how well the real motion follows the simulated one (0..1), and per channel.
+
+    Both sides are averaged onto ``rate`` Hz. A channel takes part when both
+    its simulated and its real values move (keep at least ``min_slow`` of
+    their variance through a 1 s moving average: motion, not noise). Its
+    score is the multiple correlation of the real values on all the simulated
+    fields of the topic (a scale, an offset, a mounting rotation or a cross-axis
+    term keep it high), at the best shift within ``max_shift`` s (a latency).
+    The recordings' score is the mean over the channels that take part; NaN
+    when none does (nothing moves: nothing to tell).
+    """
+    per: dict = {}
+    for pt in paired:
+        step = max(1, int(round(1.0 / (rate * pt.dt)))) if pt.dt > 0 else 1
+        sim = {f: _blocks(x, step) for f, x in pt.sim.items()}
+        real = {f: _blocks(x, step) for f, x in pt.real.items()}
+        width = max(2, int(round(1.0 / (step * pt.dt)))) if pt.dt > 0 else 20
+        moving = [f for f in sim if slow_share(sim[f], width) >= min_slow]
+        if not moving:
+            continue
+        X = np.column_stack([sim[f] for f in moving])
+        m = int(max_shift / (step * pt.dt)) if pt.dt > 0 else 0
+        n = X.shape[0]
+        for f in real:
+            if f not in moving or slow_share(real[f], width) < min_slow:
+                continue
+
+            def at(k: int) -> float:  # real lags the simulation by k samples
+                lo, hi = max(0, -k), min(n, n - k)
+                if hi - lo < 20:
+                    return float('nan')
+                return _multiple_correlation(real[f][lo + k:hi + k], X[lo:hi])
+            # every other shift, then the neighbours of the best (motion is smooth at 20 Hz)
+            tried = {k: at(k) for k in range(-m, m + 1, 2)}
+            ok = [k for k, r in tried.items() if np.isfinite(r)]
+            if not ok:
+                continue
+            k0 = max(ok, key=tried.get)
+            tried.update({k: at(k) for k in (k0 - 1, k0 + 1) if -m <= k <= m})
+            best = max(r for r in tried.values() if np.isfinite(r))
+            per[f'{pt.name}.{f}'] = round(best, 3)
+    score = float(np.mean(list(per.values()))) if per else float('nan')
+    return score, per

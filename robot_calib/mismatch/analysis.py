@@ -57,7 +57,8 @@ from robot_calib.mismatch import timing as T
 from robot_calib.mismatch.align import pair_topics
 from robot_calib.mismatch.channels import (ChannelError, IMU_TYPE, ODOM_TYPE, PairedTopic,
                                            Recording, TWIST_TYPES)
-from robot_calib.mismatch.findings import heldout_support, motion_ratio, term_finding
+from robot_calib.mismatch.findings import (heldout_support, motion_ratio, term_finding,
+                                           unsupported)
 from robot_calib.mismatch.locate import active_windows, local_weights, moving_average
 from robot_calib.mismatch.locate import noise_level
 from robot_calib.mismatch.params import MismatchParams
@@ -436,7 +437,8 @@ def analyse_recordings(sim: Recording, real: Recording,
     :raises ChannelError: when nothing can be compared, or the clocks cannot be aligned
     """
     prm = params or MismatchParams()
-    paired, not_judged, t0, notes, clock = pair_topics(sim, real, prm.max_lag, remaps)
+    paired, not_judged, t0, notes, clock = pair_topics(sim, real, prm.max_lag, remaps,
+                                                       prm.min_correspondence)
     if not paired:
         reasons = '; '.join(f'{d["channel"]}: {d["reason"]}' for d in not_judged) or \
             'no common topic'
@@ -475,6 +477,12 @@ def analyse_recordings(sim: Recording, real: Recording,
     duration = max((float(pt.t[-1] - pt.t[0]) for pt in paired if pt.t.size), default=0.0)
     weak = [f for f in findings if f.get('evidence_strength', f['confidence']) <
             prm.min_confidence]
+    for f in [f for f in findings if f not in weak]:
+        why = unsupported(f, prm.min_improvement)  # a finding must improve what it claims to
+        if why:
+            weak.append(f)
+            f['explanation'] += f' Not reported: {why}.'
+            notes.append(f'{f["channel"]}: a candidate {f["effect"]} is not reported: {why}')
     minor = [f for f in findings if f not in weak and f['effect'] != 'unexplained' and
              E.effect_size(f['effect'], f['parameters'], duration) <
              prm.floor_scale * E.SPECS[f['effect']].floor]

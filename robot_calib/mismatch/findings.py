@@ -156,3 +156,34 @@ def term_finding(prob: S.Problem, final: S.Fit, sel: list, i: int, fitd: dict,
                                        fitd if weighted is None else weighted, motion, support)
     fd['confidence'] = confidence(fd['evidence_strength'], deltas)
     return fd
+
+
+def unsupported(fd: dict, margin: float) -> str:
+    """
+    Return why a finding does not back what it claims ('' when it does).
+
+    A finding must make the residual smaller where it was fitted and on
+    held-out time, each RMSE by at least the fraction ``margin`` of its value
+    before; a ``timing_drift`` whose start and end delays do not differ by more
+    than twice their combined standard deviation is no drift. ``unexplained``
+    findings claim no fit and pass.
+    """
+    if fd.get('effect') == 'unexplained':
+        return ''
+    fit = fd.get('fit') or {}
+    for part, b, a in (('the fitted part', 'rmse_before', 'rmse_after'),
+                       ('held-out time', 'heldout_rmse_before', 'heldout_rmse_after')):
+        before, after = fit.get(b), fit.get(a)
+        if before is None or after is None or not np.isfinite(before) or not np.isfinite(after):
+            continue
+        if not after < (1.0 - margin) * before:
+            return f'it does not make the residual smaller on {part} (RMSE {before:.4g} -> ' \
+                f'{after:.4g})'
+    if fd.get('effect') == 'timing_drift':
+        p, s = fd.get('parameters', {}), fd.get('std', {})
+        diff = abs(p.get('tau_end', 0.0) - p.get('tau_start', 0.0))
+        sd = float(np.hypot(s.get('tau_start', 0.0), s.get('tau_end', 0.0)))
+        if not diff > 2.0 * sd or diff == 0.0:
+            return f'its start and end delays do not differ ({p.get("tau_start", 0.0):.4g} s, ' \
+                f'{p.get("tau_end", 0.0):.4g} s, standard deviation {sd:.2g} s): no drift'
+    return ''

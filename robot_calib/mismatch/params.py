@@ -22,6 +22,10 @@ class MismatchParams:
                               'as an alternative', minimum=0.0)
     max_lag: float = param(0.5, 's', 'largest time offset searched by cross-correlation',
                            minimum=0.0)
+    min_correspondence: float = param(0.4, '', 'least correlation (0..1) of the moving real '
+                                      'channels with the simulated ones; below it the two '
+                                      'recordings are refused as not the same run',
+                                      minimum=0.0, maximum=1.0)
     min_window: float = param(0.03, '', 'shortest effect window as a fraction of the recording',
                               minimum=0.0, maximum=1.0)
     min_window_s: float = param(2.0, 's', 'shortest effect window', minimum=0.0)
@@ -43,6 +47,10 @@ class MismatchParams:
     min_confidence: float = param(0.5, '', 'least evidence (0..1) of a reported finding; '
                                   'weaker ones are listed apart as weak_findings',
                                   minimum=0.0, maximum=1.0)
+    min_improvement: float = param(0.002, '', 'least fraction by which a reported finding '
+                                   'lowers the residual RMSE, on the fitted part and on held-out '
+                                   'time; findings that do not are listed as weak_findings',
+                                   minimum=0.0, maximum=1.0)
     floor_scale: float = param(1.0, '', "multiplies each effect's reporting floor (the "
                                'smallest size worth naming); smaller effects are listed as '
                                'minor_findings; 0 reports every significant effect',

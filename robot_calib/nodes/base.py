@@ -37,6 +37,7 @@ from robot_calib.core.params import from_flat, ParamError, to_flat
 from robot_calib.nodes.health import input_health, NodeLog, WARN
 from robot_calib.nodes.ros_params import declare_params
 from robot_calib.pipelines.base import Pipeline
+from robot_calib.pipelines.stack_export import FOLDER
 from robot_calib.pipelines.validation import restamp_unset
 
 HEALTH_PERIOD = 1.0
@@ -267,17 +268,41 @@ class PipelineNode(Node):
         except Exception as exc:  # noqa: B902 - report and go on
             self.log('error', f'artifacts failed: {type(exc).__name__}: {exc}')
             artifacts = {}
+        out_dir = Path(self.get_parameter('output_dir').value)
         if artifacts:
-            out_dir = Path(self.get_parameter('output_dir').value)
-            try:
-                out_dir.mkdir(parents=True, exist_ok=True)
-                for name, text in artifacts.items():
-                    tmp = out_dir / f'.{name}.partial'
-                    tmp.write_text(text)
-                    tmp.replace(out_dir / name)
-                    self.log('info', f'wrote {out_dir / name}')
-            except OSError as exc:
-                self.log('error', f'cannot write into {out_dir}: {exc.strerror or exc}')
+            self._write_files(out_dir, artifacts)
+        if self.pipeline.artifact_names:
+            self._write_stack(out_dir / FOLDER)
+
+    def _write_files(self, out_dir: Path, files: dict) -> None:
+        """Write ``{name: text}`` into ``out_dir``, each atomically; log what was written."""
+        try:
+            out_dir.mkdir(parents=True, exist_ok=True)
+            for name, text in files.items():
+                tmp = out_dir / f'.{name}.partial'
+                tmp.write_text(text)
+                if name.endswith('.sh'):
+                    os.chmod(tmp, 0o755)
+                tmp.replace(out_dir / name)
+                self.log('info', f'wrote {out_dir / name}')
+        except OSError as exc:
+            self.log('error', f'cannot write into {out_dir}: {exc.strerror or exc}')
+
+    def _write_stack(self, folder: Path) -> None:
+        """Write the results in the form the robot's stack takes into ``folder`` (stack/)."""
+        topics = ', '.join(sorted({sub.topic_name for sub in self._subs}))
+        until = time.strftime('%Y-%m-%d %H:%M:%S UTC', time.gmtime())
+        self.pipeline.recording = f'live topics {topics} (node {self.get_name()}, until {until})'
+        try:
+            export = self.pipeline.stack_export()
+        except Exception as exc:  # noqa: B902 - report and go on
+            self.log('error', f'stack export failed: {type(exc).__name__}: {exc}')
+            return
+        for why in export.withheld:
+            self.log('info', f'{FOLDER}/ {why}')
+        files = {n: t for n, t in export.files.items() if Path(n).name == n}
+        if files:
+            self._write_files(folder, files)
 
 
 def missing_type_hint(msgtype: str) -> str:

@@ -29,6 +29,7 @@ from robot_calib.core import frames, types as T
 from robot_calib.core.jsonable import jsonable
 from robot_calib.core.notes import InputNotes
 from robot_calib.core.params import to_flat
+from robot_calib.pipelines.stack_export import StackFiles
 from robot_calib.pipelines.validation import RateGuard, sample_problem, UNCHECKED
 
 CLOCK_JUMP_SAMPLES = 5
@@ -102,6 +103,8 @@ class Pipeline(abc.ABC):
         self.counts: dict[str, dict[str, int]] = defaultdict(lambda: defaultdict(int))
         self.n_outputs: dict[str, int] = defaultdict(int)
         self.static_transforms: dict[tuple[str, str], T.StaticTransform] = {}
+        self.recording = ''
+        """What the data came from (bag paths, or live topics), for exported files' headers."""
         self._same_frame_warned = False
         self._notes_said = 0
         self.own_notes = InputNotes()
@@ -385,6 +388,25 @@ class Pipeline(abc.ABC):
     def artifacts(self) -> dict[str, str]:
         """Return extra files to write next to the replay output: {file name: text}."""
         return {}
+
+    def static_mounting(self, frame: Optional[str],
+                        base: str) -> Optional[T.StaticTransform]:
+        """Return the static transform ``base`` -> ``frame`` seen so far (through chains)."""
+        if not frame:
+            return None
+        tree = frames.StaticTree()
+        for tf in self.static_transforms.values():
+            tree.add(tf)
+        return tree.mounting(frame, base)
+
+    def stack_export(self) -> StackFiles:
+        """
+        Return the results in the form the robot's own stack takes (:mod:`.stack_export`).
+
+        Written into a ``stack/`` folder; each file's header names the node and
+        :attr:`recording`. None by default.
+        """
+        return StackFiles()
 
     def plot(self, out_dir: str) -> list[str]:
         """Draw report plots (PNG) into ``out_dir``; return the file names written."""

@@ -20,6 +20,10 @@ pipeline before any other message. The outputs land in ``DIR``:
   reason) and the nodes skipped (with the reason);
 - ``report.md`` with PNG plots under ``plots/``, and each pipeline's
   artifacts (e.g. ``wheel_calibration.yaml``).
+- ``stack/``: the results in the form the robot's own stack takes
+  (ros2_control controller parameters, static transforms, URDF joints, a gyro
+  bias; :mod:`~robot_calib.replay.stack_export`), listed in ``summary.json``
+  under ``stack`` (with the files withheld and why).
 
 Everything is written into a temporary folder next to ``DIR`` and moved into
 place only when the run succeeded; bad input raises :class:`ReplayError`,
@@ -49,6 +53,7 @@ from robot_calib.replay.config import (check_out_dir, check_out_not_input, load_
                                        SUMMARY)
 from robot_calib.replay.run import run
 from robot_calib.replay.select import plan
+from robot_calib.replay.stack_export import write_stack
 from robot_calib.replay.summary import build_summary, write_artifacts, write_report
 
 __all__ = ['OUTPUT_BAG', 'REPORT', 'ReplayError', 'SUMMARY', 'load_params_file',
@@ -123,8 +128,10 @@ def replay(bags: Union[str, os.PathLike, Sequence[Union[str, os.PathLike]]],
             stats = run(bagset, chosen, tmp, progress, storage, window, compress, plots)
             wall_seconds = time.perf_counter() - wall0
             artifacts = write_artifacts(chosen, tmp)
-            summary = build_summary(bag_list, bagset, chosen, stats, artifacts, storage,
-                                    wall_seconds, window)
+            stack_files, stack = write_stack(chosen, tmp, bag_list)
+            summary = build_summary(bag_list, bagset, chosen, stats,
+                                    {**artifacts, **stack_files}, storage, wall_seconds, window)
+            summary['stack'] = stack
             write_report(tmp, chosen, stats, summary, plots)
             move_into_place(tmp, out_dir)
         except BaseException:

@@ -130,6 +130,11 @@ class FusionFilter(abc.ABC):
             path_length=self.path_length, lidar_accuracy=acc, lidar_valid=valid,
             **self._variant_result())
 
+    @property
+    def imu_frame(self) -> Optional[str]:
+        """Return the IMU messages' frame (None before the first one)."""
+        return self._imu_frame
+
     def reset(self) -> None:
         """Forget the state; keep the parameters and the mountings."""
         mountings, self._mountings = self._mountings, []

@@ -32,6 +32,7 @@ from robot_calib.methods.odometry_fusion import report
 from robot_calib.methods.odometry_fusion.common import FusionOutput, LidarOdomSample, Rejected
 from robot_calib.methods.odometry_fusion.params import FusionParams
 from robot_calib.methods.odometry_fusion.variants import make_estimator
+from robot_calib.pipelines import stack_export as SE
 from robot_calib.pipelines.base import InputSpec, Output, OutputSpec, Pipeline
 
 
@@ -173,6 +174,26 @@ class FusionPipeline(Pipeline):
             t, x, y, yaw = self._trajectory[-1]
             out['final_pose'] = {'t': t, 'x': x, 'y': y, 'yaw': yaw}
         return out
+
+    def stack_export(self) -> SE.StackFiles:
+        """Return the IMU mounting used (static transform, URDF joint) and the gyro bias (YAML)."""
+        res = self.estimator.result()
+        base = self.params.base_frame
+        frame = getattr(self.estimator, 'imu_frame', None)
+        sources = {'tf': f'/tf_static ({base} -> {frame})', 'param': 'the imu_rpy parameter'}
+        rot = res.imu_rotation if res.imu_extrinsic in sources else None
+        tf = self.static_mounting(frame, base)
+        out = SE.imu_mounting_files('imu_fusion', self.name, self.recording, base, frame, rot,
+                                    sources.get(res.imu_extrinsic, ''),
+                                    None if tf is None else tf.translation)
+        if res.imu_extrinsic == 'gravity':
+            out.withheld[-1:] = [f'{self.name}: no IMU mounting file: only the up axis was '
+                                 'found (from gravity); give imu_rpy or /tf_static']
+        est = res.estimates
+        return out.add(SE.gyro_bias_file(
+            'imu_fusion_gyro_bias.yaml', self.name, self.recording, base, 'z',
+            float(est.get('gyro_bias', math.nan)), float(est.get('gyro_bias_std', math.nan)),
+            self.params.gyro_bias_init))
 
     def plot(self, out_dir: str) -> list[str]:
         """Draw the fused trajectory and the NIS history (PNG)."""

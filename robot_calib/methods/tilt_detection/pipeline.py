@@ -40,9 +40,11 @@ from typing import Any, Optional
 import numpy as np
 
 from robot_calib.core import types as T
+from robot_calib.core.geometry import quat_to_matrix
 from robot_calib.methods.tilt_detection.common import TiltResult, TiltState
 from robot_calib.methods.tilt_detection.params import TiltParams
 from robot_calib.methods.tilt_detection.variants import make_estimator
+from robot_calib.pipelines import stack_export as SE
 from robot_calib.pipelines.base import InputSpec, Output, OutputSpec, Pipeline
 
 STATUS_NAME = 'tilt_detection'
@@ -285,6 +287,19 @@ class TiltPipeline(Pipeline):
             **({'mounting_caveat': self.mounting_caveat} if self.mounting_caveat else {}),
             'accel_units': r.accel_units,
         }
+
+    def stack_export(self) -> SE.StackFiles:
+        """Return the IMU mounting the tilt node used (static transform, URDF joint)."""
+        r: TiltResult = self.est.result()
+        base = self.params.base_frame
+        known = r.mounting_source in ('parameter', '/tf_static')
+        source = f'/tf_static ({base} -> {r.imu_frame})' if r.mounting_source == '/tf_static' \
+            else 'the mounting_rpy parameter'
+        tf = self.static_mounting(r.imu_frame, base)
+        return SE.imu_mounting_files(
+            'imu_tilt', self.name, self.recording, base, r.imu_frame,
+            quat_to_matrix(np.asarray(r.mounting, dtype=float)) if known else None, source,
+            None if tf is None else tf.translation)
 
 
 PIPELINE = TiltPipeline

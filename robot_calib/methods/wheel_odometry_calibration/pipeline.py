@@ -25,6 +25,7 @@ from robot_calib.core import types as T
 from robot_calib.methods.wheel_odometry_calibration.common import WheelCalibResult
 from robot_calib.methods.wheel_odometry_calibration.params import WheelCalibParams
 from robot_calib.methods.wheel_odometry_calibration.variants import make_estimator
+from robot_calib.pipelines import stack_export as SE
 from robot_calib.pipelines.base import InputSpec, Output, OutputSpec, Pipeline
 
 STATUS_NAME = 'wheel_odometry_calibration'
@@ -165,6 +166,27 @@ class WheelCalibrationPipeline(Pipeline):
         caveat = self.odometry_caveat()
         return {'wheel_calibration.yaml': (f'# NOTE: {caveat}.\n' if caveat else '') +
                 res.to_yaml()}
+
+    def stack_export(self) -> SE.StackFiles:
+        """
+        Return the controller block and the lidar pose for the robot's stack (converged only).
+
+        ros2_control's diff_drive_controller or tricycle_controller parameters,
+        the steering calibration as a transmission, the lidar pose as a static
+        transform and a URDF joint (:func:`stack_export.wheel_files`).
+        """
+        res = self.result or self.estimator.result()
+        p = self.params
+        frame = getattr(self.estimator, 'lidar_frame', None)
+        tf = self.static_mounting(frame, p.base_frame)
+        joints = {'left': p.left_wheel_joint, 'right': p.right_wheel_joint,
+                  'steering': p.steering_joint, 'traction': p.traction_joint} \
+            if self.wheel_source() == 'joint_states' else {}
+        return SE.wheel_files(res.to_dict(), self.name, self.recording, base_frame=p.base_frame,
+                              lidar_frame=frame,
+                              lidar_mounting=None if tf is None else (tf.translation,
+                                                                      tf.rotation),
+                              caveat=self.odometry_caveat(), joints=joints)
 
 
 PIPELINE = WheelCalibrationPipeline

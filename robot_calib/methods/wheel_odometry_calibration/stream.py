@@ -132,6 +132,11 @@ class StreamingCalibrator(abc.ABC):
         notes, self._notes = tuple(self._notes), []
         return WheelUpdate(rejected, notes, status)
 
+    @property
+    def lidar_frame(self) -> Optional[str]:
+        """Return the frame of the scans (None before the first scan)."""
+        return self._sensor_frame
+
     def odometry_refusal(self) -> str:
         """Return why odometry input is unused now (joint states drive the odometry), or ''."""
         return ODOM_UNUSED if self.front.uses_joints else ''
