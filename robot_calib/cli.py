@@ -109,6 +109,10 @@ def _add_mismatch(sub: Any) -> None:
                    help='compare these two topics (repeatable); topics of different types '
                         'are compared on what they share (an IMU yaw rate with an odometry '
                         "yaw rate, a velocity command's speed with an odometry speed)")
+    p.add_argument('--corrected', default=None, metavar='SIM_BAG',
+                   help='a simulation with the findings applied (simulate follow REAL_BAG '
+                        '--params DIR/sim_params.yaml of an earlier run): the report shows '
+                        'its trajectory and pose drift beside the simulated and real ones')
 
 
 def _add_ideal(sub: Any) -> None:
@@ -305,10 +309,18 @@ def _replay(args: argparse.Namespace) -> int:
 def _mismatch(args: argparse.Namespace) -> int:
     from robot_calib import mismatch
     from robot_calib.replay import parse_remaps
-    findings = mismatch.analyse(args.sim, args.real, args.out, remaps=parse_remaps(args.remap))
+    findings = mismatch.analyse(args.sim, args.real, args.out, remaps=parse_remaps(args.remap),
+                                corrected=args.corrected)
     n = len(findings.get('findings', [])) if isinstance(findings, dict) else 0
     verdict = findings.get('verdict', '?') if isinstance(findings, dict) else '?'
-    print(f'{verdict}: {n} finding(s); wrote {args.out}/findings.json')
+    print(f'{verdict}: {n} finding(s); wrote {args.out}/findings.json, report.md, '
+          'sim_params.yaml, suggestions.yaml')
+    traj = findings.get('trajectory') if isinstance(findings, dict) else None
+    if traj:
+        for k, label in (('sim_drift', 'simulated'), ('corrected_drift', 'corrected')):
+            if traj.get(k):
+                print(f'{label} vs real on {traj["topic"]}: end drift {traj[k]["end_m"]:.3f} m, '
+                      f'RMS {traj[k]["rms_m"]:.3f} m over {traj["span_s"]:.0f} s')
     return 0
 
 

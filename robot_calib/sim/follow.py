@@ -93,8 +93,10 @@ def load_params_file(path: Union[str, os.PathLike]) -> dict[str, Any]:
         return {}
     if not isinstance(data, dict):
         raise ValueError(f'{p}: expected a mapping of simulator parameters')
-    if set(data) == {'sim'} and isinstance(data['sim'], dict):
-        data = data['sim']
+    if 'sim' in data:  # sim_params.yaml: the parameters under sim:, beside source: and notes
+        data = data['sim'] or {}
+        if not isinstance(data, dict):
+            raise ValueError(f'{p}: expected a mapping under sim:')
     flat: dict[str, Any] = {}
 
     def walk(prefix: str, node: Mapping) -> None:
@@ -135,8 +137,9 @@ def command_topic(topics: Mapping[str, tuple], wanted: Optional[str] = None) -> 
     :param topics: the bag's topics
     :param wanted: a topic the user named (``--cmd-topic``)
     """
-    from robot_calib.mismatch.channels import TWIST_TYPES
-    twists = sorted(t for t, (tp, n) in topics.items() if tp in TWIST_TYPES and n > 0)
+    from robot_calib import codec
+    twist_types = {row.msgtype for row in codec.ROWS if codec.accepts('cmd_vel', row.msgtype)}
+    twists = sorted(t for t, (tp, n) in topics.items() if tp in twist_types and n > 0)
     if wanted:
         name = '/' + wanted.lstrip('/')
         if name not in topics:
