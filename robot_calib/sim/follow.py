@@ -292,9 +292,11 @@ def run_follow(real_bag: Union[str, os.PathLike], seed: int = 0,
             tr[key] = tr[key][:n_fine]
     tr = attitude(tr, p, None, [])
     messages, topic_map = _sensor_messages(tr, p, real, t0, duration, seed)
-    messages += [(cmd, s) for s in real.cmd if t0 <= s.t <= t1]
     base = next((f[1] for tp, f in real.frames.items() if len(f) == 2
                  and not _is_truth(tp)), p.odom.child_frame_id)
+    stamped = real.cmd_type.endswith('TwistStamped')
+    messages += [(cmd, T.StampedTwistSample(s.t, s.vx, s.vy, s.wz, frame_id=base) if stamped
+                  else s) for s in real.cmd if t0 <= s.t <= t1]
     imu_frame = next((f[0] for f in real.frames.values() if len(f) == 1), p.imu.frame_id)
     tf = [T.StaticTransform(base, imu_frame, np.array([p.imu.x, p.imu.y, p.imu.z]),
                             quat_from_rpy(p.imu.roll, p.imu.pitch, p.imu.yaw), t0)]
