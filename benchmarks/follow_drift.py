@@ -1,4 +1,3 @@
-#!/usr/bin/env python3
 # Copyright 2026 robot_calib contributors
 # SPDX-License-Identifier: Apache-2.0
 """
@@ -147,9 +146,11 @@ def independent_fit(sim: Path, real: Path, fraction: float = 0.5) -> dict:
 def fitted_findings(fit: dict, sim: Path, real: Path) -> dict:
     """Return a findings dict (contract schema) of an independent fit."""
     ch_v, ch_w = '/odom.twist.twist.linear.x', '/odom.twist.twist.angular.z'
-    rows = [('drive_lag', ch_v, {'tau': fit['tau_v']}), ('drive_lag', ch_w, {'tau': fit['tau_w']}),
+    rows = [('drive_lag', ch_v, {'tau': fit['tau_v']}),
+            ('drive_lag', ch_w, {'tau': fit['tau_w']}),
             ('turn_speed_loss', ch_v, {'coefficient': fit['k']}),
-            ('drive_gain', ch_v, {'gain': fit['gain_v']}), ('drive_gain', ch_w, {'gain': fit['gain_w']})]
+            ('drive_gain', ch_v, {'gain': fit['gain_v']}),
+            ('drive_gain', ch_w, {'gain': fit['gain_w']})]
     return {'verdict': 'mismatch', 'inputs': {'sim': str(sim), 'real': str(real)},
             'findings': [{'channel': c, 'effect': e, 'parameters': p, 'window': None,
                           'confidence': 1.0, 'explanation': 'independent fit (benchmark)'}
@@ -161,11 +162,14 @@ def run_pair(name: str, real: Path, work: Path, oracle: dict | None) -> dict:
     out: dict = {'pair': name}
     sim, corr = work / f'{name}_sim', work / f'{name}_corr'
     out['follow_s'] = cli('simulate', 'follow', real, '--out', sim)
-    out['mismatch_s'] = cli('mismatch', '--sim', sim, '--real', real, '--out', work / f'{name}_m1')
+    out['mismatch_s'] = cli('mismatch', '--sim', sim, '--real', real, '--out',
+                            work / f'{name}_m1')
     m1 = json.loads((work / f'{name}_m1' / 'findings.json').read_text())
     out['findings'] = [(f['effect'], f['channel'], f['parameters']) for f in m1['findings']]
-    cli('simulate', 'follow', real, '--out', corr, '--params', work / f'{name}_m1' / 'sim_params.yaml')
-    cli('mismatch', '--sim', sim, '--real', real, '--out', work / f'{name}_m2', '--corrected', corr)
+    cli('simulate', 'follow', real, '--out', corr, '--params',
+        work / f'{name}_m1' / 'sim_params.yaml')
+    cli('mismatch', '--sim', sim, '--real', real, '--out', work / f'{name}_m2', '--corrected',
+        corr)
     m2 = json.loads((work / f'{name}_m2' / 'findings.json').read_text())
     cli('mismatch', '--sim', corr, '--real', real, '--out', work / f'{name}_m3')
     m3 = json.loads((work / f'{name}_m3' / 'findings.json').read_text())

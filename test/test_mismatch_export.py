@@ -13,11 +13,10 @@ import json
 
 import numpy as np
 import pytest
-import yaml
-
 from robot_calib import cli
 from robot_calib.io.bags import read_messages
 from robot_calib.mismatch import export
+import yaml
 
 DRIVE = ('drive.linear_time_constant=0.4', 'drive.turn_speed_loss=1.0')
 NO_WHEEL_ERRORS = ('wheels.left_radius_error=0', 'wheels.right_radius_error=0',
@@ -41,7 +40,7 @@ def _findings(sim, real, rows):
 
 @pytest.fixture(scope='module')
 def pair(tmp_path_factory):
-    """A real bag whose robot lags and slows in turns, and its ideal follower."""
+    """Return a real bag whose robot lags and slows in turns, and its ideal follower."""
     d = tmp_path_factory.mktemp('pair')
     real, ideal = d / 'real', d / 'ideal'
     assert cli.main(['simulate', 'drive', '--out', str(real), '--duration', '40', '--seed', '2',

@@ -19,8 +19,8 @@ import shutil
 import tempfile
 from typing import Optional
 
-from robot_calib.mismatch.analysis import analyse_recordings, MismatchParams
 from robot_calib.mismatch import export, trajectory
+from robot_calib.mismatch.analysis import analyse_recordings, MismatchParams
 from robot_calib.mismatch.channels import ChannelError, read_bag
 
 __all__ = ['MismatchError', 'MismatchParams', 'analyse', 'analyse_recordings', 'read_bag']

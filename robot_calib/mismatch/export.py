@@ -251,7 +251,7 @@ _NO_COUNTERPART = {
     'wheel_radius_difference': 'the simulated odometry uses the nominal geometry, so unequal '
                                'wheel radii would not show in it',
     'steering_scale': 'the simulated steering reading has no scale error parameter here',
-    'timing_drift': 'the simulator runs on one clock; a drifting delay is the recording\'s',
+    'timing_drift': "the simulator runs on one clock; a drifting delay is the recording's",
     'unexplained': 'not a physical effect: structure no model of the library explains',
 }
 
@@ -367,8 +367,8 @@ def _controller(findings: dict) -> tuple[dict, list, list]:
             why.append(text)
         elif e in ('drive_lag', 'drive_dead_time', 'drive_deadband', 'turn_speed_loss'):
             rest.append(f'{text}: diff_drive_controller has no such parameter (a lag or dead '
-                        'time is the motors\' and their PID loop\'s; in Gazebo tune the wheel '
-                        'joints\' velocity controller, or model it with simulate follow '
+                        "time is the motors' and their PID loop's; in Gazebo tune the wheel "
+                        "joints' velocity controller, or model it with simulate follow "
                         '--params sim_params.yaml)')
     # wheel speeds = (v -+ w S m_s / 2) / (r m_r) on a robot of true radius r, track S:
     # v_true = v / m_r, w_true = w m_s / m_r
@@ -433,7 +433,7 @@ def suggestions_text(findings: dict) -> str:
              '# ros2_control diff_drive_controller of the simulated robot (Humble/Jazzy names).',
              '# It turns the wheels at (v -+ omega S m_s / 2) / (r m_r): with the true radius r',
              '# and separation S the robot then drives v / m_r and turns omega m_s / m_r.',
-             '# If instead the REAL robot\'s controller runs with wrong geometry, calibrate it',
+             "# If instead the REAL robot's controller runs with wrong geometry, calibrate it",
              '# (wheel_odometry_calibration) rather than detune the simulation.']
     lines += [f'# from {w}' for w in cwhy] or ['# no speed or turn-rate scale was found']
     lines += ['diff_drive_controller:', '  ros__parameters:',
