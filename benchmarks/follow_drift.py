@@ -14,7 +14,8 @@ Pairs:
 - ``sim``: a ``simulate drive`` run whose robot has drive dynamics (forward lag
   0.35 s, turn lag 0.25 s, turn speed loss 1.0 s/rad) besides the scenario's
   sensor and wheel errors, as the "real" recording; also corrected with the TRUE
-  drive parameters ("oracle"), which bounds what the simulator can carry;
+  drive parameters ("oracle"), which bounds what the drive parameters can do;
+- ``simclean``: the same without the wheel errors (the drive dynamics only);
 - ``mrclam1``, ``mrclam2``: 300 s of the UTIAS MRCLAM run 6 robots 1 and 2
   (``../shared/data/mrclam``, skipped when absent): the recorded velocity
   commands as ``/cmd_vel`` (geometry_msgs/Twist) and the Vicon poses as
@@ -41,6 +42,8 @@ ROOT = Path(__file__).resolve().parent.parent
 DATA = ROOT.parent / 'shared' / 'data' / 'mrclam'
 SIM_DRIVE = {'drive.linear_time_constant': 0.35, 'drive.angular_time_constant': 0.25,
              'drive.turn_speed_loss': 1.0}
+NO_WHEEL_ERRORS = {'wheels.left_radius_error': 0, 'wheels.right_radius_error': 0,
+                   'wheels.track_width_error': 0}
 
 
 def cli(*args: str) -> float:
@@ -201,7 +204,7 @@ def run_pair(name: str, real: Path, work: Path, oracle: dict | None) -> dict:
 def main() -> None:
     """Run the pairs and print the table rows."""
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[1])
-    ap.add_argument('--pairs', default='sim,mrclam1,mrclam2')
+    ap.add_argument('--pairs', default='simclean,sim,mrclam1,mrclam2')
     ap.add_argument('--keep', default=None, help='keep the bags and reports in this folder')
     ap.add_argument('--duration', type=float, default=120.0, help='simulated pair length (s)')
     args = ap.parse_args()
@@ -212,9 +215,12 @@ def main() -> None:
         for name in args.pairs.split(','):
             real = work / f'{name}_real'
             oracle = None
-            if name == 'sim':
+            if name in ('sim', 'simclean'):
+                wheels = {} if name == 'sim' else NO_WHEEL_ERRORS
+                sets = [a for k, v in {**SIM_DRIVE, **wheels}.items()
+                        for a in ('--set', f'{k}={v}')]
                 cli('simulate', 'drive', '--out', real, '--duration', args.duration, '--seed', 3,
-                    *[a for k, v in SIM_DRIVE.items() for a in ('--set', f'{k}={v}')])
+                    *sets)
                 oracle = SIM_DRIVE
             elif name.startswith('mrclam'):
                 if not DATA.is_dir():

@@ -144,3 +144,17 @@ def test_findings_map_to_the_simulator_as_real_equals_f_of_sim(pair, tmp_path):
             for o in odom.values()]
     assert dist[1] / dist[0] == pytest.approx(1.05, rel=0.01)
     assert path[0] > 0
+
+
+def test_an_effect_seen_on_several_channels_is_applied_once(tmp_path):
+    rows = [('drive_lag', '/odom.twist.twist.angular.z', {'tau': 0.3}),
+            ('drive_lag', '/ground_truth/odom.twist.twist.angular.z', {'tau': 0.31}),
+            ('drive_lag', '/joint_states.velocity.left_wheel_joint', {'tau': 0.4}),
+            ('gyro_bias', '/imu.angular_velocity.z', {'bias': 0.01}),
+            ('gyro_bias', '/imu2.angular_velocity.z', {'bias': 0.011})]
+    export.write(tmp_path, _findings('sim', 'real', rows))
+    params = yaml.safe_load((tmp_path / 'sim_params.yaml').read_text())['sim']
+    # the turn-rate lag from an angular channel, the forward lag from the wheel joint
+    assert params['drive']['angular_time_constant'] == pytest.approx(0.3)
+    assert params['drive']['linear_time_constant'] == pytest.approx(0.4)
+    assert params['imu']['gyro_bias'][2] == pytest.approx(0.01)

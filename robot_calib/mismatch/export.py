@@ -144,7 +144,8 @@ class _Mapper:
         self.unmapped.append(f'{f["effect"]} on {f["channel"]} '
                              f'({_fmt(f.get("parameters", {}))}): {why}')
 
-    def apply(self, f: dict) -> None:  # noqa: C901 - one branch per effect of the table
+    def apply(self, f: dict, axes: Optional[tuple] = None) -> None:  # noqa: C901
+        """Compose one finding (one branch per effect of the table); ``axes``: drive axes."""
         e = f['effect']
         par = f.get('parameters') or {}
         topic, field = _split_channel(f['channel'])
@@ -199,7 +200,7 @@ class _Mapper:
             self._scale(f, e, par, field, why)
         elif e in ('drive_lag', 'drive_dead_time', 'drive_gain', 'drive_rate_limit',
                    'drive_deadband'):
-            self._drive(f, e, par, field, why)
+            self._drive(e, par, axes or _drive_axes(field), why)
         elif e == 'turn_speed_loss':
             self.add('drive.turn_speed_loss', par['coefficient'], why)
         elif e == 'steering_offset':
@@ -221,8 +222,8 @@ class _Mapper:
             self.gain('drive.angular_gain', 1.0 / (1.0 + k), why + ': the turn rate becomes '
                       '1 / (1 + k) times')
 
-    def _drive(self, f: dict, e: str, par: dict, field: str, why: str) -> None:
-        for axis in _drive_axes(field):
+    def _drive(self, e: str, par: dict, axes: tuple, why: str) -> None:
+        for axis in axes:
             if e == 'drive_lag':
                 # cascaded first-order lags: the sum of time constants keeps the mean delay
                 self.add(f'drive.{axis}_time_constant', par['tau'], why)
@@ -254,6 +255,52 @@ _NO_COUNTERPART = {
     'timing_drift': "the simulator runs on one clock; a drifting delay is the recording's",
     'unexplained': 'not a physical effect: structure no model of the library explains',
 }
+
+
+DRIVE_EFFECTS = ('drive_lag', 'drive_dead_time', 'drive_gain', 'drive_rate_limit',
+                 'drive_deadband')
+
+
+def one_per_slot(findings: list, topic_map: dict) -> tuple[list, list]:
+    """
+    Return ([(finding, drive axes or None)], [set-aside findings]): one finding per slot.
+
+    The same physical effect is often seen on several channels (a drive lag on the
+    odometry, the ground truth and the wheel joints); composing them all would
+    apply it several times. Each effect acts once per slot: per drive axis for the
+    drive effects (a channel of that axis beats a wheel joint or a whole topic, which
+    speak for both axes), per axis for the IMU effects, per sensor for a latency;
+    the most specific, then the most confident finding wins.
+    """
+    best: dict = {}
+    for i, f in enumerate(findings):
+        e = f['effect']
+        topic, field = _split_channel(f['channel'])
+        conf = float(f.get('confidence') or 0.0)
+        if e in DRIVE_EFFECTS:
+            axes = _drive_axes(field)
+            slots = [((e, a), (len(axes) == 1, conf, -i), (a,)) for a in axes]
+        elif e in ('gyro_bias', 'gyro_scale', 'gyro_bias_drift', 'accel_bias', 'accel_scale'):
+            slots = [((e, field.split('.', 1)[0], _axis(field)), (True, conf, -i), None)]
+        elif e == 'time_offset':
+            slots = [((e, _sensor_kind(topic, field, topic_map)), (True, conf, -i), None)]
+        elif e in ('turn_speed_loss', 'imu_mounting_tilt', 'imu_mounting_rotation',
+                   'lever_arm', 'centripetal_acceleration', 'steering_offset'):
+            slots = [((e,), (True, conf, -i), None)]
+        elif e in ('wheel_radius_scale', 'track_width_scale') and \
+                not field.startswith('velocity.'):
+            slots = [((e,), (True, conf, -i), None)]
+        else:
+            slots = [((e, f['channel']), (True, conf, -i), None)]
+        for slot, rank, axes in slots:
+            if slot not in best or rank > best[slot][0]:
+                best[slot] = (rank, i, axes)
+    chosen: dict = {}
+    for rank, i, axes in best.values():
+        chosen.setdefault(i, []).extend(axes or [])
+    kept = [(findings[i], tuple(axes) or None) for i, axes in sorted(chosen.items())]
+    aside = [f for i, f in enumerate(findings) if i not in chosen]
+    return kept, aside
 
 
 def _fmt(params: dict) -> str:
@@ -288,8 +335,9 @@ def sim_params_text(findings: dict, sim_bag: Optional[str] = None) -> str:
     from robot_calib.core.params import to_flat
     base, topic_map, origin = base_params(sim_bag)
     m = _Mapper(base, topic_map)
-    for f in findings.get('findings', []):
-        m.apply(f)
+    kept, aside = one_per_slot(findings.get('findings', []), topic_map)
+    for f, axes in kept:
+        m.apply(f, axes)
     defaults = to_flat(SimParams())
     from robot_calib.sim.follow import FollowParams
     follow_defaults = {f'follow.{k}': v for k, v in to_flat(FollowParams()).items()}
@@ -325,6 +373,10 @@ def sim_params_text(findings: dict, sim_bag: Optional[str] = None) -> str:
     if m.unmapped:
         lines += ['# Findings with no simulator counterpart (not applied):']
         lines += [f'#  - {u}' for u in m.unmapped]
+    if aside:
+        lines += ['# The same effect seen on another channel (one finding per effect is applied):']
+        lines += [f'#  - {f["effect"]} on {f["channel"]} ({_fmt(f.get("parameters", {}))}, '
+                  f'confidence {f.get("confidence", 0):.2f})' for f in aside]
     minor = findings.get('minor_findings') or []
     if minor:
         lines += ['# Minor findings (significant, below the size worth naming; not applied):']
@@ -339,10 +391,11 @@ def _controller(findings: dict) -> tuple[dict, list, list]:
     why: list = []
     limits: dict = {'linear': math.nan, 'angular': math.nan}
     rest: list = []
-    for f in findings.get('findings', []):
+    kept, _ = one_per_slot(findings.get('findings', []), {})
+    for f, drive_axes in kept:
         e, par = f['effect'], f.get('parameters') or {}
         _, field = _split_channel(f['channel'])
-        axes = _drive_axes(field)
+        axes = drive_axes or _drive_axes(field)
         text = f'{e} on {f["channel"]} ({_fmt(par)})'
         if f.get('window'):
             rest.append(f'{text}: only in a window')
@@ -383,7 +436,7 @@ def _imu_block(findings: dict) -> tuple[str, list, list]:
     why: list = []
     rest: list = []
     pose = [0.0] * 6
-    for f in findings.get('findings', []):
+    for f, _ in one_per_slot(findings.get('findings', []), {})[0]:
         e, par = f['effect'], f.get('parameters') or {}
         _, field = _split_channel(f['channel'])
         ax = _axis(field)
