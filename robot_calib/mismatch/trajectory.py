@@ -11,7 +11,10 @@ common odometry topic), put on the simulation's clock (the analyser's clock
 offset), and expressed relative to its own pose at the first common time, so
 the tracks start together. The drift is the distance between the simulated and
 the real position at each common time: its value at the end and its RMS over
-the run (m), and the heading difference at the end (rad).
+the run (m), and the heading difference at the end (rad); over a long open-loop
+run an early heading difference dominates it, so the RMS error of the motion
+over 10 s windows (a relative pose error, each track in its own start pose) is
+given too.
 """
 
 from __future__ import annotations
@@ -105,8 +108,36 @@ def compare(sim: str, real: str, corrected: Optional[str] = None, offset: float 
         d = np.hypot(*(rel[k][:, :2] - rel['real'][:, :2]).T)
         out[f'{k}_drift'] = {'end_m': float(d[-1]), 'rms_m': float(np.sqrt(np.mean(d * d))),
                              'max_m': float(d.max()),
-                             'end_heading_rad': float(rel[k][-1, 2] - rel['real'][-1, 2])}
+                             'end_heading_rad': float(rel[k][-1, 2] - rel['real'][-1, 2]),
+                             f'rpe_{RPE_WINDOW:g}s_m': relative_error(t, rel[k], rel['real'])}
     return out
+
+
+RPE_WINDOW = 10.0
+"""Window (s) of the relative pose error: drift that does not carry an early heading error."""
+
+
+def relative_error(t: np.ndarray, track: np.ndarray, ref: np.ndarray,
+                   window: float = RPE_WINDOW) -> Optional[float]:
+    """
+    Return the RMS translation error (m) of the motion over ``window`` s, or None if too short.
+
+    For each start time the motion of both tracks over the window is expressed in
+    each one's own pose at the start (a relative pose error), so a heading
+    difference gathered earlier in the run does not count.
+    """
+    j = np.searchsorted(t, t + window)
+    ok = j < t.size
+    if not np.any(ok):
+        return None
+    i, j = np.flatnonzero(ok), j[ok]
+
+    def local(tr: np.ndarray) -> np.ndarray:
+        c, s = np.cos(tr[i, 2]), np.sin(tr[i, 2])
+        dx, dy = tr[j, 0] - tr[i, 0], tr[j, 1] - tr[i, 1]
+        return np.column_stack((c * dx + s * dy, -s * dx + c * dy))
+    e = np.hypot(*(local(track) - local(ref)).T)
+    return float(np.sqrt(np.mean(e * e)))
 
 
 def summary(cmp: Optional[dict]) -> Optional[dict]:
@@ -154,13 +185,16 @@ def markdown(traj: Optional[dict], plot_name: Optional[str]) -> list:
     lines = ['## Trajectories', '',
              f'Planar pose of `{traj["topic"]}` in each recording, from a common start, over '
              f'{traj["span_s"]:.1f} s ({traj["real_path_m"]:.1f} m driven by the real robot).',
-             '', '| simulation | end drift (m) | RMS drift (m) | max drift (m) | '
-             'end heading difference (deg) |', '|---|---|---|---|---|']
+             '', f'| simulation | end drift (m) | RMS drift (m) | max drift (m) | '
+             f'end heading difference (deg) | RMS error of the motion over {RPE_WINDOW:g} s (m) |',
+             '|---|---|---|---|---|---|']
     for k, label in (('sim', 'as simulated'), ('corrected', 'corrected')):
         d = traj.get(f'{k}_drift')
         if d:
+            rpe = d.get(f'rpe_{RPE_WINDOW:g}s_m')
             lines.append(f'| {label} | {d["end_m"]:.3f} | {d["rms_m"]:.3f} | {d["max_m"]:.3f} '
-                         f'| {math.degrees(d["end_heading_rad"]):+.1f} |')
+                         f'| {math.degrees(d["end_heading_rad"]):+.1f} | '
+                         + (f'{rpe:.3f} |' if rpe is not None else 'n/a |'))
     lines.append('')
     if plot_name:
         lines += [f'![trajectories]({plot_name})', '']
