@@ -142,3 +142,15 @@ def test_default_simulation_has_an_ideal_drive(tmp_path):
     assert a.truth['params']['drive.turn_speed_loss'] == 0.0
     # the dynamic path with nothing in it moves like the plain one
     assert np.abs(a.true['x'] - b.true['x']).max() < 1e-9
+
+
+def test_follow_refuses_a_recording_with_an_unset_stamp(tmp_path, capsys):
+    real = tmp_path / 'zero'
+    with BagWriter(real) as bag:
+        bag.write('/imu', T.ImuSample(0.0, np.zeros(3), np.array([0, 0, 9.81])), int(1.7e18))
+        for k in range(10):
+            bag.write('/cmd_vel', T.TwistSample(1.7e9 + k * 0.1, 0.1), int(1.7e18 + k * 1e8))
+    assert cli.main(['simulate', 'follow', str(real), '--out', str(tmp_path / 'sim')]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and 'unset' in err
+    assert not (tmp_path / 'sim').exists()

@@ -59,6 +59,9 @@ TRUTH_WORDS = ('truth', 'ground_truth', 'groundtruth', 'mocap', 'vicon', 'optitr
                'gt')
 """Words of an odometry topic name that mark it as ground truth (matched per name part)."""
 
+MAX_SAMPLES = 5e6
+"""Most internal-rate samples of one run (about 1.2 GB of arrays; 83 min at 1 kHz)."""
+
 DEFAULT_TOPICS = {'odom': '/odom', 'imu': '/imu', 'joint_states': '/joint_states'}
 
 
@@ -184,7 +187,10 @@ def read_real(path: Union[str, os.PathLike], cmd_topic: Optional[str]) -> tuple[
     imu_t, odom_t, js_t = (codec.KINDS[k].msgtype for k in ('imu', 'odom', 'joint_states'))
     try:
         topics = bags.list_topics([p])
-        cmd = command_topic(topics, cmd_topic)
+        try:
+            cmd = command_topic(topics, cmd_topic)
+        except SimError as exc:
+            raise SimError(f'{p.name}: {exc}') from None
         sensors = {t: tp for t, (tp, n) in topics.items() if tp in (imu_t, odom_t, js_t)}
         real = _Real()
         real.cmd_type = topics[cmd][0]
@@ -276,6 +282,11 @@ def run_follow(real_bag: Union[str, os.PathLike], seed: int = 0,
     values['start_time'] = t0  # the recording's clock, whatever a parameter file says
     values['odom.cmd_vel_rate'] = fp.control_rate
     p = make_params(None, values)
+    if duration * p.rate > MAX_SAMPLES:
+        raise SimError(f'the recording spans {duration:.0f} s (stamps from {t0:.3f} to {t1:.3f}'
+                       f'), {duration * p.rate:.3g} samples at the internal rate of {p.rate:g} '
+                       f'Hz (at most {MAX_SAMPLES:.0e}): a stamp may be unset or on another '
+                       'clock; else lower the rate (--set rate=200) or cut the recording')
     n_sub = max(1, int(round(p.rate / p.odom.cmd_vel_rate)))
     tick_dt = n_sub / p.rate
     n_fine = int(math.floor(duration * p.rate + 1e-9)) + 1
