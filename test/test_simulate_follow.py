@@ -154,3 +154,12 @@ def test_follow_refuses_a_recording_with_an_unset_stamp(tmp_path, capsys):
     err = capsys.readouterr().err.strip()
     assert len(err.splitlines()) == 1 and 'unset' in err
     assert not (tmp_path / 'sim').exists()
+
+
+def test_a_steering_joint_makes_the_follower_a_steered_wheel(tmp_path):
+    real, out = tmp_path / 'agv', tmp_path / 'sim'
+    assert cli.main(['simulate', 'agv_segments', '--out', str(real), '--duration', '10']) == 0
+    assert cli.main(['simulate', 'follow', str(real), '--out', str(out)]) == 0
+    truth = json.loads((tmp_path / 'sim.truth.json').read_text())
+    assert truth['drive_type'] == 'steered_wheel'
+    assert _samples(out, '/joint_states')[0].names == ('steering_joint', 'traction_joint')

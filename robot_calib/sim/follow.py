@@ -22,8 +22,9 @@ of a sim-vs-real pair from a real recording alone:
    odometry (or the true motion when its name says ground truth: ``truth``,
    ``ground_truth``, ``mocap``, ``vicon``, ``optitrack``, ``vrpn``, ``gt``),
    every ``sensor_msgs/Imu`` topic the IMU, every ``sensor_msgs/JointState``
-   topic the wheel joints; a kind the recording lacks is written under the
-   simulator's default name and rate;
+   topic the wheel joints (a steering joint there makes the robot a steered
+   wheel unless ``robot.drive_type`` is given); a kind the recording lacks is
+   written under the simulator's default name and rate;
 5. ``/ground_truth/odom``, ``/tf_static`` (the IMU mounting) and the commands
    themselves (same topic and type) complete the bag; ``<out>.truth.json``
    holds the parameters, the seed, the command topic and the topic map.
@@ -279,6 +280,9 @@ def run_follow(real_bag: Union[str, os.PathLike], seed: int = 0,
     duration = t1 - t0
     if duration <= 0:
         raise SimError(f'the recording {real_bag} spans no time (one instant); nothing to follow')
+    steering = any('steer' in n.lower() for names in real.joints.values() for n in names)
+    if steering and 'robot.drive_type' not in values:
+        values['robot.drive_type'] = 'steered_wheel'  # the recording has a steering joint
     values['start_time'] = t0  # the recording's clock, whatever a parameter file says
     values['odom.cmd_vel_rate'] = fp.control_rate
     p = make_params(None, values)
