@@ -42,7 +42,17 @@ def _add_simulate(sub: Any) -> None:
     p.add_argument('scenario', help='scenario name (e.g. drive, vacuum, revisit, tip_over), '
                                     'or fleet: a folder of robots with drifting parameters '
                                     '(--set fleet.robots=N, ...: the keys of '
-                                    'robot_calib/sim/fleet.py; README, "Offline")')
+                                    'robot_calib/sim/fleet.py; README, "Offline"), or follow '
+                                    "REAL_BAG: the robot driven by a real recording's velocity "
+                                    'commands, on its clock, under its topic names')
+    p.add_argument('source', nargs='?', default=None, metavar='REAL_BAG',
+                   help='follow: the real recording whose commands drive the robot')
+    p.add_argument('--params', default=None, metavar='FILE',
+                   help='follow: simulator parameter YAML (sim_params.yaml of mismatch, or '
+                        'config/sim.yaml keys); --set wins over it')
+    p.add_argument('--cmd-topic', default=None, metavar='TOPIC',
+                   help='follow: the velocity-command topic (default: cmd_vel by name, else '
+                        'the only Twist/TwistStamped topic)')
     p.add_argument('--out', required=True, help='output bag folder')
     p.add_argument('--seed', type=int, default=0, help='random seed (default 0)')
     p.add_argument('--duration', type=float, default=None, help='duration in s')
@@ -100,6 +110,10 @@ def _add_mismatch(sub: Any) -> None:
                    help='compare these two topics (repeatable); topics of different types '
                         'are compared on what they share (an IMU yaw rate with an odometry '
                         "yaw rate, a velocity command's speed with an odometry speed)")
+    p.add_argument('--corrected', default=None, metavar='SIM_BAG',
+                   help='a simulation with the findings applied (simulate follow REAL_BAG '
+                        '--params DIR/sim_params.yaml of an earlier run): the report shows '
+                        'its trajectory and pose drift beside the simulated and real ones')
 
 
 def _add_ideal(sub: Any) -> None:
@@ -181,6 +195,11 @@ def _make_parent(path: str) -> None:
 def _simulate(args: argparse.Namespace) -> int:
     from robot_calib import sim
     _make_parent(args.out)
+    if args.scenario == 'follow':
+        return _follow(args)
+    if args.source is not None or args.params is not None or args.cmd_topic is not None:
+        raise ValueError(f'REAL_BAG, --params and --cmd-topic belong to simulate follow, not '
+                         f'to scenario {args.scenario}')
     if args.scenario == 'fleet':
         from robot_calib.sim.fleet import simulate_fleet
         rows = simulate_fleet(args.out, seed=args.seed, duration=args.duration,
@@ -194,6 +213,25 @@ def _simulate(args: argparse.Namespace) -> int:
                          overrides=_parse_sets(args.overrides) or None, storage=args.storage)
     print(f'wrote {args.out} and {args.out}.truth.json (scenario {args.scenario}, '
           f'seed {args.seed}, {len(truth)} truth keys)')
+    return 0
+
+
+def _follow(args: argparse.Namespace) -> int:
+    from robot_calib.sim.follow import follow
+    if args.source is None:
+        raise ValueError('simulate follow needs the real recording: simulate follow REAL_BAG '
+                         '--out SIM_BAG')
+    if args.duration is not None:
+        raise ValueError('--duration does not apply to follow: the run lasts as long as the '
+                         'recording')
+    truth = follow(args.source, args.out, seed=args.seed,
+                   overrides=_parse_sets(args.overrides) or None, params_file=args.params,
+                   cmd_topic=args.cmd_topic, storage=args.storage)
+    written = ', '.join(f'{t} ({k})' for t, k in truth['topic_map'].items())
+    print(f'followed {truth["commands"]} commands of {truth["command_topic"]} '
+          f'({truth["command_type"].rsplit("/", 1)[-1]}) over {truth["duration"]:.1f} s from '
+          f'{truth["start_time"]:.3f}; wrote {args.out} ({written}) and '
+          f'{args.out}.truth.json')
     return 0
 
 
@@ -287,10 +325,18 @@ def _replay(args: argparse.Namespace) -> int:
 def _mismatch(args: argparse.Namespace) -> int:
     from robot_calib import mismatch
     from robot_calib.replay import parse_remaps
-    findings = mismatch.analyse(args.sim, args.real, args.out, remaps=parse_remaps(args.remap))
+    findings = mismatch.analyse(args.sim, args.real, args.out, remaps=parse_remaps(args.remap),
+                                corrected=args.corrected)
     n = len(findings.get('findings', [])) if isinstance(findings, dict) else 0
     verdict = findings.get('verdict', '?') if isinstance(findings, dict) else '?'
-    print(f'{verdict}: {n} finding(s); wrote {args.out}/findings.json')
+    print(f'{verdict}: {n} finding(s); wrote {args.out}/findings.json, report.md, '
+          'sim_params.yaml, suggestions.yaml')
+    traj = findings.get('trajectory') if isinstance(findings, dict) else None
+    if traj:
+        for k, label in (('sim_drift', 'simulated'), ('corrected_drift', 'corrected')):
+            if traj.get(k):
+                print(f'{label} vs real on {traj["topic"]}: end drift {traj[k]["end_m"]:.3f} m, '
+                      f'RMS {traj[k]["rms_m"]:.3f} m over {traj["span_s"]:.0f} s')
     return 0
 
 

@@ -12,12 +12,14 @@ Sim-vs-real mismatch analyser: locate the mismatch, name the missing physics, mo
 
 from __future__ import annotations
 
+import json
 import os
 from pathlib import Path
 import shutil
 import tempfile
 from typing import Optional
 
+from robot_calib.mismatch import export, trajectory
 from robot_calib.mismatch.analysis import analyse_recordings, MismatchParams
 from robot_calib.mismatch.channels import ChannelError, read_bag
 
@@ -30,7 +32,8 @@ class MismatchError(ValueError):
 
 def analyse(sim_bag: os.PathLike | str, real_bag: os.PathLike | str,
             out_dir: os.PathLike | str, params: Optional[MismatchParams] = None,
-            plots: bool = True, remaps: Optional[list] = None) -> dict:
+            plots: bool = True, remaps: Optional[list] = None,
+            corrected: os.PathLike | str | None = None) -> dict:
     """
     Compare a simulated and a real recording of the same run; write findings and a report.
 
@@ -40,12 +43,14 @@ def analyse(sim_bag: os.PathLike | str, real_bag: os.PathLike | str,
     :param params: analyser parameters (defaults: :class:`MismatchParams`)
     :param plots: write the PNG plots
     :param remaps: ``[(sim topic, real topic)]`` the user paired (``--remap``)
+    :param corrected: a simulation with the findings applied (``simulate follow --params
+        sim_params.yaml``): its trajectory joins the report's, with its drift
     :returns: the findings dict (contract schema plus additive keys)
     :raises MismatchError: on input that cannot be compared (one-line message)
     """
     from robot_calib.mismatch import report
-    for name, p in (('sim', sim_bag), ('real', real_bag)):
-        if not Path(p).exists():
+    for name, p in (('sim', sim_bag), ('real', real_bag), ('corrected', corrected)):
+        if p is not None and not Path(p).exists():
             raise MismatchError(f'{name} bag not found: {p}')
     try:
         sim = read_bag(sim_bag)
@@ -62,7 +67,15 @@ def analyse(sim_bag: os.PathLike | str, real_bag: os.PathLike | str,
     tmp = _partial_folder(out)
     try:
         findings['inputs'] = {'sim': str(sim_bag), 'real': str(real_bag)}
+        if corrected is not None:
+            findings['inputs']['corrected'] = str(corrected)
+        traj = _trajectories(sim_bag, real_bag, corrected, findings)
+        if traj is not None:
+            findings['trajectory'] = trajectory.summary(traj)
+            if plots:
+                findings['trajectory']['plot'] = trajectory.plot(tmp, traj)
         report.write(tmp, findings, details, plots=plots)
+        export.write(tmp, json.loads((tmp / 'findings.json').read_text()), str(sim_bag))
         if out.exists():
             shutil.rmtree(out)
         os.replace(tmp, out)
@@ -70,6 +83,18 @@ def analyse(sim_bag: os.PathLike | str, real_bag: os.PathLike | str,
         shutil.rmtree(tmp, ignore_errors=True)
         raise
     return findings
+
+
+def _trajectories(sim_bag, real_bag, corrected, findings: dict) -> Optional[dict]:
+    """Return the trajectory comparison of the bags, or None when they share no odometry."""
+    clock = (findings.get('time_alignment') or {}).get('clock') or {}
+    offset = float(clock.get('offset') or 0.0)
+    try:
+        return trajectory.compare(str(sim_bag), str(real_bag),
+                                  str(corrected) if corrected is not None else None, offset)
+    except (ValueError, KeyError, IndexError, OSError) as exc:
+        findings.setdefault('notes', []).append(f'no trajectory comparison: {exc}')
+        return None
 
 
 def _partial_folder(out: Path) -> Path:

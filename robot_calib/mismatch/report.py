@@ -242,6 +242,9 @@ def _markdown(findings: dict, files: list) -> str:
     if 'residuals.png' in files:
         lines += ['![residuals](residuals.png)', '']
     lines += _alignment(findings)
+    from robot_calib.mismatch import trajectory
+    traj = findings.get('trajectory')
+    lines += trajectory.markdown(traj, traj.get('plot') if traj else None)
     if findings['not_judged'] or findings['notes']:
         lines += ['## What could not be judged', '']
         for d in findings['not_judged']:

@@ -180,6 +180,53 @@ class LatencyParams:
 
 
 @dataclass
+class DriveParams:
+    """
+    Drive dynamics between the velocity command and the wheels (defaults: an ideal drive).
+
+    Per axis (``linear``: forward speed, ``angular``: turn rate), in this order:
+    deadband, dead time, steady-state gain, acceleration (rate) limit, first-order
+    lag; then the coupling ``v = v (1 - turn_speed_loss |omega|)`` and the
+    wheel-speed saturation. The wheels' own lag (``robot.wheel_time_constant``)
+    comes after. Names and units follow the mismatch effects of the same names
+    (``drive_deadband``, ``drive_dead_time``, ``drive_gain``, ``drive_rate_limit``,
+    ``drive_lag``, ``turn_speed_loss``).
+    """
+
+    linear_deadband: float = param(0.0, 'm/s', 'forward-speed commands smaller than this move '
+                                   'nothing (0: none)', minimum=0.0)
+    angular_deadband: float = param(0.0, 'rad/s', 'turn-rate commands smaller than this move '
+                                    'nothing (0: none)', minimum=0.0)
+    linear_dead_time: float = param(0.0, 's', 'transport delay of the forward-speed command',
+                                    minimum=0.0, maximum=5.0)
+    angular_dead_time: float = param(0.0, 's', 'transport delay of the turn-rate command',
+                                     minimum=0.0, maximum=5.0)
+    linear_gain: float = param(0.0, '', 'relative steady-state gain error of the forward '
+                               'speed: it settles at (1 + gain) x command', minimum=-0.9,
+                               maximum=2.0)
+    angular_gain: float = param(0.0, '', 'relative steady-state gain error of the turn rate: '
+                                'it settles at (1 + gain) x command', minimum=-0.9, maximum=2.0)
+    linear_rate_limit: float = param(0.0, 'm/s^2', 'largest forward acceleration (0: no limit)',
+                                     minimum=0.0)
+    angular_rate_limit: float = param(0.0, 'rad/s^2', 'largest turn-rate acceleration (0: no '
+                                      'limit)', minimum=0.0)
+    linear_time_constant: float = param(0.0, 's', 'first-order lag of the forward speed behind '
+                                        'its command (0: none)', minimum=0.0, maximum=10.0)
+    angular_time_constant: float = param(0.0, 's', 'first-order lag of the turn rate behind '
+                                         'its command (0: none)', minimum=0.0, maximum=10.0)
+    turn_speed_loss: float = param(0.0, 's/rad', 'forward speed lost in turns: v = v (1 - k '
+                                   '|omega|), omega the turn rate after its dynamics (floored '
+                                   'at 0)', minimum=0.0, maximum=10.0)
+    max_wheel_speed: float = param(0.0, 'rad/s', 'wheel-speed saturation: the faster wheel is '
+                                   'capped and the other scaled alike, so speed and turn rate '
+                                   'shrink together (0: none)', minimum=0.0)
+
+    def active(self) -> bool:
+        """Return True when any dynamics differ from the ideal drive."""
+        return any(getattr(self, f.name) != 0.0 for f in dataclasses.fields(self))
+
+
+@dataclass
 class SimParams:
     """All simulator parameters (one dataclass, nested groups give dotted names)."""
 
@@ -193,6 +240,7 @@ class SimParams:
     lidar: LidarParams = dataclasses.field(default_factory=LidarParams)
     odom: OdomParams = dataclasses.field(default_factory=OdomParams)
     latency: LatencyParams = dataclasses.field(default_factory=LatencyParams)
+    drive: DriveParams = dataclasses.field(default_factory=DriveParams)
 
 
 VECTOR_PARAMS = ('imu.gyro_bias', 'imu.gyro_bias_drift', 'imu.gyro_warmup', 'imu.gyro_scale',

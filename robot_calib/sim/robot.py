@@ -11,7 +11,10 @@ once, or one control tick for closed-loop steps):
    base controller does): differential drive wheel speeds
    ``wL = (v - w T/2) / r``, ``wR = (v + w T/2) / r``; steered wheel
    ``delta = atan2(w L, v)``, traction speed ``hypot(v, w L) / r``;
-2. first-order lag of the actuators (exact per control tick);
+2. first-order lag of the actuators (exact per control tick); with drive
+   dynamics (``drive.*``, :mod:`robot_calib.sim.drive`) the commanded twist
+   first goes through them at the internal rate, and the actuators follow the
+   result sample by sample;
 3. TRUE wheel geometry and slip -> body twist: differential
    ``v = (gL + gR) / 2``, ``w = (gR - gL) / T_true``; steered wheel
    ``v = g cos(delta_true)``, ``w = g sin(delta_true) / L_true`` with
@@ -97,6 +100,11 @@ class Plant:
         self.ticks = 0
         self.chunks: list[dict[str, np.ndarray]] = []
         self.cmd_chunks: list[np.ndarray] = []
+        self.drive = None
+        if params.drive.active():
+            from robot_calib.sim.drive import DriveDynamics
+            self.drive = DriveDynamics(params.drive, self.dt, params.robot.track_width,
+                                       params.robot.wheel_radius)
 
     # -- commands ------------------------------------------------------------------------
     def targets(self, kind: str, values: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -143,6 +151,9 @@ class Plant:
         if k == 0:
             return
         n = self.n_sub
+        if self.drive is not None:
+            self._advance_dynamic(twist, k)
+            return
         # actuator lag, exact for a held target: y = u + (y0 - u) a^k (per tick)
         ends = np.empty_like(tgt)
         starts = np.empty_like(tgt)
@@ -158,6 +169,27 @@ class Plant:
             starts[1:, j] = ends[:-1, j]
         act = (tgt[:, None, :] + (starts - tgt)[:, None, :] * self.pw[None, :, :]).reshape(-1, 2)
         self.act = ends[-1].copy()
+        t = (self.ticks * n + np.arange(k * n)) / self.p.rate
+        self._integrate(t, act)
+        self.cmd_chunks.append(np.column_stack(((self.ticks + np.arange(k)) * n / self.p.rate,
+                                                twist)))
+        self.ticks += k
+
+    def _advance_dynamic(self, twist: np.ndarray, k: int) -> None:
+        """Apply K ticks of commanded twists (K, 2) through the drive dynamics (per sample)."""
+        from scipy.signal import lfilter
+        n = self.n_sub
+        realised = self.drive(np.repeat(twist, n, axis=0))
+        tgt, _ = self.targets('twist', realised)
+        act = np.empty_like(tgt)
+        for j in range(2):
+            a = float(self.a[j])
+            y0 = float(self.act[j])
+            # y[i + 1] = a y[i] + (1 - a) u[i]: the held-target form of advance(), per sample
+            yf, _ = lfilter([1.0 - a], [1.0, -a], tgt[:, j], zi=[a * y0])
+            act[0, j] = y0
+            act[1:, j] = yf[:-1]
+            self.act[j] = yf[-1]
         t = (self.ticks * n + np.arange(k * n)) / self.p.rate
         self._integrate(t, act)
         self.cmd_chunks.append(np.column_stack(((self.ticks + np.arange(k)) * n / self.p.rate,
