@@ -301,9 +301,10 @@ def test_publish_tf_without_tf2_msgs_is_one_line_and_exit_2(ros, monkeypatch, ca
     code = base.run(FusionPipeline, args=['--ros-args', '-p', 'publish_tf:=true'])
     err = capsys.readouterr().err.strip().splitlines()
     assert code == 2
-    assert err == ['odometry_fusion: error: cannot publish /tf: tf2_msgs/msg/TFMessage is not '
-                   'installed (`make venv` builds it into .venv (tools/build_tf2_msgs.sh); a ROS '
-                   '2 installation has it)']
+    assert len(err) == 1
+    assert err[0].startswith('odometry_fusion: error: cannot publish /tf: tf2_msgs/msg/TFMessage '
+                             'is not installed (/tf and /tf_static need it: '
+                             'tools/build_tf2_msgs.sh builds it')
     rclpy.init()
     node = _node(FusionPipeline)  # without publish_tf it runs, without /tf_static
     try:
