@@ -2,8 +2,10 @@
 # SPDX-License-Identifier: Apache-2.0
 """Shared pytest fixtures; DDS kept on this machine and on a domain of this test run."""
 
+import importlib.util
 import os
 from pathlib import Path
+import shutil
 import subprocess
 import sys
 
@@ -16,6 +18,29 @@ os.environ.setdefault('ROS_DOMAIN_ID', str(1 + os.getpid() % 100))
 
 REPO = Path(__file__).resolve().parent.parent
 SHARED_DATA = REPO.parent / 'shared' / 'data'
+
+
+def _tf2_msgs_cannot_be_had() -> bool:
+    """Return True where tf2_msgs is missing and the set-up had no tools to build it."""
+    if importlib.util.find_spec('tf2_msgs') is not None:
+        return False
+    return any(shutil.which(tool) is None for tool in ('cmake', 'make', 'cc', 'c++'))
+
+
+def pytest_collection_modifyitems(config, items) -> None:
+    """
+    Skip the tests marked ``needs_tf2_msgs`` on a machine that cannot build tf2_msgs.
+
+    Where the build tools exist, a missing tf2_msgs is a broken set-up and those
+    tests run (and fail).
+    """
+    if not _tf2_msgs_cannot_be_had():
+        return
+    skip = pytest.mark.skip(reason='tf2_msgs is not installed and cmake or a C/C++ compiler '
+                                   'is missing to build it (tools/build_tf2_msgs.sh)')
+    for item in items:
+        if 'needs_tf2_msgs' in item.keywords:
+            item.add_marker(skip)
 
 
 @pytest.fixture

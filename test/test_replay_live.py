@@ -80,6 +80,7 @@ LATCHED = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1,
                      durability=DurabilityPolicy.TRANSIENT_LOCAL)
 
 
+@pytest.mark.needs_tf2_msgs
 def test_live_publishes_bag_with_clock(tmp_path):
     """Every topic, /tf_static latched and /tf (tf2_msgs, built by `make venv`), and /clock."""
     from geometry_msgs.msg import Twist
@@ -154,6 +155,7 @@ def test_live_bad_input(tmp_path):
         live.play([path], loops=-1)
 
 
+@pytest.mark.needs_tf2_msgs
 def test_live_offers_every_static_transform_to_a_late_subscriber(tmp_path):
     """Several /tf_static messages in the bag all reach a node that subscribes after they went."""
     from tf2_msgs.msg import TFMessage
