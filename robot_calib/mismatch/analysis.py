@@ -5,7 +5,7 @@ The mismatch analysis: align, locate, name, model and show, or abstain.
 
 :func:`analyse_recordings` takes two :class:`~robot_calib.mismatch.channels.Recording`
 objects (the simulated and the real run) and returns the findings dict of
-the contract (architecture.md, "Mismatch findings") plus additive keys:
+the contract (docs/contract.md, "Mismatch findings") plus additive keys:
 ``time_alignment`` (per topic, the cross-correlation lag and the delay
 judged per sensor), ``channels`` (per channel the residual RMS, the noise
 level and the windows where the residual is beyond noise), ``not_judged``

@@ -7,7 +7,7 @@ Each effect predicts the difference ``real - sim`` of one or more channels
 as a linear combination of regressors built from the simulation (its own
 value, time, the forward speed v, the yaw rate omega, the commanded
 acceleration a, the gravity direction). The contract table
-(architecture.md, "Mismatch findings") fixes the names, models and
+(docs/contract.md, "Mismatch findings") fixes the names, models and
 parameters. A sensor is modelled as a whole: an effect may act on several
 channels at once (a rotated IMU moves the gyro and the accelerometer alike).
 
