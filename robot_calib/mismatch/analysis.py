@@ -11,7 +11,11 @@ judged per sensor), ``channels`` (per channel the residual RMS, the noise
 level and the windows where the residual is beyond noise), ``not_judged``
 (what cannot be judged and why) and ``notes``.
 
-Per sensor (topic) the analysis runs in three stages:
+Per sensor (topic), :func:`_analyse_topic` runs named steps: align time,
+build candidates, select, check on held-out time, write findings, describe
+the channels, name what is left; across topics the findings are reconciled,
+a latency common to the run folded into the clock offset, and the minor and
+weak ones sorted out (:func:`_sort_minor_and_weak`). In three stages:
 
 1. time: one delay per clock group (an IMU's gyro and accelerometer may
    differ), by least squares with exact shifts, kept when its block error
@@ -53,7 +57,7 @@ from robot_calib.mismatch import latency as L
 from robot_calib.mismatch import residual as U
 from robot_calib.mismatch import robust as R
 from robot_calib.mismatch import select as S
-from robot_calib.mismatch import timing as T
+from robot_calib.mismatch import timing
 from robot_calib.mismatch.align import pair_topics
 from robot_calib.mismatch.channels import (ChannelError, IMU_TYPE, ODOM_TYPE, PairedTopic,
                                            Recording, TWIST_TYPES)
@@ -62,7 +66,7 @@ from robot_calib.mismatch.findings import (heldout_support, motion_ratio, term_f
 from robot_calib.mismatch.locate import active_windows, local_weights, moving_average
 from robot_calib.mismatch.locate import noise_level
 from robot_calib.mismatch.params import MismatchParams
-from robot_calib.mismatch.problem import held_mask, make_problem, noise_floor, rmse
+from robot_calib.mismatch.problem import held_mask, make_problem, noise_floor, Problem, rmse
 from robot_calib.mismatch.reconcile import reconcile
 
 __all__ = ['MismatchParams', 'TopicDetail', 'analyse_recordings']
@@ -80,8 +84,8 @@ class TopicDetail:
     """
 
     pt: PairedTopic
-    prob0: S.Problem
-    prob: S.Problem
+    prob0: Problem
+    prob: Problem
     sel: list
     final: S.Fit
     term_findings: list
@@ -132,7 +136,7 @@ def _aux(sim: Recording, real: Recording, pt: PairedTopic, t0: float, notes: lis
     """
 
     def late(x: np.ndarray) -> np.ndarray:
-        return L.lag_response(T.filled(x), pt.dt, lag) if lag > 0 else x
+        return L.lag_response(timing.filled(x), pt.dt, lag) if lag > 0 else x
 
     aux: dict = {}
     ta = pt.t + t0 - tau
@@ -167,7 +171,7 @@ def _beyond_plausible(term: E.Term, beta: np.ndarray, cov: np.ndarray) -> tuple[
                     if np.isfinite(params[k]) and abs(params[k]) > lim]
 
 
-def _implausible(prob: S.Problem, sel: list, not_judged: list, notes: list, cands: list,
+def _implausible(prob: Problem, sel: list, not_judged: list, notes: list, cands: list,
                  min_len: int, alt_margin: float) -> tuple[list, list]:
     """
     Move effects fitted far beyond their plausible range out of the findings.
@@ -219,7 +223,7 @@ def _implausible(prob: S.Problem, sel: list, not_judged: list, notes: list, cand
     return keep, dropped
 
 
-def _plain_offsets(prob: S.Problem, sel: list, prm: MismatchParams) -> list:
+def _plain_offsets(prob: Problem, sel: list, prm: MismatchParams) -> list:
     """
     Return ``sel`` with drifting offsets whose drift is immaterial replaced by plain offsets.
 
@@ -239,15 +243,15 @@ def _plain_offsets(prob: S.Problem, sel: list, prm: MismatchParams) -> list:
     return out
 
 
-def _min_len(prob: S.Problem, prm: MismatchParams) -> int:
+def _min_len(prob: Problem, prm: MismatchParams) -> int:
     """Return the shortest effect window (samples); longer than the recording in seed mode."""
     if prm.mode == 'seed':  # global effects only
         return prob.n + 1
     return max(20, int(prm.min_window * prob.n), int(prm.min_window_s / max(prob.pt.dt, 1e-9)))
 
 
-def _select(prob: S.Problem, cands: list, prm: MismatchParams, edges: np.ndarray,
-            notes: list, not_judged: list) -> tuple[list, S.Problem, list]:
+def _select(prob: Problem, cands: list, prm: MismatchParams, edges: np.ndarray,
+            notes: list, not_judged: list) -> tuple[list, Problem, list]:
     pt = prob.pt
     min_len = _min_len(prob, prm)
     sel, _ = S.forward_select(prob, cands, prm.margin, min_len, prm.max_terms)
@@ -262,7 +266,7 @@ def _select(prob: S.Problem, cands: list, prm: MismatchParams, edges: np.ndarray
         phi2[f] = ph
         sw2[f] = np.sqrt(local_weights(e, prob.mask[f], pt.dt, prm.noise_smooth,
                                        prm.noise_smooth))
-    prob = S.Problem(pt, prob.fields, prob.r, prob.mask, sig2, phi2, prob.n, sw=sw2)
+    prob = Problem(pt, prob.fields, prob.r, prob.mask, sig2, phi2, prob.n, sw=sw2)
     sel, _ = S.forward_select(prob, cands, prm.margin, min_len, prm.max_terms)
     if sel and prm.mode != 'seed':
         sel = S.refine_windows(prob, sel, min_len)
@@ -298,7 +302,7 @@ def _select(prob: S.Problem, cands: list, prm: MismatchParams, edges: np.ndarray
     return sel, prob, implausible
 
 
-def _predict(prob: S.Problem, terms: list, betas: list, f: str) -> np.ndarray:
+def _predict(prob: Problem, terms: list, betas: list, f: str) -> np.ndarray:
     out = np.zeros(prob.n)
     for t, b in zip(terms, betas):
         if f not in t.cols:
@@ -315,7 +319,7 @@ def _predict(prob: S.Problem, terms: list, betas: list, f: str) -> np.ndarray:
     return out
 
 
-def _heldout(prob: S.Problem, sel: list, chunks: int) -> tuple[dict, dict, dict, dict]:
+def _heldout(prob: Problem, sel: list, chunks: int) -> tuple[dict, dict, dict, dict]:
     """
     Re-fit the selected terms on the fitting chunks; RMSE before/after per selected term.
 
@@ -332,8 +336,8 @@ def _heldout(prob: S.Problem, sel: list, chunks: int) -> tuple[dict, dict, dict,
     n = prob.n
     held = held_mask(n, chunks)
     fit_mask = {f: prob.mask[f] & ~held for f in prob.fields}
-    pf = S.Problem(prob.pt, prob.fields, prob.r, fit_mask, prob.sigma, prob.phi, n,
-                   sw=dict(prob.sw))
+    pf = Problem(prob.pt, prob.fields, prob.r, fit_mask, prob.sigma, prob.phi, n,
+                 sw=dict(prob.sw))
     fr = S.fit(pf, sel)
     plain, weighted, motion, support = {}, {}, {}, {}
     for i, t in enumerate(sel):
@@ -363,41 +367,101 @@ def _heldout_worse(weighted: dict) -> set:
             h['heldout_rmse_after'] > h['heldout_rmse_before']}
 
 
-# -- findings -------------------------------------------------------------------------------
-def _analyse_topic(pt: PairedTopic, sim: Recording, real: Recording, t0: float,
-                   prm: MismatchParams, notes: list, not_judged: list,
-                   channel_info: dict) -> tuple[list, Optional[S.Problem], list, dict]:
-    prob0 = make_problem(pt, prm.noise_smooth, not_judged)
-    if prob0 is None:
-        return [], None, [], {}
-    edges = R.block_edges(prob0.n, pt.dt, prm.blocks, prm.min_block_s)
+# -- one topic, step by step ---------------------------------------------------------------
+@dataclass
+class TimeStage:
+    """
+    What the time stage found on one topic (step 1).
+
+    ``delays``: ``[(effect, estimate, info)]`` (time offset, drift, drive lag);
+    ``findings``: their findings; ``aligned``: the topic with the simulation
+    delayed by them; ``problem``: its residual problem (None: nothing left to
+    judge); ``taus``: the delay per field (s); ``lag_tau``: the drive lag of the
+    wheel-slip channel (s, 0 without one).
+    """
+
+    delays: list
+    findings: list
+    aligned: PairedTopic
+    problem: Optional[Problem]
+    taus: dict
+    lag_tau: float
+
+
+@dataclass
+class HeldOutCheck:
+    """
+    The selected effects checked on held-out time (step 4).
+
+    Per selected term (by index): ``plain``/``weighted`` RMSE before and after,
+    ``motion`` ratio and held-out ``support`` (see :func:`_heldout`); the
+    ``final`` fit on all of the recording with contributions, the block-robust
+    ``tests`` and the ``alternatives`` that explain about as well.
+    """
+
+    plain: dict
+    weighted: dict
+    motion: dict
+    support: dict
+    final: S.Fit
+    tests: list
+    alternatives: dict
+
+
+@dataclass
+class TopicResult:
+    """A topic's findings, its delays (for ``time_alignment``) and the report's detail."""
+
+    findings: list
+    delays: list
+    detail: Optional[TopicDetail]
+
+
+def _align_time(pt: PairedTopic, prob0: Problem, sim: Recording, real: Recording, t0: float,
+                prm: MismatchParams, edges: np.ndarray) -> TimeStage:
+    """Step 1: judge delays and the drive lag; return the topic with the simulation delayed."""
     acmd = _aux(sim, real, pt, t0, []).get('acmd') if pt.msgtype == ODOM_TYPE else None
-    timing = T.time_stage(pt, prob0, prm, edges, acmd)
-    findings = T.time_findings(pt, prob0, timing, prm, edges, acmd)
+    delays = timing.time_stage(pt, prob0, prm, edges, acmd)
+    findings = timing.time_findings(pt, prob0, delays, prm, edges, acmd)
     taus = {}
-    for kind, te, _ in timing:
+    for kind, te, _ in delays:
         if kind in ('time_offset', 'timing_drift'):
             # a drifting delay too: its run-wide value is the best single alignment
-            taus.update(T.field_taus(te, list(pt.sim)))
-    pta = T.aligned(pt, taus)
-    lags = [(te, info) for kind, te, info in timing if kind == 'drive_lag']
+            taus.update(timing.field_taus(te, list(pt.sim)))
+    aligned = timing.aligned(pt, taus)
+    lags = [(te, info) for kind, te, info in delays if kind == 'drive_lag']
     if lags:
-        sim_l = dict(pta.sim)
+        sim_l = dict(aligned.sim)
         for te, info in lags:
-            sim_l.update({f: T.lagged(pt, f, info['lag_tau']) for f in te.fields})
-        pta = replace(pta, sim=sim_l, sim_reg={}, sim_noisy={})
-    prob = make_problem(pta, prm.noise_smooth, None) if (taus or lags) else prob0
-    if prob is None:
-        return findings, None, [], {}
-    # the delay of the channel each regressor from another topic serves: the odometry speed
-    # (wheel slip), the accelerometer's lateral axis (centripetal acceleration)
-    aux = _aux(sim, real, pta, t0, notes,
-               taus.get(T.SLIP_FIELD, taus.get('linear_acceleration.y', 0.0)),
-               next((info['lag_tau'] for te, info in lags if T.SLIP_FIELD in te.fields), 0.0))
-    cands, cannot = E.candidates(pta, prob.sigma, aux)
+            sim_l.update({f: timing.lagged(pt, f, info['lag_tau']) for f in te.fields})
+        aligned = replace(aligned, sim=sim_l, sim_reg={}, sim_noisy={})
+    prob = make_problem(aligned, prm.noise_smooth, None) if (taus or lags) else prob0
+    lag_tau = next((info['lag_tau'] for te, info in lags if timing.SLIP_FIELD in te.fields), 0.0)
+    return TimeStage(delays, findings, aligned, prob, taus, lag_tau)
+
+
+def _build_candidates(stage: TimeStage, sim: Recording, real: Recording, t0: float,
+                      notes: list) -> tuple[list, dict]:
+    """
+    Step 2: the library's candidate effects on the aligned residual, and their regressors.
+
+    The regressors from other topics are read at the delay of the channel each
+    serves: the odometry speed (wheel slip), the accelerometer's lateral axis
+    (centripetal acceleration).
+    """
+    taus = stage.taus
+    aux = _aux(sim, real, stage.aligned, t0, notes,
+               taus.get(timing.SLIP_FIELD, taus.get('linear_acceleration.y', 0.0)),
+               stage.lag_tau)
+    cands, cannot = E.candidates(stage.aligned, stage.problem.sigma, aux)
     notes.extend(c for c in cannot if c not in notes)
-    sel, prob, implausible = _select(prob, cands, prm, edges, notes, not_judged)
-    held, held_w, held_m, held_s = _heldout(prob, sel, prm.heldout_chunks) if sel else \
+    return cands, aux
+
+
+def _check_held_out(prob: Problem, sel: list, cands: list, prm: MismatchParams,
+                    edges: np.ndarray) -> HeldOutCheck:
+    """Step 4: re-fit on part of the time, test across blocks, and list alternatives."""
+    plain, weighted, motion, support = _heldout(prob, sel, prm.heldout_chunks) if sel else \
         ({}, {}, {}, {})
     final = S.fit(prob, sel, contributions=True)
     tests = R.wald(prob, sel, final, edges, prm.alpha, prm.min_block_s) if sel else []
@@ -406,12 +470,20 @@ def _analyse_topic(pt: PairedTopic, sim: Recording, real: Recording, t0: float,
     # an explanation that needs a parameter no working sensor has is no alternative
     alts = {i: [a for a in lst if not _beyond_plausible(a[0], a[1].betas[-1], a[1].covs[-1])[1]]
             for i, lst in alts.items()}
-    term_findings = [term_finding(prob, final, sel, i, held.get(i, {}), tests[i],
-                                  alts.get(i, []), held_w.get(i), held_m.get(i, 1.0),
-                                  held_s.get(i))
-                     for i in range(len(sel))]
-    time_findings = list(findings)
-    findings.extend(term_findings)
+    return HeldOutCheck(plain, weighted, motion, support, final, tests, alts)
+
+
+def _write_findings(prob: Problem, sel: list, check: HeldOutCheck) -> list:
+    """Step 5: one finding per selected effect, with its held-out evidence."""
+    return [term_finding(prob, check.final, sel, i, check.plain.get(i, {}), check.tests[i],
+                         check.alternatives.get(i, []), check.weighted.get(i),
+                         check.motion.get(i, 1.0), check.support.get(i))
+            for i in range(len(sel))]
+
+
+def _describe_channels(prob0: Problem, prob: Problem, final: S.Fit, channel_info: dict) -> None:
+    """Step 6: per channel the residual RMS before and after, the noise and where it exceeds."""
+    pt = prob0.pt
     for f in prob.fields:
         r, m = prob0.r[f], prob0.mask[f]
         left = prob.r[f] - final.contrib.get(f, 0.0)
@@ -419,12 +491,83 @@ def _analyse_topic(pt: PairedTopic, sim: Recording, real: Recording, t0: float,
             'rmse': rmse(r, m), 'noise': prob.sigma[f], 'noise_inflation': prob.phi[f],
             'rmse_after': rmse(left, prob.mask[f]),
             'beyond_noise': active_windows(pt.t, r, m, prob0.sigma[f], prob0.phi[f])}
-    extra = U.unexplained(prob, final, aux, edges, implausible)
-    if extra is not None:
-        findings.append(extra)
-    detail = TopicDetail(pt, prob0, prob, sel, final, term_findings, time_findings, extra,
-                         held_mask(prob.n, prm.heldout_chunks))
-    return findings, prob, sel, {'delays': timing, 'detail': detail}
+
+
+def _analyse_topic(pt: PairedTopic, sim: Recording, real: Recording, t0: float,
+                   prm: MismatchParams, notes: list, not_judged: list,
+                   channel_info: dict) -> TopicResult:
+    """
+    Analyse one paired topic in named steps; fill ``notes``, ``not_judged``, ``channel_info``.
+
+    Align time (delays, drive lag), build the candidate effects, select the
+    fewest that explain the residual, check them on held-out time, write their
+    findings, describe each channel, and name what is left as ``unexplained``.
+    """
+    prob0 = make_problem(pt, prm.noise_smooth, not_judged)
+    if prob0 is None:
+        return TopicResult([], [], None)
+    edges = R.block_edges(prob0.n, pt.dt, prm.blocks, prm.min_block_s)
+    stage = _align_time(pt, prob0, sim, real, t0, prm, edges)
+    if stage.problem is None:
+        return TopicResult(list(stage.findings), [], None)  # as no topic detail: no delays
+    cands, aux = _build_candidates(stage, sim, real, t0, notes)
+    sel, prob, implausible = _select(stage.problem, cands, prm, edges, notes, not_judged)
+    check = _check_held_out(prob, sel, cands, prm, edges)
+    term_findings = _write_findings(prob, sel, check)
+    _describe_channels(prob0, prob, check.final, channel_info)
+    extra = U.unexplained(prob, check.final, aux, edges, implausible)
+    findings = list(stage.findings) + term_findings + ([extra] if extra is not None else [])
+    detail = TopicDetail(pt, prob0, prob, sel, check.final, term_findings,
+                         list(stage.findings), extra, held_mask(prob.n, prm.heldout_chunks))
+    return TopicResult(findings, stage.delays, detail)
+
+
+# -- across topics ------------------------------------------------------------------------
+def _fold_common_latency(findings: list, clock, notes: list) -> list:
+    """
+    Return ``findings`` without time offsets when the clocks were aligned on the motion.
+
+    A latency common to the run is then part of the clock offset: the
+    strongest one is folded into ``clock.offset`` and a note says so.
+    """
+    if clock.method != 'motion':
+        return findings
+    delays = [f for f in findings if f['effect'] == 'time_offset']
+    findings = [f for f in findings if f['effect'] != 'time_offset']
+    if delays:
+        best = max(delays, key=lambda f: f['evidence']['z'])
+        clock.offset -= best['parameters']['tau']
+        notes.append('the clocks differ, so a latency common to a whole sensor cannot be '
+                     'told from the clock offset; the offset includes '
+                     f'{best["parameters"]["tau"] * 1000:.1f} ms measured on '
+                     f'{best["channel"]}; per-sensor delays are in time_alignment')
+    return findings
+
+
+def _sort_minor_and_weak(findings: list, prm: MismatchParams, duration: float,
+                         notes: list) -> tuple[list, list, list]:
+    """
+    Split findings into (reported, minor, weak).
+
+    Weak: below ``min_confidence``, or not improving what it claims to.
+    Minor: smaller than the effect's floor worth naming for a ground robot.
+    """
+    weak = [f for f in findings if f.get('evidence_strength', f['confidence']) <
+            prm.min_confidence]
+    for f in [f for f in findings if f not in weak]:
+        why = unsupported(f, prm.min_improvement)  # a finding must improve what it claims to
+        if why:
+            weak.append(f)
+            f['explanation'] += f' Not reported: {why}.'
+            notes.append(f'{f["channel"]}: a candidate {f["effect"]} is not reported: {why}')
+    minor = [f for f in findings if f not in weak and f['effect'] != 'unexplained' and
+             E.effect_size(f['effect'], f['parameters'], duration) <
+             prm.floor_scale * E.SPECS[f['effect']].floor]
+    for f in minor:
+        f['explanation'] += ' It is smaller than the ' \
+            f'{E.SPECS[f["effect"]].floor:g} worth naming for a ground robot, so it is listed ' \
+            'as minor.'
+    return [f for f in findings if f not in weak and f not in minor], minor, weak
 
 
 def analyse_recordings(sim: Recording, real: Recording,
@@ -446,54 +589,28 @@ def analyse_recordings(sim: Recording, real: Recording,
     findings: list = []
     details: list = []
     channel_info: dict = {}
-    timing: dict = {}
+    alignment: dict = {}
     for pt in paired:
         notes.extend(pt.notes)
-        fs, prob, sel, info = _analyse_topic(pt, sim, real, t0, prm, notes, not_judged,
-                                             channel_info)
-        timing[pt.name] = {'xcorr_lag': pt.tau_xcorr, 'xcorr_gain': pt.xcorr_gain,
-                           'delays': [{'fields': te.fields, 'effect': kind,
-                                       'tau': te.delay.tau, 'std': te.delay.std}
-                                      for kind, te, _ in info.get('delays', [])]}
-        findings.extend(fs)
-        if 'detail' in info:
-            details.append(info['detail'])
+        res = _analyse_topic(pt, sim, real, t0, prm, notes, not_judged, channel_info)
+        alignment[pt.name] = {'xcorr_lag': pt.tau_xcorr, 'xcorr_gain': pt.xcorr_gain,
+                              'delays': [{'fields': te.fields, 'effect': kind,
+                                          'tau': te.delay.tau, 'std': te.delay.std}
+                                         for kind, te, _ in res.delays]}
+        findings.extend(res.findings)
+        if res.detail is not None:
+            details.append(res.detail)
     findings = reconcile(findings, notes)
     if not channel_info:
         raise ChannelError('no channel can be compared (' + '; '.join(
             f'{d["channel"]}: {d["reason"]}' for d in not_judged) + ')')
-    if clock.method == 'motion':
-        # clocks aligned on the motion: a latency common to the run is part of the offset
-        delays = [f for f in findings if f['effect'] == 'time_offset']
-        findings = [f for f in findings if f['effect'] != 'time_offset']
-        if delays:
-            best = max(delays, key=lambda f: f['evidence']['z'])
-            clock.offset -= best['parameters']['tau']
-            notes.append('the clocks differ, so a latency common to a whole sensor cannot be '
-                         'told from the clock offset; the offset includes '
-                         f'{best["parameters"]["tau"] * 1000:.1f} ms measured on '
-                         f'{best["channel"]}; per-sensor delays are in time_alignment')
+    findings = _fold_common_latency(findings, clock, notes)
     findings.sort(key=lambda f: (f['effect'] == 'unexplained', -f.get('confidence', 0.0)))
     duration = max((float(pt.t[-1] - pt.t[0]) for pt in paired if pt.t.size), default=0.0)
-    weak = [f for f in findings if f.get('evidence_strength', f['confidence']) <
-            prm.min_confidence]
-    for f in [f for f in findings if f not in weak]:
-        why = unsupported(f, prm.min_improvement)  # a finding must improve what it claims to
-        if why:
-            weak.append(f)
-            f['explanation'] += f' Not reported: {why}.'
-            notes.append(f'{f["channel"]}: a candidate {f["effect"]} is not reported: {why}')
-    minor = [f for f in findings if f not in weak and f['effect'] != 'unexplained' and
-             E.effect_size(f['effect'], f['parameters'], duration) <
-             prm.floor_scale * E.SPECS[f['effect']].floor]
-    findings = [f for f in findings if f not in weak and f not in minor]
-    for f in minor:
-        f['explanation'] += ' It is smaller than the ' \
-            f'{E.SPECS[f["effect"]].floor:g} worth naming for a ground robot, so it is listed ' \
-            'as minor.'
+    findings, minor, weak = _sort_minor_and_weak(findings, prm, duration, notes)
     out = {'verdict': 'mismatch' if findings else 'consistent',
            'findings': findings, 'minor_findings': minor, 'weak_findings': weak,
-           'time_alignment': {'clock': clock.as_dict(), **timing},
+           'time_alignment': {'clock': clock.as_dict(), **alignment},
            'channels': channel_info,
            'not_judged': not_judged, 'notes': notes, 'bag_start': t0}
     return out, details

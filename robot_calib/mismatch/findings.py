@@ -16,6 +16,7 @@ import numpy as np
 from robot_calib.mismatch import effects as E
 from robot_calib.mismatch import select as S
 from robot_calib.mismatch.explain import explain
+from robot_calib.mismatch.problem import Problem
 
 
 def evidence(strength: float, fitd: dict, motion: float = 1.0,
@@ -99,7 +100,7 @@ def confidence(evidence: float, alt_deltas: list) -> float:
     return round(evidence * alt, 3)
 
 
-def term_finding(prob: S.Problem, final: S.Fit, sel: list, i: int, fitd: dict,
+def term_finding(prob: Problem, final: S.Fit, sel: list, i: int, fitd: dict,
                  test: tuple, alts: list, weighted: Optional[dict] = None,
                  motion: float = 1.0, support: Optional[tuple] = None) -> dict:
     """

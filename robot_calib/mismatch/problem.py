@@ -9,13 +9,53 @@ Shared by the time stage (:mod:`.timing`) and the effect selection
 
 from __future__ import annotations
 
+from dataclasses import dataclass, field
 from typing import Optional
 
 import numpy as np
 
-from robot_calib.mismatch import select as S
 from robot_calib.mismatch.channels import PairedTopic
 from robot_calib.mismatch.locate import noise_level
+
+
+@dataclass
+class Problem:
+    """One topic's residuals, masks and noise levels (per field)."""
+
+    pt: object
+    fields: list
+    r: dict
+    mask: dict
+    sigma: dict
+    phi: dict
+    n: int
+    w: dict = field(default_factory=dict)
+    n_eff: float = 0.0
+    cache: dict = field(default_factory=dict)
+    sw: dict = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        """
+        Compute the weights and the effective sample count.
+
+        ``w[f]`` is the channel weight ``1 / (sigma^2 phi)``; ``sw[f]`` the square
+        root of each sample's relative weight (1 by default, 0 where invalid;
+        see :func:`local_weights` for noise that changes along the recording).
+        """
+        self.w = {f: 1.0 / (max(self.sigma[f], 1e-300) ** 2 * self.phi[f]) for f in self.fields}
+        self.n_eff = float(sum(self.mask[f].sum() / self.phi[f] for f in self.fields))
+        for f in self.fields:
+            sw = self.sw.get(f)
+            self.sw[f] = self.mask[f].astype(float) if sw is None else sw * self.mask[f]
+
+    def rw(self, f: str) -> np.ndarray:
+        """Return the weighted residual ``sw * r`` of field ``f`` (cached)."""
+        key = ('rw', f)
+        v = self.cache.get(key)
+        if v is None:
+            v = self.r[f] * self.sw[f]
+            self.cache[key] = v
+        return v
 
 
 def noise_floor(res: np.ndarray, m: np.ndarray, a: np.ndarray, b: np.ndarray) -> float:
@@ -38,7 +78,7 @@ def channel_noise(a: np.ndarray, b: np.ndarray, m: np.ndarray, dt: float,
 
 
 def make_problem(pt: PairedTopic, smooth: float,
-                 not_judged: Optional[list]) -> Optional[S.Problem]:
+                 not_judged: Optional[list]) -> Optional[Problem]:
     """
     Return the residual problem of a paired topic, or None when no channel can be judged.
 
@@ -64,7 +104,7 @@ def make_problem(pt: PairedTopic, smooth: float,
         r[f], mask[f], sigma[f], phi[f] = res, m, s, ph
     if not fields:
         return None
-    return S.Problem(pt, fields, r, mask, sigma, phi, pt.t.size)
+    return Problem(pt, fields, r, mask, sigma, phi, pt.t.size)
 
 
 def rmse(x: np.ndarray, m: np.ndarray) -> Optional[float]:
@@ -74,6 +114,3 @@ def rmse(x: np.ndarray, m: np.ndarray) -> Optional[float]:
 def held_mask(n: int, chunks: int) -> np.ndarray:
     chunk = max(1, n // chunks)
     return ((np.arange(n) // chunk) % 3) == 2
-
-
-# -- stage 1: time ------------------------------------------------------------------------

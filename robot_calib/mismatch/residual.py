@@ -31,6 +31,7 @@ import numpy as np
 from robot_calib.mismatch import select as S
 from robot_calib.mismatch.explain import unexplained as sentence
 from robot_calib.mismatch.locate import active_windows, moving_average
+from robot_calib.mismatch.problem import Problem
 
 RATIO_BAR = 2.0
 """Two-scale variance ratio above which a residual holds structure (1 for noise, up to 4)."""
@@ -88,7 +89,7 @@ def _follows(e: np.ndarray, m: np.ndarray, signals: dict, width: int) -> Optiona
     return best
 
 
-def _signals(prob: S.Problem, f: str, aux: dict) -> dict:
+def _signals(prob: Problem, f: str, aux: dict) -> dict:
     pt = prob.pt
     v = aux.get('v')
     acc = aux.get('acmd')
@@ -98,7 +99,7 @@ def _signals(prob: S.Problem, f: str, aux: dict) -> dict:
             f'the simulated {f}': pt.sim_reg.get(f), 'time': pt.t}
 
 
-def unexplained(prob: S.Problem, final: S.Fit, aux: dict, edges: np.ndarray,
+def unexplained(prob: Problem, final: S.Fit, aux: dict, edges: np.ndarray,
                 implausible: list) -> Optional[dict]:
     """
     Return one ``unexplained`` finding for a topic, or None when its residual is noise.

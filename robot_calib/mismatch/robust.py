@@ -41,6 +41,7 @@ from typing import Optional
 import numpy as np
 
 from robot_calib.mismatch import select as S
+from robot_calib.mismatch.problem import Problem
 
 GAIN_EFFECTS = ('gyro_scale', 'gyro_cross_axis', 'accel_scale')
 """Effects whose model is one constant gain on a simulated signal (:func:`band_prune`)."""
@@ -62,7 +63,7 @@ def block_edges(n: int, dt: float, target: int = 40, min_block_s: float = 1.0,
     return np.unique(np.linspace(0, n, k + 1).astype(int))
 
 
-def _block_energy(prob: S.Problem, term, edges: np.ndarray) -> np.ndarray:
+def _block_energy(prob: Problem, term, edges: np.ndarray) -> np.ndarray:
     energy = np.zeros(edges.size - 1)
     for f in term.cols:
         if f not in prob.fields:
@@ -73,7 +74,7 @@ def _block_energy(prob: S.Problem, term, edges: np.ndarray) -> np.ndarray:
     return energy
 
 
-def focused_edges(prob: S.Problem, term, edges: np.ndarray, min_block_s: float,
+def focused_edges(prob: Problem, term, edges: np.ndarray, min_block_s: float,
                   frac: float = 0.02) -> np.ndarray:
     """
     Return ``edges``, or finer ones where the term acts when it acts in few blocks.
@@ -112,7 +113,7 @@ def _term_index(terms: list) -> list:
     return idx
 
 
-def block_scores(prob: S.Problem, terms: list, fit: S.Fit, edges: np.ndarray) -> np.ndarray:
+def block_scores(prob: Problem, terms: list, fit: S.Fit, edges: np.ndarray) -> np.ndarray:
     """
     Return the per-block scores ``s_b`` (K, P) of a fitted model.
 
@@ -134,14 +135,14 @@ def block_scores(prob: S.Problem, terms: list, fit: S.Fit, edges: np.ndarray) ->
     return scores
 
 
-def active_blocks(prob: S.Problem, term, edges: np.ndarray, frac: float = 0.02) -> int:
+def active_blocks(prob: Problem, term, edges: np.ndarray, frac: float = 0.02) -> int:
     """Return the number of blocks holding at least ``frac`` of the term's peak block energy."""
     energy = _block_energy(prob, term, edges)
     top = float(energy.max()) if energy.size else 0.0
     return int(np.sum(energy > frac * top)) if top > 0 else 0
 
 
-def sandwich(prob: S.Problem, terms: list, fit: S.Fit,
+def sandwich(prob: Problem, terms: list, fit: S.Fit,
              edges: np.ndarray) -> Optional[np.ndarray]:
     """Return the cluster-robust covariance (P, P) of all coefficients, or None if undefined."""
     if not terms:
@@ -167,7 +168,7 @@ def wald_bar(p: int, blocks: int, alpha: float) -> float:
     return p * float(special.fdtri(p, max(blocks - p, 1), 1.0 - alpha))
 
 
-def wald(prob: S.Problem, terms: list, fit: S.Fit, edges: np.ndarray,
+def wald(prob: Problem, terms: list, fit: S.Fit, edges: np.ndarray,
          alpha: float, min_block_s: float = 1.0) -> list:
     """
     Return per term ``(W, threshold, blocks)``: its robust Wald statistic and the bar it must pass.
@@ -201,7 +202,7 @@ def wald(prob: S.Problem, terms: list, fit: S.Fit, edges: np.ndarray,
     return out
 
 
-def robust_prune(prob: S.Problem, sel: list, edges: np.ndarray, alpha: float,
+def robust_prune(prob: Problem, sel: list, edges: np.ndarray, alpha: float,
                  refine=None, min_block_s: float = 1.0) -> tuple[list, list]:
     """
     Drop, weakest first, the terms that fail the robust Wald test; return (kept, dropped).
@@ -233,7 +234,7 @@ def _slow_part(x: np.ndarray, width: int) -> np.ndarray:
     return (c[i1] - c[i0]) / (i1 - i0)[:, None]
 
 
-def band_test(prob: S.Problem, sel: list, j: int, edges: np.ndarray, alpha: float,
+def band_test(prob: Problem, sel: list, j: int, edges: np.ndarray, alpha: float,
               width_s: float) -> Optional[tuple]:
     """
     Return ``(slow, fast, W, threshold, W_slow)`` of the gain ``sel[j]`` split by frequency.
@@ -263,7 +264,7 @@ def band_test(prob: S.Problem, sel: list, j: int, edges: np.ndarray, alpha: floa
     return b_slow, b_fast, w, wald_bar(1, kb, alpha), w_slow
 
 
-def band_prune(prob: S.Problem, sel: list, edges: np.ndarray, alpha: float,
+def band_prune(prob: Problem, sel: list, edges: np.ndarray, alpha: float,
                width_s: float) -> tuple[list, list]:
     """
     Drop the gains that act on fast motion only (:func:`band_test`); return (kept, dropped).

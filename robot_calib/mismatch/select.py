@@ -27,48 +27,9 @@ import numpy as np
 
 from robot_calib.mismatch import effects as E
 from robot_calib.mismatch.locate import scan_window
+from robot_calib.mismatch.problem import Problem
 
 NONLINEAR = ('imu_mounting_tilt', 'imu_mounting_rotation')
-
-
-@dataclass
-class Problem:
-    """One topic's residuals, masks and noise levels (per field)."""
-
-    pt: object
-    fields: list
-    r: dict
-    mask: dict
-    sigma: dict
-    phi: dict
-    n: int
-    w: dict = field(default_factory=dict)
-    n_eff: float = 0.0
-    cache: dict = field(default_factory=dict)
-    sw: dict = field(default_factory=dict)
-
-    def __post_init__(self) -> None:
-        """
-        Compute the weights and the effective sample count.
-
-        ``w[f]`` is the channel weight ``1 / (sigma^2 phi)``; ``sw[f]`` the square
-        root of each sample's relative weight (1 by default, 0 where invalid;
-        see :func:`local_weights` for noise that changes along the recording).
-        """
-        self.w = {f: 1.0 / (max(self.sigma[f], 1e-300) ** 2 * self.phi[f]) for f in self.fields}
-        self.n_eff = float(sum(self.mask[f].sum() / self.phi[f] for f in self.fields))
-        for f in self.fields:
-            sw = self.sw.get(f)
-            self.sw[f] = self.mask[f].astype(float) if sw is None else sw * self.mask[f]
-
-    def rw(self, f: str) -> np.ndarray:
-        """Return the weighted residual ``sw * r`` of field ``f`` (cached)."""
-        key = ('rw', f)
-        v = self.cache.get(key)
-        if v is None:
-            v = self.r[f] * self.sw[f]
-            self.cache[key] = v
-        return v
 
 
 @dataclass

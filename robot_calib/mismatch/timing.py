@@ -20,12 +20,11 @@ import numpy as np
 
 from robot_calib.mismatch import effects as E
 from robot_calib.mismatch import latency as L
-from robot_calib.mismatch import select as S
 from robot_calib.mismatch.channels import (IMU_TYPE, loo_derivative, ODOM_TYPE, PairedTopic,
                                            regressor_signal)
 from robot_calib.mismatch.explain import explain
 from robot_calib.mismatch.findings import confidence, evidence, heldout_support, motion_ratio
-from robot_calib.mismatch.problem import channel_noise, held_mask, rmse
+from robot_calib.mismatch.problem import channel_noise, held_mask, Problem, rmse
 
 
 MOVING_SPREAD = 1.5
@@ -38,7 +37,7 @@ estimate then integrates the motion over the whole recording and is tested for s
 SLIP_FIELD = 'twist.twist.linear.x'
 
 
-def moving_fields(pt: PairedTopic, prob: S.Problem, smooth: float) -> list:
+def moving_fields(pt: PairedTopic, prob: Problem, smooth: float) -> list:
     """
     Return the fields whose simulated signal moves well beyond the channel noise.
 
@@ -69,7 +68,7 @@ def moving_fields(pt: PairedTopic, prob: S.Problem, smooth: float) -> list:
     return out
 
 
-def group_data(pt: PairedTopic, prob: S.Problem, fields: list, keep: np.ndarray,
+def group_data(pt: PairedTopic, prob: Problem, fields: list, keep: np.ndarray,
                reals: Optional[dict] = None) -> dict:
     """Return the delay estimate's input per clock group (``reals``: real fields replaced)."""
     reals_of = {**pt.real, **(reals or {})}
@@ -87,7 +86,7 @@ def group_data(pt: PairedTopic, prob: S.Problem, fields: list, keep: np.ndarray,
     return data
 
 
-def joint_slip(pt: PairedTopic, prob: S.Problem, acmd: Optional[np.ndarray],
+def joint_slip(pt: PairedTopic, prob: Problem, acmd: Optional[np.ndarray],
                tau: float = 0.0, with_delay: bool = True) -> Optional[tuple[float, np.ndarray]]:
     """
     Return (coefficient s^2/m, regressor ``v a`` delayed by ``tau``) of a slip fitted with a delay.
@@ -170,7 +169,7 @@ def aligned(pt: PairedTopic, taus: dict) -> PairedTopic:
     return replace(pt, sim=sim, sim_reg={}, sim_noisy={})
 
 
-def time_stage(pt: PairedTopic, prob: S.Problem, prm: Any, edges: np.ndarray,
+def time_stage(pt: PairedTopic, prob: Problem, prm: Any, edges: np.ndarray,
                acmd: Optional[np.ndarray] = None) -> list:
     """
     Return the significant time effects of a topic: [(kind, TimeEffect, lag info)].
@@ -208,7 +207,7 @@ def time_stage(pt: PairedTopic, prob: S.Problem, prm: Any, edges: np.ndarray,
     return out
 
 
-def _whitened_chi2(prob: S.Problem, fields: list, pred: dict,
+def _whitened_chi2(prob: Problem, fields: list, pred: dict,
                    reals: Optional[dict] = None) -> float:
     """Return the chi2 of ``real - pred`` after a per-field offset and scale are fitted."""
     total = 0.0
@@ -235,7 +234,7 @@ def _golden(fun, lo: float, hi: float, iters: int = 30) -> float:
     return 0.5 * (a + b)
 
 
-def _lag_or_delay(pt: PairedTopic, prob: S.Problem, te: L.TimeEffect, prm: Any,
+def _lag_or_delay(pt: PairedTopic, prob: Problem, te: L.TimeEffect, prm: Any,
                   reals: dict) -> tuple[str, dict]:
     """
     Compare a pure delay with a first-order lag of the drive; return (effect name, info).
@@ -265,7 +264,7 @@ def _lag_or_delay(pt: PairedTopic, prob: S.Problem, te: L.TimeEffect, prm: Any,
     return ('drive_lag' if better else 'time_offset'), info
 
 
-def slip_alternative(pt: PairedTopic, prob: S.Problem, te: L.TimeEffect,
+def slip_alternative(pt: PairedTopic, prob: Problem, te: L.TimeEffect,
                      acmd: Optional[np.ndarray], joint: Optional[tuple]) -> Optional[tuple]:
     """
     Return (delta chi2, coefficient s^2/m) of wheel slip instead of an odometry delay, or None.
@@ -314,7 +313,7 @@ def field_taus(te: L.TimeEffect, fields: Optional[list] = None) -> dict:
     return out
 
 
-def _time_fit(pt: PairedTopic, prob: S.Problem, te: L.TimeEffect, prm: Any,
+def _time_fit(pt: PairedTopic, prob: Problem, te: L.TimeEffect, prm: Any,
               edges: np.ndarray, reals: dict) -> tuple[str, dict, float, tuple]:
     """
     Return (best channel, fit dict, motion, support): the delay re-estimated without held-out time.
@@ -348,7 +347,7 @@ def _time_fit(pt: PairedTopic, prob: S.Problem, te: L.TimeEffect, prm: Any,
     return channel, fitd, motion, support
 
 
-def time_findings(pt: PairedTopic, prob: S.Problem, found: list, prm: Any,
+def time_findings(pt: PairedTopic, prob: Problem, found: list, prm: Any,
                   edges: np.ndarray, acmd: Optional[np.ndarray] = None) -> list:
     """
     Return the findings of the time stage, with held-out fit (delay re-estimated without).
