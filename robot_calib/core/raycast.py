@@ -109,24 +109,40 @@ def _cast(occ: np.ndarray, res: float, px: np.ndarray, py: np.ndarray, ang: np.n
     out = np.full(ang.size, np.inf)
     dx, dy = np.cos(ang), np.sin(ang)
     gx, gy = px / res, py / res  # in cells
-    ix, iy = np.floor(gx).astype(np.int64), np.floor(gy).astype(np.int64)
-    sx = np.where(dx > 0, 1, -1).astype(np.int64)
-    sy = np.where(dy > 0, 1, -1).astype(np.int64)
     with np.errstate(divide='ignore', invalid='ignore'):
         adx, ady = np.abs(dx), np.abs(dy)
-        # distance (cells) to the first boundary crossed along x and y, and between boundaries
+        # distance (cells) between boundaries along x and y
         tdx = np.where(adx > 1e-12, 1.0 / adx, np.inf)
         tdy = np.where(ady > 1e-12, 1.0 / ady, np.inf)
-        tmx = np.where(dx > 0, (ix + 1 - gx), (gx - ix)) * tdx
-        tmy = np.where(dy > 0, (iy + 1 - gy), (gy - iy)) * tdy
+        # a ray from outside the grid starts where it enters it (slab test)
+        tx0, tx1 = (0.0 - gx) / dx, (w - gx) / dx
+        ty0, ty1 = (0.0 - gy) / dy, (h - gy) / dy
+    t_lo = np.maximum(np.fmax(np.minimum(tx0, tx1), np.minimum(ty0, ty1)), 0.0)
+    t_hi = np.fmin(np.maximum(tx0, tx1), np.maximum(ty0, ty1))
+    t_lo = np.where((adx > 1e-12) | ((gx >= 0) & (gx < w)), t_lo, np.inf)
+    t_lo = np.where((ady > 1e-12) | ((gy >= 0) & (gy < h)), t_lo, np.inf)
+    never = ~(t_lo <= t_hi)
+    t0 = np.where(never, 0.0, t_lo)
+    qx = gx + np.where(t0 > 0, t0 + 1e-9, 0.0) * dx
+    qy = gy + np.where(t0 > 0, t0 + 1e-9, 0.0) * dy
+    ix, iy = np.floor(qx).astype(np.int64), np.floor(qy).astype(np.int64)
+    entering = t0 > 0
+    ix[entering] = np.clip(ix[entering], 0, w - 1)
+    iy[entering] = np.clip(iy[entering], 0, h - 1)
+    sx = np.where(dx > 0, 1, -1).astype(np.int64)
+    sy = np.where(dy > 0, 1, -1).astype(np.int64)
+    with np.errstate(invalid='ignore'):
+        tmx = np.where(dx > 0, (ix + 1 - qx), (qx - ix)) * tdx + t0
+        tmy = np.where(dy > 0, (iy + 1 - qy), (qy - iy)) * tdy + t0
     tmx = np.where(np.isfinite(tmx), tmx, np.inf)
     tmy = np.where(np.isfinite(tmy), tmy, np.inf)
     lim = limit / res
-    inside = (ix >= 0) & (ix < w) & (iy >= 0) & (iy < h)
+    inside = (ix >= 0) & (ix < w) & (iy >= 0) & (iy < h) & ~never & (t0 <= lim)
     start_occ = np.zeros(ang.size, dtype=bool)
     start_occ[inside] = flat[iy[inside] * w + ix[inside]]
-    out[start_occ] = 0.0
-    idx = np.flatnonzero(~start_occ)
+    out[start_occ] = t0[start_occ] * res
+    never |= ~inside
+    idx = np.flatnonzero(~start_occ & ~never)
     state = [a[idx] for a in (ix, iy, sx, sy, tmx, tmy, tdx, tdy)]
     while idx.size:
         ix, iy, sx, sy, tmx, tmy, tdx, tdy = state
@@ -245,3 +261,23 @@ def scan_end_points(x: np.ndarray, y: np.ndarray, yaw: np.ndarray, angles: np.nd
     a = np.asarray(yaw, float)[:, None] + np.asarray(angles, float)[None, :]
     return (np.asarray(x, float)[:, None] + r * np.cos(a),
             np.asarray(y, float)[:, None] + r * np.sin(a))
+
+
+def grid_from_segments(segments: np.ndarray, resolution: float,
+                       margin: float = 1.0) -> OccupancyGrid:
+    """
+    Return a grid with the cells crossed by line segments (N, 4: x0 y0 x1 y1, m) occupied.
+
+    Each segment is sampled every quarter cell; the cells' surface points are
+    the mean of their samples (on the segments), so a cast hits the line.
+    """
+    seg = np.asarray(segments, float).reshape(-1, 4)
+    length = np.hypot(seg[:, 2] - seg[:, 0], seg[:, 3] - seg[:, 1])
+    n = np.maximum(2, np.ceil(length / (0.25 * resolution)).astype(int) + 1)
+    u = np.concatenate([np.linspace(0.0, 1.0, k) for k in n])
+    s = np.repeat(np.arange(seg.shape[0]), n)
+    x = seg[s, 0] + u * (seg[s, 2] - seg[s, 0])
+    y = seg[s, 1] + u * (seg[s, 3] - seg[s, 1])
+    grid = grid_from_points(x, y, resolution, 1, margin)
+    grid.weights = None
+    return grid
