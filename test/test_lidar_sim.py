@@ -172,3 +172,15 @@ def test_dropouts_at_grazing_incidence():
     assert lost[inc > 1.25].all() and not lost[inc < 1.15].any()
     assert lost.sum() > 20
     assert r.truth['lidar_effects']['dropout_rate']['incidence'] == 1.2
+
+
+def test_an_effect_leaves_the_noise_and_the_other_sensors_alone():
+    a = run_scenario('drive', seed=6, duration=4.0)
+    b = run_scenario('drive', seed=6, duration=4.0,
+                     overrides={'lidar.range_bias': 0.03, 'lidar.dropout_beyond': 5.0,
+                                'lidar.dropout_beyond_rate': 0.5})
+    ok = np.isfinite(a.sensors['ranges']) & np.isfinite(b.sensors['ranges'])
+    assert ok.mean() > 0.5
+    assert np.allclose(b.sensors['ranges'][ok] - 0.03, a.sensors['ranges'][ok], atol=1e-12)
+    for key in ('gyro', 'accel', 'odom_x', 'js_pos', 'gt_x'):
+        assert np.array_equal(a.sensors[key], b.sensors[key])
