@@ -137,8 +137,9 @@ def _add_ideal(sub: Any) -> None:
                         'scan_frame (without real scans) (repeatable)')
     p.add_argument('--map', default=None, metavar='MAP.yaml',
                    help='also write /scan: beams ray-cast at the true poses in this '
-                        'occupancy grid (map_server YAML with a PGM or PNG image), with the '
-                        "real scanner's angles, range limits and stamps")
+                        'occupancy grid (map_server YAML with a PGM or PNG image, in the frame '
+                        "of the truth's poses), with the real scanner's angles, range limits "
+                        'and stamps')
     p.add_argument('--map-from-scans', action='store_true',
                    help='also write /scan, cast in a map built from the real scans at the true '
                         'poses (it absorbs their range bias and part of their scale)')
