@@ -131,7 +131,20 @@ def _add_ideal(sub: Any) -> None:
                         'named truth / mocap / vrpn / vicon / optitrack)')
     p.add_argument('--set', dest='overrides', action='append', default=[], metavar='KEY=VALUE',
                    help='imu_xyz, imu_rpy, gravity, rel_noise, max_window, drive_type, '
-                        'wheel_radius, track_width, wheel_base (repeatable)')
+                        'wheel_radius, track_width, wheel_base; for /scan: map_resolution, '
+                        'map_min_hits, lidar_x, lidar_y, lidar_yaw (without /tf_static), '
+                        'scan_rate, scan_beams, scan_fov, scan_range_min, scan_range_max, '
+                        'scan_frame (without real scans) (repeatable)')
+    p.add_argument('--map', default=None, metavar='MAP.yaml',
+                   help='also write /scan: beams ray-cast at the true poses in this '
+                        'occupancy grid (map_server YAML with a PGM or PNG image, in the frame '
+                        "of the truth's poses), with the real scanner's angles, range limits "
+                        'and stamps')
+    p.add_argument('--map-from-scans', action='store_true',
+                   help='also write /scan, cast in a map built from the real scans at the true '
+                        'poses (it absorbs their range bias and part of their scale)')
+    p.add_argument('--scan-topic', default=None, metavar='TOPIC',
+                   help='the real LaserScan topic (default: the only one, or /scan)')
 
 
 def _add_fleet(sub: Any) -> None:
@@ -350,8 +363,9 @@ def _ideal(args: argparse.Namespace) -> int:
             sets[key] = [v for v in sets[key].strip('[]').split(',') if v.strip()]
     params = from_flat(derive.IdealParams, sets)
     _make_parent(args.out)
+    scan = derive.ScanRequest(args.map, args.map_from_scans, args.scan_topic)
     try:
-        info = derive.derive(args.truth, args.out, args.truth_topic, params)
+        info = derive.derive(args.truth, args.out, args.truth_topic, params, scan)
     except ChannelError as exc:
         raise ValueError(str(exc)) from None
     widths = ', '.join(f'{t} {f}: {k[0]} +-{k[1] * 1000:.0f} ms' for t, ks in
@@ -365,6 +379,13 @@ def _ideal(args: argparse.Namespace) -> int:
         if info.get(k)]
     if cleaned:
         print('truth: ' + '; '.join(cleaned))
+    sc = info.get('scan')
+    if sc:
+        print(f'{sc["topic"]}: {sc["scans"]} ideal scans of {sc["beams"]} beams, map '
+              f'{sc["map"]} ({sc["map_cells"][1]} x {sc["map_cells"][0]} cells), laser '
+              f'mounting from {sc["mount"]}')
+        for note in sc['notes']:
+            print(f'note: {note}')
     return 0
 
 

@@ -44,6 +44,7 @@ from robot_calib.mismatch.channels import (ChannelError, encode_kernels, IMU_TYP
                                            JOINT_STATE_TYPE, KERNELS_KEY, ODOM_TYPE, Topic)
 from robot_calib.mismatch.ideal import (choose_half, ideal_imu, per_segment, quat_products,
                                         segments)
+from robot_calib.mismatch.ideal_scan import derive_scans, ScanRequest
 
 TRUTH_TYPES = ('geometry_msgs/msg/PoseStamped', 'geometry_msgs/msg/PoseWithCovarianceStamped',
                'geometry_msgs/msg/TransformStamped', 'nav_msgs/msg/Odometry')
@@ -69,6 +70,23 @@ class IdealParams:
     track_width: float = param(0.5, 'm', 'distance between the two wheels of a differential '
                                'drive', minimum=0.0)
     wheel_base: float = param(1.0, 'm', 'rear axle to the steered wheel', minimum=0.0)
+    map_resolution: float = param(0.05, 'm', 'cell side of the map built by --map-from-scans',
+                                  minimum=1e-3, maximum=10.0)
+    map_min_hits: int = param(2, '', 'scan end points that make a cell of that map occupied',
+                              minimum=1)
+    lidar_x: float = param(0.0, 'm', 'laser x in the tracked body when /tf_static lacks it')
+    lidar_y: float = param(0.0, 'm', 'laser y in the tracked body when /tf_static lacks it')
+    lidar_yaw: float = param(0.0, 'rad', 'laser yaw in the tracked body when /tf_static '
+                             'lacks it')
+    scan_rate: float = param(10.0, 'Hz', 'ideal scan rate without real scans', minimum=0.1,
+                             maximum=1000.0)
+    scan_beams: int = param(360, '', 'beams per ideal scan without real scans', minimum=1,
+                            maximum=100000)
+    scan_fov: float = param(6.283185307179586, 'rad', 'field of view without real scans',
+                            minimum=1e-3, maximum=6.283185307179586)
+    scan_range_min: float = param(0.05, 'm', 'minimum range without real scans', minimum=0.0)
+    scan_range_max: float = param(12.0, 'm', 'maximum range without real scans', minimum=0.01)
+    scan_frame: str = param('laser', '', 'scan frame without real scans')
 
 
 def _rpy_quat(roll: float, pitch: float, yaw: float) -> np.ndarray:
@@ -247,10 +265,19 @@ def derive_recording(t: np.ndarray, p: np.ndarray, q: np.ndarray,
     return rec
 
 
-def write_recording(rec: dict, out: os.PathLike | str) -> int:
-    """Write a recording of ideal channels as a ROS 2 bag (NaN samples left out); return count."""
+def write_recording(rec: dict, out: os.PathLike | str, lidar: Optional[dict] = None) -> int:
+    """
+    Write a recording of ideal channels as a ROS 2 bag (NaN samples left out); return count.
+
+    ``lidar`` (:func:`robot_calib.mismatch.ideal_scan.derive_scans`) adds its
+    ``/scan`` and the laser's ``/tf_static``.
+    """
     from robot_calib.io.bags import BagWriter
     items = []
+    if lidar is not None:
+        tf = lidar['tf']
+        items.append((int(round(tf.t * 1e9)), '/tf_static', [tf]))
+        items += [(ns, lidar['topic'], s) for ns, s in lidar['samples']]
     for name, tp in rec.items():
         f = tp.fields
         for i, ti in enumerate(tp.t):
@@ -283,7 +310,8 @@ def write_recording(rec: dict, out: os.PathLike | str) -> int:
 
 
 def derive(truth_bag: os.PathLike | str, out: os.PathLike | str,
-           truth_topic: Optional[str] = None, params: Optional[IdealParams] = None) -> dict:
+           truth_topic: Optional[str] = None, params: Optional[IdealParams] = None,
+           scan: Optional[ScanRequest] = None) -> dict:
     """
     Derive the ideal sensors of the truth in ``truth_bag`` and write them to the bag ``out``.
 
@@ -300,7 +328,13 @@ def derive(truth_bag: os.PathLike | str, out: os.PathLike | str,
         raise ChannelError(f'only {t.size} usable truth poses on {topic} ({dropped} dropped: '
                            'zero or non-finite quaternion or position); need 50 or more')
     rec = derive_recording(t, p, q, params)
-    count = write_recording(rec, out)
-    return {'truth_topic': topic, 'poses': int(t.size), 'span_s': float(t[-1] - t[0]),
+    lidar = None
+    if scan is not None and (scan.map_path or scan.from_scans):
+        lidar = derive_scans(truth_bag, t, p, q, scan, params or IdealParams())
+    count = write_recording(rec, out, lidar)
+    info = {'truth_topic': topic, 'poses': int(t.size), 'span_s': float(t[-1] - t[0]),
             'kernels': {k: dict(v.kernels) for k, v in rec.items()}, 'messages': count,
             **counts}
+    if lidar is not None:
+        info['scan'] = {k: v for k, v in lidar.items() if k not in ('samples', 'tf')}
+    return info

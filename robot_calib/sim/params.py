@@ -151,6 +151,35 @@ class LidarParams:
     upside_down: bool = param(False, '', 'mounted upside down (roll pi in /tf_static): its '
                               'beams sweep clockwise seen from above')
     frame_id: str = param('laser', '', 'lidar frame')
+    # Real-scanner effects (all off by default; truth in truth.json 'lidar_effects').
+    yaw_error: float = param(0.0, 'rad', 'mounting yaw error: the scan is drawn from yaw + '
+                             'yaw_error while /tf_static says yaw (lidar_mounting_yaw)',
+                             minimum=-0.5, maximum=0.5)
+    x_error: float = param(0.0, 'm', 'mounting x error: drawn from x + x_error, /tf_static '
+                           'says x (lidar_mounting_offset)', minimum=-1.0, maximum=1.0)
+    y_error: float = param(0.0, 'm', 'mounting y error: drawn from y + y_error, /tf_static '
+                           'says y (lidar_mounting_offset)', minimum=-1.0, maximum=1.0)
+    time_offset: float = param(0.0, 's', 'stamp offset added to latency.scan: a scan stamped '
+                               't saw the motion at t - latency.scan - time_offset (negative: '
+                               'stamps lead; lidar_time_offset)', minimum=-1.0, maximum=1.0)
+    range_bias: float = param(0.0, 'm', 'range bias: range = (1 + range_scale) true + '
+                              'range_bias (range_bias)', minimum=-1.0, maximum=1.0)
+    range_scale: float = param(0.0, '', 'relative range scale error (see range_bias; '
+                               'range_scale)', minimum=-0.5, maximum=0.5)
+    noise_growth: float = param(0.0, 'm/m', 'range noise growth: sigma = noise + noise_growth '
+                                '* true range (range_noise_growth)', minimum=0.0, maximum=1.0)
+    dropout_beyond: float = param(0.0, 'm', 'beams whose true range exceeds this return '
+                                  'nothing with probability dropout_beyond_rate (0: off; '
+                                  'dropout_rate)', minimum=0.0)
+    dropout_beyond_rate: float = param(1.0, '', 'probability of a lost return beyond '
+                                       'dropout_beyond', minimum=0.0, maximum=1.0)
+    dropout_incidence: float = param(0.0, 'rad', 'beams meeting the surface at an incidence '
+                                     '(from its normal) above this return nothing with '
+                                     'probability dropout_incidence_rate (0: off)',
+                                     minimum=0.0, maximum=1.5707963267948966)
+    dropout_incidence_rate: float = param(1.0, '', 'probability of a lost return at grazing '
+                                          'incidence (see dropout_incidence)',
+                                          minimum=0.0, maximum=1.0)
 
 
 @dataclass

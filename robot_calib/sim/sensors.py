@@ -11,6 +11,7 @@ data of ``t - latency`` (linear interpolation of the internal-rate truth).
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from typing import Any, Optional
 
@@ -166,23 +167,36 @@ def lidar_geometry(p: SimParams) -> tuple[float, float, float]:
     return amin, inc, tinc
 
 
+def lidar_true_mount(li: Any) -> Any:
+    """Return the lidar parameters with the TRUE mounting (nominal + ``*_error``)."""
+    if li.x_error == 0.0 and li.y_error == 0.0 and li.yaw_error == 0.0:
+        return li
+    return dataclasses.replace(li, x=li.x + li.x_error, y=li.y + li.y_error,
+                               yaw=li.yaw + li.yaw_error)
+
+
 def lidar(tr: dict[str, np.ndarray], p: SimParams, world: Any, times: np.ndarray,
           rng: np.random.Generator) -> np.ndarray:
     """
     Return ranges (S, beams) (m) of scans stamped ``times`` (s), REP-117 invalid values.
 
-    Beam i of a scan is cast from the laser pose at ``t - latency + i * time_increment``
-    (world frame, interpolated), adds Gaussian noise, and then: below
-    ``range_min`` -> -inf, no return within ``range_max`` -> +inf (or NaN),
-    dropouts -> NaN. When the robot is tilted (terrain, tip-over) the scan
-    plane tilts with it: walls (vertical) are hit along the beam's horizontal
-    projection at the 3D range, and beams pointing down hit the floor
-    (terrain height under the laser).
+    Beam i of a scan is cast from the TRUE laser pose (nominal mounting plus
+    ``x_error``, ``y_error``, ``yaw_error``) at ``t - latency - time_offset + i *
+    time_increment`` (world frame, interpolated); the range is then
+    ``(1 + range_scale) r + range_bias`` plus Gaussian noise of sigma ``noise +
+    noise_growth r`` (r the true range), and then: below ``range_min`` -> -inf,
+    no return within ``range_max`` -> +inf (or NaN), dropouts -> NaN, lost
+    returns beyond ``dropout_beyond`` or at an incidence above
+    ``dropout_incidence`` -> the no-return value. When the robot is tilted
+    (terrain, tip-over) the scan plane tilts with it: walls (vertical) are hit
+    along the beam's horizontal projection at the 3D range, and beams pointing
+    down hit the floor (terrain height under the laser).
     """
-    li = p.lidar
+    li = lidar_true_mount(p.lidar)
     amin, inc, tinc = lidar_geometry(p)
     beams = li.beams
-    bt = (np.maximum(times - p.latency.scan, 0.0)[:, None] + tinc * np.arange(beams)[None, :])
+    lag = p.latency.scan + li.time_offset if li.time_offset != 0.0 else p.latency.scan
+    bt = (np.maximum(times - lag, 0.0)[:, None] + tinc * np.arange(beams)[None, :])
     x = np.interp(bt, tr['t'], tr['x'])
     y = np.interp(bt, tr['t'], tr['y'])
     yaw = np.interp(bt, tr['t'], tr['yaw'])
@@ -201,14 +215,93 @@ def lidar(tr: dict[str, np.ndarray], p: SimParams, world: Any, times: np.ndarray
     noise = rng.standard_normal(ranges.shape)
     drop = rng.random(ranges.shape)
     hit = np.isfinite(ranges)
-    ranges = np.where(hit, ranges + noise * li.noise, ranges)
+    true_r = ranges
+    if li.range_scale != 0.0 or li.range_bias != 0.0:
+        ranges = np.where(hit, (1.0 + li.range_scale) * ranges + li.range_bias, ranges)
+    if li.noise_growth != 0.0:
+        sigma = li.noise + li.noise_growth * np.where(hit, true_r, 0.0)
+        ranges = np.where(hit, ranges + noise * sigma, ranges)
+    else:
+        ranges = np.where(hit, ranges + noise * li.noise, ranges)
     no_return = math.inf if li.no_return == 'inf' else math.nan
     ranges[hit & (ranges > li.range_max)] = no_return
     ranges[~hit] = no_return
     ranges[hit & (ranges < li.range_min)] = -math.inf
     if li.dropout > 0:
         ranges[drop < li.dropout] = math.nan
+    lost = _lost_returns(li, true_r, ang, rng)
+    if lost is not None:
+        ranges[lost & hit] = no_return
     return ranges
+
+
+def incidence(ranges: np.ndarray, angles: np.ndarray) -> np.ndarray:
+    """
+    Return the incidence angle (rad, 0: along the surface normal) of each beam (S, B).
+
+    The surface's local direction is taken from the hit points of the
+    neighbouring beam on the side whose range differs less (an edge has a
+    jump on one side only); beams without a finite neighbour get 0.
+    """
+    px, py = ranges * np.cos(angles), ranges * np.sin(angles)
+    inf = np.full(ranges.shape[:-1] + (1,), np.inf)
+    dr_prev = np.abs(np.concatenate((inf, np.diff(ranges, axis=-1)), axis=-1))
+    dr_next = np.abs(np.concatenate((np.diff(ranges, axis=-1), inf), axis=-1))
+    use_next = ~(dr_prev <= dr_next)
+    with np.errstate(invalid='ignore'):
+        tx = np.where(use_next, np.roll(px, -1, axis=-1) - px, px - np.roll(px, 1, axis=-1))
+        ty = np.where(use_next, np.roll(py, -1, axis=-1) - py, py - np.roll(py, 1, axis=-1))
+        tn = np.hypot(tx, ty)
+        # |sin| of the angle between beam and surface = cos(incidence)
+        cos_inc = np.abs(np.cos(angles) * ty - np.sin(angles) * tx) / tn
+    out = np.arccos(np.clip(cos_inc, 0.0, 1.0))
+    return np.where(np.isfinite(out) & (np.minimum(dr_prev, dr_next) < np.inf), out, 0.0)
+
+
+def _lost_returns(li: Any, true_r: np.ndarray, ang: np.ndarray,
+                  rng: np.random.Generator) -> Optional[np.ndarray]:
+    """Return the beams (S, B bool) lost by range or incidence, None when both are off."""
+    if li.dropout_beyond <= 0.0 and li.dropout_incidence <= 0.0:
+        return None
+    u = rng.random(true_r.shape)  # drawn after the other streams' numbers: they keep theirs
+    lost = np.zeros(true_r.shape, dtype=bool)
+    with np.errstate(invalid='ignore'):
+        if li.dropout_beyond > 0.0:
+            lost |= (true_r > li.dropout_beyond) & (u < li.dropout_beyond_rate)
+        if li.dropout_incidence > 0.0:
+            lost |= (incidence(true_r, ang) > li.dropout_incidence) & \
+                (u < li.dropout_incidence_rate)
+    return lost
+
+
+def lidar_effects(p: SimParams) -> dict[str, Any]:
+    """
+    Return the truth of the lidar effects, keyed by the contract's effect names (SI).
+
+    ``nominal`` is what ``/tf_static`` says, ``true`` the mounting the scans were
+    drawn from; ``lidar_time_offset.tau`` is the whole lag of the stamps behind
+    the sweep start (``latency.scan + time_offset``); ``scan_distortion``
+    gives the sweep time (0 when deskewed, i.e. ``motion_distortion`` off).
+    """
+    li = p.lidar
+    sweep = (1.0 / li.rate) if li.motion_distortion else 0.0
+    return {
+        'lidar_mounting_yaw': {'yaw': li.yaw_error, 'nominal': li.yaw,
+                               'true': li.yaw + li.yaw_error},
+        'lidar_mounting_offset': {'x': li.x_error, 'y': li.y_error,
+                                  'nominal': [li.x, li.y], 'true': [li.x + li.x_error,
+                                                                    li.y + li.y_error]},
+        'lidar_time_offset': {'tau': p.latency.scan + li.time_offset},
+        'scan_distortion': {'sweep_time': sweep, 'deskewed': not li.motion_distortion},
+        'range_bias': {'bias': li.range_bias},
+        'range_scale': {'scale': li.range_scale},
+        'range_noise_growth': {'s0': li.noise, 's1': li.noise_growth},
+        'dropout_rate': {'rate': li.dropout, 'beyond': li.dropout_beyond,
+                         'beyond_rate': li.dropout_beyond_rate if li.dropout_beyond > 0 else 0.0,
+                         'incidence': li.dropout_incidence,
+                         'incidence_rate': (li.dropout_incidence_rate
+                                            if li.dropout_incidence > 0 else 0.0)},
+    }
 
 
 def _tilted_ranges(tr: dict[str, np.ndarray], li: Any, world: Any, bt: np.ndarray,
@@ -262,8 +355,9 @@ def truth_values(p: SimParams, gyro_bias: np.ndarray) -> dict[str, Any]:
         'centripetal': p.imu.centripetal,
         'imu_roll': p.imu.roll, 'imu_pitch': p.imu.pitch, 'imu_yaw': p.imu.yaw,
         'imu_x': p.imu.x, 'imu_y': p.imu.y, 'imu_z': p.imu.z,
-        'lidar_x': p.lidar.x, 'lidar_y': p.lidar.y, 'lidar_z': p.lidar.z,
-        'lidar_yaw': p.lidar.yaw,
+        'lidar_x': p.lidar.x + p.lidar.x_error, 'lidar_y': p.lidar.y + p.lidar.y_error,
+        'lidar_z': p.lidar.z, 'lidar_yaw': p.lidar.yaw + p.lidar.yaw_error,
+        'lidar_effects': lidar_effects(p),
         'slip_ratio': p.wheels.slip_ratio,
         'slip_coefficient': p.wheels.slip_coefficient,
         'slip_episodes': [list(map(float, e)) for e in
