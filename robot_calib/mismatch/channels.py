@@ -344,19 +344,6 @@ def regressor_signal(x: np.ndarray, half: int = 2) -> np.ndarray:
     return np.where(ok, y, np.nan)
 
 
-def _box(x: np.ndarray, width: int) -> np.ndarray:
-    """Return a centred moving average of ``width`` samples (edges shrink)."""
-    if width <= 1 or x.size < 2:
-        return x
-    ok = np.isfinite(x)
-    xs = np.where(ok, x, 0.0)
-    k = np.ones(width)
-    num = np.convolve(xs, k, mode='same')
-    den = np.convolve(ok.astype(float), k, mode='same')
-    with np.errstate(invalid='ignore', divide='ignore'):
-        return np.where(den > 0, num / np.maximum(den, 1), np.nan)
-
-
 def kernel_weights(spec: tuple, dt: float) -> np.ndarray:
     """
     Return the FIR weights (odd length, sum 1) of a smoothing kernel on a grid of period ``dt``.

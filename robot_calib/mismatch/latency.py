@@ -116,18 +116,6 @@ def whole_sample_lag(sims: list, reals: list, oks: list, max_lag: int) -> int:
     return int(lags[int(np.argmax(vals))])
 
 
-def _shift_int(x: np.ndarray, k: int) -> np.ndarray:
-    """Return ``x`` delayed by ``k`` samples (``y[i] = x[i - k]``), zero-padded."""
-    if k == 0:
-        return x
-    y = np.zeros_like(x)
-    if k > 0:
-        y[k:] = x[:-k]
-    else:
-        y[:k] = x[-k:]
-    return y
-
-
 def shift_frac(x: np.ndarray, k: float) -> np.ndarray:
     """Return ``x`` delayed by ``k`` samples (an exact FFT phase ramp on a mirrored extension)."""
     return Shifter(x).delayed(k)

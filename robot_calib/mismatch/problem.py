@@ -74,6 +74,3 @@ def rmse(x: np.ndarray, m: np.ndarray) -> Optional[float]:
 def held_mask(n: int, chunks: int) -> np.ndarray:
     chunk = max(1, n // chunks)
     return ((np.arange(n) // chunk) % 3) == 2
-
-
-# -- stage 1: time ------------------------------------------------------------------------
