@@ -263,11 +263,10 @@ def shifted(pt: PairedTopic, f: str, tau: float) -> np.ndarray:
     """
     from robot_calib.mismatch.channels import loo_derivative
     if pt.sim_noisy.get(f) and abs(tau) < pt.dt:
-        key = ('dloo', f)
-        d = pt.sim_noisy.get(key)
+        d = pt.sim_loo_rate.get(f)
         if d is None:
             d = loo_derivative(pt.sim[f], pt.dt)
-            pt.sim_noisy[key] = d
+            pt.sim_loo_rate[f] = d
         return pt.sim_reg[f] - tau * d
     if pt.sim_src is not None and f in pt.sim_src[1]:
         ts, x = pt.sim_src[0], pt.sim_src[1][f]  # the whole simulated channel
