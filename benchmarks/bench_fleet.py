@@ -156,7 +156,7 @@ def _cold(bag: Path, tmp: Path, runs: int = 5) -> float:
 
 def _import_seconds(runs: int = 5) -> float:
     code = ('import time; t = time.perf_counter(); import robot_calib.replay; '
-            'from robot_calib import pipelines; [pipelines.load(n) for n in pipelines.REGISTRY]; '
+            'from robot_calib import methods; [methods.load(n) for n in methods.REGISTRY]; '
             'print(time.perf_counter() - t)')
     out = [float(subprocess.run([sys.executable, '-c', code], check=True, capture_output=True,
                                 text=True, cwd=REPO).stdout) for _ in range(runs)]

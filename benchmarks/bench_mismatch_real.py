@@ -366,7 +366,7 @@ def wheel_section() -> tuple[list, dict]:
 def ferraris_section() -> list:
     """Return the markdown lines of the Ferraris calibration protocol (real IMU)."""
     from robot_calib.io.datasets import ferraris
-    from robot_calib.mismatch import protocols as P
+    import mismatch_protocols as P
     rec = ferraris.load(SHARED / 'imucal')
     res, _ = analyse_recordings(*P.ferraris_pair(rec))
     rest = np.concatenate([np.arange(a, b) for k, (a, b) in rec.sections.items()

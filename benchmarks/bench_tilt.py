@@ -282,7 +282,7 @@ def bags_section() -> None:
 
 # -- simulation -------------------------------------------------------------------------------
 def _run_pipeline(messages: list, params: TL.TiltParams) -> tuple:
-    from robot_calib.methods.tilt_detection.onsets import fall_alert_onsets
+    from tilt_onsets import fall_alert_onsets
     from robot_calib.methods.tilt_detection.pipeline import TiltPipeline
     pipe = TiltPipeline(params)
     return pipe, fall_alert_onsets(pipe, messages)

@@ -20,8 +20,9 @@ from pathlib import Path
 import numpy as np
 
 from robot_calib.io.datasets import broad
-from robot_calib.mismatch import protocols as P
 from robot_calib.mismatch.channels import Topic
+
+import mismatch_protocols as P  # noqa: I100 - a sibling module
 
 SHARED = Path(__file__).resolve().parents[2] / 'shared' / 'data'
 

@@ -13,7 +13,7 @@ import math
 import sys
 from typing import Any
 
-from robot_calib import pipelines
+from robot_calib import methods
 from robot_calib.core.params import describe
 import yaml
 
@@ -51,7 +51,7 @@ def _emit(lines: list[str], tree: dict, indent: int) -> None:
 
 def node_section(name: str) -> list[str]:
     """Return the YAML lines of one node's ``ros__parameters`` (key ``/**/<name>``)."""
-    cls = pipelines.load(name)
+    cls = methods.load(name)
     tree: dict = {}
     for info in describe(cls.params_type):
         node = tree
@@ -69,7 +69,7 @@ def node_section(name: str) -> list[str]:
 def render() -> str:
     """Return the whole YAML text for every pipeline present."""
     lines = [HEADER.rstrip('\n')]
-    for name in pipelines.available():
+    for name in methods.available():
         lines.append('')
         lines.extend(node_section(name))
     return '\n'.join(lines) + '\n'

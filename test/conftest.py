@@ -19,6 +19,10 @@ os.environ.setdefault('ROS_DOMAIN_ID', str(1 + os.getpid() % 100))
 REPO = Path(__file__).resolve().parent.parent
 SHARED_DATA = REPO.parent / 'shared' / 'data'
 
+# helpers shared by tests and benchmarks (benchmarks/tilt_onsets.py, mismatch_protocols.py, ...)
+if str(REPO / 'benchmarks') not in sys.path:
+    sys.path.insert(0, str(REPO / 'benchmarks'))
+
 
 def _tf2_msgs_cannot_be_had() -> bool:
     """Return True where tf2_msgs is missing and the set-up had no tools to build it."""

@@ -4,7 +4,7 @@
 
 from pathlib import Path
 
-from robot_calib import config_gen, pipelines
+from robot_calib import config_gen, methods
 from robot_calib.core.params import describe, flatten_nested, from_flat
 import yaml
 
@@ -19,9 +19,9 @@ def test_config_file_is_up_to_date():
 
 def test_every_node_has_a_section_and_every_key_a_comment_with_default():
     tree = yaml.safe_load(CONFIG.read_text())
-    for name in pipelines.available():
+    for name in methods.available():
         params = flatten_nested(tree[f'/**/{name}']['ros__parameters'])
-        cls = pipelines.load(name).params_type
+        cls = methods.load(name).params_type
         expected = {i.name for i in describe(cls)}
         assert expected <= set(params), name
         assert 'mode' in params, f'{name} has no mode parameter'
@@ -37,6 +37,6 @@ def test_replay_reads_the_shipped_file_as_the_readme_says():
     """`robot-calib replay BAG --params config/robot_calib.yaml` (it refused output_dir)."""
     from robot_calib.replay.config import load_params_file, params_for
     loaded = load_params_file(CONFIG)
-    for name in pipelines.available():
-        params = params_for(name, pipelines.load(name), loaded, {})
-        assert params == pipelines.load(name).params_type()   # the file holds the defaults
+    for name in methods.available():
+        params = params_for(name, methods.load(name), loaded, {})
+        assert params == methods.load(name).params_type()   # the file holds the defaults

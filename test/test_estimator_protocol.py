@@ -8,7 +8,7 @@ import importlib
 import numpy as np
 import pytest
 
-from robot_calib import methods, pipelines
+from robot_calib import methods
 from robot_calib.core import types as T
 from robot_calib.core.estimator import Estimator, run_batch
 
@@ -33,7 +33,7 @@ def test_variant_has_the_estimator_api(name, mode):
     """make_estimator(mode) gives an Estimator: mounting, update, a frozen result, reset."""
     variants = importlib.import_module(f'robot_calib.methods.{name}.variants')
     assert set(variants.VARIANTS) == {'seed', 'improved'}
-    pipeline_cls = pipelines.load(name)
+    pipeline_cls = methods.load(name)
     est = variants.make_estimator(pipeline_cls.params_type(mode=mode))
     assert isinstance(est, Estimator)
     assert isinstance(est, variants.VARIANTS[mode])

@@ -295,7 +295,7 @@ def test_walls_agreeing_with_the_heading_are_not_reported():
 
 def test_correction_totals_count_every_correction_while_few_are_kept(monkeypatch):
     """The summary's total and the plot's trace cover the whole run, not the kept window."""
-    from robot_calib.methods.gyro_line_calibration import base
+    from robot_calib.methods.gyro_line_calibration import variant_base as base
     monkeypatch.setattr(base, 'KEPT_CORRECTIONS', 4)
     r = run_scenario('vacuum', seed=0, duration=120.0,
                      overrides={'imu.gyro_bias': [0.0, 0.0, 60.0 * DEG / 3600.0]})

@@ -6,7 +6,10 @@ The import direction of the package: core <- methods <- pipelines <- nodes, repl
 Each module is given a layer from its path; a layer may import only the layers
 listed for it in :data:`ALLOWED` (and itself). Method folders may import only
 their own modules, and a method's seed-faithful and improved variants never
-import each other.
+import each other. The methods (their estimators and ``robot_calib.methods``, which
+holds the registry) never import the pipelines, and the pipeline framework
+(``robot_calib/pipelines/``) never imports the methods: a method's ``pipeline.py``
+builds on the framework, so an import back would run in a circle.
 """
 
 import ast
@@ -90,6 +93,8 @@ def _violations() -> list[str]:
                 out.append(f'{module} ({layer}) imports {imported} ({target})')
             own = module.split('.')
             other = imported.split('.')
+            if own[:2] == ['robot_calib', 'pipelines'] and other[:2] == ['robot_calib', 'methods']:
+                out.append(f'{module}: the pipeline framework imports a method: {imported}')
             if layer == 'method' and target == 'method' and len(other) > 2 \
                     and len(own) > 2 and other[2] != own[2]:
                 out.append(f'{module} imports another method: {imported}')
@@ -136,3 +141,38 @@ def test_the_rule_catches_a_wrong_import(tmp_path):
                                  'robot_calib.pipelines.base (pipeline)']
     finally:
         globals()['PACKAGE'] = real
+
+
+def _fake_package(tmp_path, files: dict) -> list[str]:
+    """Return the violations of a package made of ``files`` (path -> text) under tmp_path."""
+    pkg = tmp_path / 'robot_calib'
+    for rel, text in files.items():
+        path = pkg / rel
+        path.parent.mkdir(parents=True, exist_ok=True)
+        path.write_text(text)
+    for folder in [pkg, *[p for p in pkg.rglob('*') if p.is_dir()]]:
+        if not (folder / '__init__.py').exists():
+            (folder / '__init__.py').write_text('')
+    real = globals()['PACKAGE']
+    globals()['PACKAGE'] = pkg
+    try:
+        return _violations()
+    finally:
+        globals()['PACKAGE'] = real
+
+
+def test_methods_and_the_pipeline_framework_do_not_import_each_other(tmp_path):
+    """The registry in methods/ importing pipelines, or pipelines/ importing a method, fails."""
+    assert _fake_package(tmp_path, {
+        'methods/__init__.py': 'from robot_calib.pipelines import base\n',
+        'pipelines/base.py': '',
+    }) == ['robot_calib.methods (method) imports robot_calib.pipelines (pipeline)',
+           'robot_calib.methods (method) imports robot_calib.pipelines.base (pipeline)']
+    assert _fake_package(tmp_path / 'b', {
+        'pipelines/__init__.py': 'from robot_calib import methods\n',
+        'methods/__init__.py': '',
+    }) == ['robot_calib.pipelines: the pipeline framework imports a method: robot_calib.methods']
+    assert _fake_package(tmp_path / 'c', {
+        'methods/tilt/pipeline.py': 'from robot_calib.pipelines.base import Pipeline\n',
+        'pipelines/base.py': '',
+    }) == []   # a method's adapter builds on the framework

@@ -164,7 +164,7 @@ def test_different_rates_and_lengths():
 
 def test_broad_slice_finds_the_gyro_bias(shared_data):
     from robot_calib.io.datasets import broad
-    from robot_calib.mismatch import protocols as P
+    import mismatch_protocols as P
     tr = broad.load_trial(shared_data / 'broad' / '10_undisturbed_slow_translation_A.npz')
     n = min(len(tr.t), int(60 * tr.fs))
     for k in ('t', 'gyr', 'acc', 'gt_quat', 'movement', 'pos'):
@@ -184,7 +184,7 @@ def test_broad_slice_finds_the_gyro_bias(shared_data):
 def test_broad_translation_bandwidth_is_not_a_gyro_gain(shared_data):
     """Trial 10's x gyro follows the optical rates with a gain on fast motion only: not named."""
     from robot_calib.io.datasets import broad
-    from robot_calib.mismatch import protocols as P
+    import mismatch_protocols as P
     tr = broad.load_trial(shared_data / 'broad' / '10_undisturbed_slow_translation_A.npz')
     res, _ = analyse_recordings(*P.broad_pair(tr))
     x = '/imu.angular_velocity.x'
@@ -196,7 +196,7 @@ def test_broad_translation_bandwidth_is_not_a_gyro_gain(shared_data):
 
 def test_ferraris_protocol_scale_and_bias(shared_data):
     from robot_calib.io.datasets import ferraris
-    from robot_calib.mismatch import protocols as P
+    import mismatch_protocols as P
     rec = ferraris.load(shared_data / 'imucal')
     sim, real = P.ferraris_pair(rec)
     res, _ = analyse_recordings(sim, real)

@@ -11,7 +11,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from robot_calib import codec, pipelines
+from robot_calib import codec, methods
 from robot_calib.core import types as T
 from robot_calib.core.params import param, ParamError
 from robot_calib.io import bags
@@ -233,7 +233,7 @@ def test_replay_end_to_end(tmp_path, storage):
 
 
 def test_default_nodes_and_skips(bag, tmp_path, monkeypatch):
-    monkeypatch.setattr(pipelines, 'REGISTRY', {
+    monkeypatch.setattr(methods, 'REGISTRY', {
         'echo': ECHO, 'scan_only': f'{__name__}:ScanOnlyPipeline',
         'absent': 'robot_calib.pipelines.does_not_exist:Nothing'})
     summary = replay(bag, tmp_path / 'out', progress=False)
@@ -393,14 +393,14 @@ def test_output_folder_checks(bag, tmp_path):
 
 
 def test_registered_pipelines_on_sample_bag(repo_root, tmp_path):
-    names = pipelines.available()
+    names = methods.available()
     if not names:
         pytest.skip('no registered pipeline is installed yet')
     from robot_calib.io.convert_bag import convert_bag
     sliced = tmp_path / 'husky_60s'  # the first minute keeps the test quick
     convert_bag(repo_root / 'bags' / 'husky_test1', sliced, duration=60.0)
     s = replay(sliced, tmp_path / 'o', progress=False)
-    assert set(s['nodes']) | set(s['skipped']) == set(pipelines.REGISTRY)
+    assert set(s['nodes']) | set(s['skipped']) == set(methods.REGISTRY)
     for name, node in s['nodes'].items():
         assert node['inputs'], name
         assert all(v.get('read', 0) > 0 for v in node['inputs'].values()), name
@@ -415,7 +415,7 @@ def test_registered_pipelines_on_simulated_bag(tmp_path):
         simulate = sim.simulate
     except (ImportError, AttributeError):
         pytest.skip('robot_calib.sim.simulate is not available yet')
-    if not pipelines.available():
+    if not methods.available():
         pytest.skip('no registered pipeline is installed yet')
     bag = tmp_path / 'drive'
     simulate('drive', bag, seed=1, duration=10.0)
@@ -425,7 +425,7 @@ def test_registered_pipelines_on_simulated_bag(tmp_path):
     for name, node in s['nodes'].items():
         assert not node['errors'], (name, node.get('first_errors'))
         assert all(v.get('read', 0) > 0 for v in node['inputs'].values()), name
-        cls = pipelines.load(name)
+        cls = methods.load(name)
         for spec in cls.outputs:
             topic = '/' + spec.topic.lstrip('/')
             if topic in out_topics:  # same type as the live node publishes

@@ -9,10 +9,10 @@ import numpy as np
 import pytest
 
 from robot_calib.core import types as T
-from robot_calib.methods.tilt_detection.onsets import fall_alert_onsets
 from robot_calib.methods.tilt_detection.params import TiltParams
 from robot_calib.methods.tilt_detection.pipeline import TiltPipeline
 from ros_helpers import spin_until
+from tilt_onsets import fall_alert_onsets
 
 G = 9.80665
 DT = 0.005

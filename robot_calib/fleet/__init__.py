@@ -303,11 +303,11 @@ def check_settings(nodes: Optional[Iterable[str]], params_file: Any,
     The same checks a replay makes before it reads a bag, made once: a typo
     gives one line and exit 2 instead of a fleet whose every bag failed.
     """
-    from robot_calib import pipelines
+    from robot_calib import methods
     from robot_calib.replay.config import check_override_nodes, load_params_file, params_for, \
         parse_overrides, resolve_node
     chosen = [resolve_node(n) for n in nodes] if nodes else \
-        [resolve_node(n) for n in pipelines.available()]
+        [resolve_node(n) for n in methods.available()]
     file_params = load_params_file(params_file)
     by_node = parse_overrides(list(overrides))
     check_override_nodes(by_node, {name for name, _ in chosen})

@@ -28,7 +28,7 @@ import shutil
 import time
 from typing import Any, Optional
 
-from robot_calib import __version__, pipelines
+from robot_calib import __version__, methods
 from robot_calib.fleet.source import FleetError, Job
 
 FLEET_FILE = 'fleet.json'
@@ -156,7 +156,7 @@ def _rows(job: Job, summary: dict, seconds: float) -> list[dict[str, Any]]:
     rows = []
     for node, part in summary.get('nodes', {}).items():
         row = {**base, 'node': node, 'status': 'ok', 'reason': '', 'runtime_s': seconds}
-        cls = pipelines.load(node)
+        cls = methods.load(node)
         row.update({f'{node}.{k}': v for k, v in cls.headline(part).items()})
         rows.append(row)
     for node, reason in summary.get('skipped', {}).items():

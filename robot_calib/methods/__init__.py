@@ -9,11 +9,16 @@ its estimator variants (seed-faithful and improved, same API), the
 (which names the class it exports as ``PIPELINE``) and the node's ``main`` in
 ``node.py``. Its ``__init__`` sets ``SEED``, the number of the patent it
 reads, which orders the methods everywhere (registry, config, reports).
+
+The registry of the method pipelines lives here too (:data:`REGISTRY`,
+:func:`available`, :func:`load`): names map to ``module:attribute`` strings,
+imported only when asked for, so importing a method never imports a pipeline.
 """
 
 from __future__ import annotations
 
 import importlib
+import importlib.util
 from pathlib import Path
 
 _HERE = Path(__file__).resolve().parent
@@ -37,3 +42,25 @@ def pipeline_target(name: str) -> str:
 def node_target(name: str) -> str:
     """Return the console-script target ``module:main`` of method ``name``'s node."""
     return f'{__name__}.{name}.node:main'
+
+
+REGISTRY = {name: pipeline_target(name) for name in names()}
+"""Executable name -> ``module:attribute`` of its pipeline class (imported lazily)."""
+
+
+def available() -> list[str]:
+    """Return the names of the pipelines whose modules are present, in registry order."""
+    found = []
+    for name, target in REGISTRY.items():
+        module = target.split(':')[0]
+        if importlib.util.find_spec(module) is not None:
+            found.append(name)
+    return found
+
+
+def load(name: str) -> type:
+    """Return the pipeline class of executable ``name``; KeyError when unknown."""
+    if name not in REGISTRY:
+        raise KeyError(f'unknown node {name!r}; known: {", ".join(REGISTRY)}')
+    module, cls = REGISTRY[name].split(':')
+    return getattr(importlib.import_module(module), cls)

@@ -150,12 +150,6 @@ class Clock:
                 'correlation': self.correlation, 'correspondence': self.correspondence}
 
 
-def topic_start(rec: Recording) -> float:
-    """Return the earliest sample time (s) of a recording's topics (NaN if none)."""
-    starts = [tp.t[0] for tp in rec.values() if len(tp)]
-    return float(min(starts)) if starts else float('nan')
-
-
 def _span(rec: Recording) -> tuple[float, float]:
     tps = [tp for tp in rec.values() if len(tp)]
     if not tps:

@@ -247,6 +247,10 @@ class PairedTopic:
     ``tau_xcorr`` is the lag (s, positive: real lags) of the cross-correlation
     peak, ``xcorr_gain`` the correlation gained over lag 0; ``dt_sim`` and
     ``dt_real`` are each recording's own median sample period (s; 0 unknown).
+    ``sim_reg`` maps field -> the simulated channel as a regressor
+    (:func:`regressor_signal`), ``sim_noisy`` field -> True when that is a
+    leave-one-out average (the simulation is noisy), ``sim_loo_rate`` field ->
+    the channel's leave-one-out derivative (per s), filled when first needed.
     """
 
     name: str
@@ -260,6 +264,7 @@ class PairedTopic:
     notes: list = field(default_factory=list)
     sim_reg: dict = field(default_factory=dict)
     sim_noisy: dict = field(default_factory=dict)
+    sim_loo_rate: dict = field(default_factory=dict)
     sim_src: Optional[tuple] = None
     kernels: dict = field(default_factory=dict)
     dt_sim: float = 0.0
@@ -268,6 +273,7 @@ class PairedTopic:
     def __post_init__(self) -> None:
         """Build the regressor copies of the simulated channels (see :func:`regressor_signal`)."""
         if not self.sim_reg:
+            self.sim_noisy, self.sim_loo_rate = {}, {}
             for k, v in self.sim.items():
                 self.sim_reg[k] = regressor_signal(v)
                 self.sim_noisy[k] = self.sim_reg[k] is not v
@@ -342,19 +348,6 @@ def regressor_signal(x: np.ndarray, half: int = 2) -> np.ndarray:
     with np.errstate(invalid='ignore', divide='ignore'):
         y = np.where(den > 0, num / np.maximum(den, 1.0), np.nan)
     return np.where(ok, y, np.nan)
-
-
-def _box(x: np.ndarray, width: int) -> np.ndarray:
-    """Return a centred moving average of ``width`` samples (edges shrink)."""
-    if width <= 1 or x.size < 2:
-        return x
-    ok = np.isfinite(x)
-    xs = np.where(ok, x, 0.0)
-    k = np.ones(width)
-    num = np.convolve(xs, k, mode='same')
-    den = np.convolve(ok.astype(float), k, mode='same')
-    with np.errstate(invalid='ignore', divide='ignore'):
-        return np.where(den > 0, num / np.maximum(den, 1), np.nan)
 
 
 def kernel_weights(spec: tuple, dt: float) -> np.ndarray:

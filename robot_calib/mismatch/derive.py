@@ -39,6 +39,7 @@ import numpy as np
 
 from robot_calib.core import types as T
 from robot_calib.core.constants import GRAVITY
+from robot_calib.core.geometry import quat_from_rpy
 from robot_calib.core.params import param
 from robot_calib.mismatch.channels import (ChannelError, encode_kernels, IMU_TYPE,
                                            JOINT_STATE_TYPE, KERNELS_KEY, ODOM_TYPE, Topic)
@@ -87,14 +88,6 @@ class IdealParams:
     scan_range_min: float = param(0.05, 'm', 'minimum range without real scans', minimum=0.0)
     scan_range_max: float = param(12.0, 'm', 'maximum range without real scans', minimum=0.01)
     scan_frame: str = param('laser', '', 'scan frame without real scans')
-
-
-def _rpy_quat(roll: float, pitch: float, yaw: float) -> np.ndarray:
-    cr, sr = np.cos(roll / 2), np.sin(roll / 2)
-    cp, sp = np.cos(pitch / 2), np.sin(pitch / 2)
-    cy, sy = np.cos(yaw / 2), np.sin(yaw / 2)
-    return np.array([cr * cp * cy + sr * sp * sy, sr * cp * cy - cr * sp * sy,
-                     cr * sp * cy + sr * cp * sy, cr * cp * sy - sr * sp * cy])
 
 
 def _pose_of(msg, msgtype: str) -> Optional[tuple]:
@@ -225,7 +218,7 @@ def derive_recording(t: np.ndarray, p: np.ndarray, q: np.ndarray,
     t, p, q, _ = clean_truth(t, p, q)
     if t.size < 3:
         raise ChannelError(f'only {t.size} usable truth poses')
-    qm = _rpy_quat(*prm.imu_rpy)
+    qm = quat_from_rpy(*prm.imu_rpy)
     q_imu = quat_products(q, np.broadcast_to(qm, q.shape))
     lever = np.asarray(prm.imu_xyz, float)
     w, x, y, z = q.T

@@ -263,11 +263,10 @@ def shifted(pt: PairedTopic, f: str, tau: float) -> np.ndarray:
     """
     from robot_calib.mismatch.channels import loo_derivative
     if pt.sim_noisy.get(f) and abs(tau) < pt.dt:
-        key = ('dloo', f)
-        d = pt.sim_noisy.get(key)
+        d = pt.sim_loo_rate.get(f)
         if d is None:
             d = loo_derivative(pt.sim[f], pt.dt)
-            pt.sim_noisy[key] = d
+            pt.sim_loo_rate[f] = d
         return pt.sim_reg[f] - tau * d
     if pt.sim_src is not None and f in pt.sim_src[1]:
         ts, x = pt.sim_src[0], pt.sim_src[1][f]  # the whole simulated channel
@@ -278,35 +277,6 @@ def shifted(pt: PairedTopic, f: str, tau: float) -> np.ndarray:
         return np.full(pt.t.size, np.nan)
     tt = ts[ok]
     y = np.interp(pt.t - tau, tt, x[ok])
-    eps = 1e-9 * max(pt.dt, 1e-9)
-    y[(pt.t - tau < tt[0] - eps) | (pt.t - tau > tt[-1] + eps)] = np.nan
-    return y
-
-
-def shifted_smooth(pt: PairedTopic, f: str, tau: float, width: int = 5) -> np.ndarray:
-    """
-    Return a noisy simulated channel, box-averaged over ``width`` samples, delayed by ``tau``.
-
-    Used by the exact time-offset model of a noisy simulation: the model is
-    ``real(t) = S(t - tau)``, which compares the real channel with a smoothed,
-    shifted simulation only, so the simulation's own noise at ``t`` (which is
-    in ``real - sim``) never biases ``tau`` towards half-sample positions.
-    """
-    from robot_calib.mismatch.channels import _box
-    if pt.sim_src is not None and f in pt.sim_src[1]:
-        ts, x = pt.sim_src[0], pt.sim_src[1][f]
-    else:
-        ts, x = pt.t, pt.sim[f]
-    key = ('box', f, width)
-    xs = pt.sim_noisy.get(key)
-    if xs is None:
-        xs = _box(x, width)
-        pt.sim_noisy[key] = xs
-    ok = np.isfinite(xs)
-    if ok.sum() < 2:
-        return np.full(pt.t.size, np.nan)
-    tt = ts[ok]
-    y = np.interp(pt.t - tau, tt, xs[ok])
     eps = 1e-9 * max(pt.dt, 1e-9)
     y[(pt.t - tau < tt[0] - eps) | (pt.t - tau > tt[-1] + eps)] = np.nan
     return y

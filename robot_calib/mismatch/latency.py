@@ -27,6 +27,8 @@ from typing import Optional
 
 import numpy as np
 
+from robot_calib.mismatch.locate import moving_average
+
 
 MIN_BLOCKS = 3
 """Fewest informative blocks behind a delay estimate (a delay seen in one manoeuvre is not)."""
@@ -71,17 +73,6 @@ def _gap_filled(x: np.ndarray, ok: np.ndarray) -> np.ndarray:
     return np.interp(np.arange(x.size), np.flatnonzero(ok), x[ok])
 
 
-def _box(x: np.ndarray, width: int) -> np.ndarray:
-    """Return the centred moving average of ``x`` over ``width`` samples (odd; 1: unchanged)."""
-    if width <= 1:
-        return x
-    c = np.concatenate(([0.0], np.cumsum(x)))
-    h = width // 2
-    i = np.arange(x.size)
-    lo, hi = np.clip(i - h, 0, x.size), np.clip(i + h + 1, 0, x.size)
-    return (c[hi] - c[lo]) / (hi - lo)
-
-
 def _signal_width(x: np.ndarray, ok: np.ndarray, most: int = 64) -> int:
     """
     Return the width (samples, odd) of a moving average that keeps motion but not noise.
@@ -123,18 +114,6 @@ def whole_sample_lag(sims: list, reals: list, oks: list, max_lag: int) -> int:
     lags = np.concatenate((np.arange(0, m + 1), np.arange(-m, 0)))
     vals = np.concatenate((acc[:m + 1], acc[nfft - m:]))
     return int(lags[int(np.argmax(vals))])
-
-
-def _shift_int(x: np.ndarray, k: int) -> np.ndarray:
-    """Return ``x`` delayed by ``k`` samples (``y[i] = x[i - k]``), zero-padded."""
-    if k == 0:
-        return x
-    y = np.zeros_like(x)
-    if k > 0:
-        y[k:] = x[:-k]
-    else:
-        y[:k] = x[-k:]
-    return y
 
 
 def shift_frac(x: np.ndarray, k: float) -> np.ndarray:
@@ -237,9 +216,9 @@ def estimate_delay(sims: list, reals: list, oks: list, dt: float, edges: np.ndar
     # a noisy simulation (a ground truth differentiated) is smoothed, both sides alike, to
     # the band where its motion stands above its noise: the delay survives a filter applied
     # to both, while the noise would otherwise pass for curvature of the fit
-    smooth = [_box(_gap_filled(_prep(x, ok), ok), _signal_width(x, ok))
+    smooth = [moving_average(_gap_filled(_prep(x, ok), ok), _signal_width(x, ok))
               for x, ok in zip(sims, oks)]
-    reals = [_box(_gap_filled(_prep(r, ok), ok), _signal_width(x, ok))
+    reals = [moving_average(_gap_filled(_prep(r, ok), ok), _signal_width(x, ok))
              for x, r, ok in zip(sims, reals, oks)]
     # the simulated channels are filled across their gaps before they are shifted: an edge
     # made by filling with zeros would ring into the valid samples around it

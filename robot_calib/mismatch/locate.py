@@ -25,16 +25,23 @@ import numpy as np
 
 
 def moving_average(x: np.ndarray, width: int) -> np.ndarray:
-    """Return the centred moving average of ``x`` over ``width`` samples (edges shrink)."""
+    """
+    Return the centred moving average of ``x`` over ``width`` samples, along axis 0.
+
+    The one moving average of the analyser (edges shrink: a window cut by an
+    end averages the samples it still holds). An even ``width`` takes one
+    sample more before than after; a ``width`` of 1 or less returns a copy.
+    Columns of a 2-D ``x`` are averaged independently.
+    """
     width = max(1, int(width))
     if width == 1 or x.size == 0:
         return x.copy()
-    c = np.concatenate(([0.0], np.cumsum(x)))
-    n = x.size
+    c = np.concatenate((np.zeros((1,) + x.shape[1:]), np.cumsum(x, axis=0)))
+    n = x.shape[0]
     i = np.arange(n)
     lo = np.clip(i - width // 2, 0, n)
     hi = np.clip(i + (width - width // 2), 0, n)
-    return (c[hi] - c[lo]) / (hi - lo)
+    return (c[hi] - c[lo]) / (hi - lo).reshape((n,) + (1,) * (x.ndim - 1))
 
 
 def noise_level(r: np.ndarray, mask: np.ndarray, dt: float,

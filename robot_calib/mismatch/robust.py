@@ -41,6 +41,7 @@ from typing import Optional
 import numpy as np
 
 from robot_calib.mismatch import select as S
+from robot_calib.mismatch.locate import moving_average
 from robot_calib.mismatch.problem import Problem
 
 GAIN_EFFECTS = ('gyro_scale', 'gyro_cross_axis', 'accel_scale')
@@ -224,16 +225,6 @@ def robust_prune(prob: Problem, sel: list, edges: np.ndarray, alpha: float,
     return out, dropped
 
 
-def _slow_part(x: np.ndarray, width: int) -> np.ndarray:
-    """Return the centred moving average of the columns of ``x`` over ``width`` samples."""
-    n = x.shape[0]
-    c = np.concatenate([np.zeros((1, x.shape[1])), np.cumsum(x, axis=0)])
-    half = width // 2
-    idx = np.arange(n)
-    i0, i1 = np.maximum(idx - half, 0), np.minimum(idx + half + 1, n)
-    return (c[i1] - c[i0]) / (i1 - i0)[:, None]
-
-
 def band_test(prob: Problem, sel: list, j: int, edges: np.ndarray, alpha: float,
               width_s: float) -> Optional[tuple]:
     """
@@ -248,7 +239,7 @@ def band_test(prob: Problem, sel: list, j: int, edges: np.ndarray, alpha: float,
     """
     t = sel[j]
     width = max(3, int(round(width_s / max(prob.pt.dt, 1e-9))) | 1)
-    slow = {f: _slow_part(c, width) for f, c in t.cols.items()}
+    slow = {f: moving_average(c, width) for f, c in t.cols.items()}
     parts = [t.with_cols(slow, f'{t.group}:slow'),
              t.with_cols({f: c - slow[f] for f, c in t.cols.items()}, f'{t.group}:fast')]
     model = sel[:j] + sel[j + 1:] + parts

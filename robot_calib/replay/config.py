@@ -19,7 +19,7 @@ import shutil
 import tempfile
 from typing import Any, Iterable, Mapping, Union
 
-from robot_calib import pipelines
+from robot_calib import methods
 from robot_calib.core.params import describe, flatten_nested, from_flat, ParamError
 from robot_calib.io.bags import normalize_topic
 from robot_calib.pipelines.base import Pipeline
@@ -137,7 +137,7 @@ def load_params_file(path: Union[str, os.PathLike, None]) -> dict[str, dict[str,
         name = node_of_key(node)
         # a section for another package's node is fine (one file may serve a whole robot);
         # one a letter or two away from ours is a typo that would silently do nothing
-        close = difflib.get_close_matches(name, list(pipelines.REGISTRY), 1, 0.85)
+        close = difflib.get_close_matches(name, list(methods.REGISTRY), 1, 0.85)
         if close and close[0] != name:
             raise ReplayError(f'parameter file {p}: node {node!r} is not a node of ours; '
                               f'did you mean {close[0]!r}?')
@@ -180,14 +180,14 @@ def resolve_node(spec: NodeSpec) -> tuple[str, type]:
         if cls is None:
             raise ReplayError(f'--nodes {spec}: module {module!r} has no class {attr!r}')
     else:
-        if spec not in pipelines.REGISTRY:
+        if spec not in methods.REGISTRY:
             raise ReplayError(f'unknown node {spec!r}; expected one of '
-                              f'{", ".join(pipelines.REGISTRY)} or package.module:Class')
-        if spec not in pipelines.available():
+                              f'{", ".join(methods.REGISTRY)} or package.module:Class')
+        if spec not in methods.available():
             raise ReplayError(f'node {spec!r} is not available in this installation '
-                              f'(available: {", ".join(pipelines.available()) or "none"})')
+                              f'(available: {", ".join(methods.available()) or "none"})')
         try:
-            cls = pipelines.load(spec)
+            cls = methods.load(spec)
         except Exception as exc:  # noqa: B902 - a broken module is reported, not raised
             raise ReplayError(f'node {spec!r} cannot be loaded: {type(exc).__name__}: '
                               f'{" ".join(str(exc).split())}') from None

@@ -15,7 +15,7 @@ from collections import defaultdict
 from dataclasses import dataclass
 from typing import Any, Callable, Optional, Sequence
 
-from robot_calib import codec, pipelines
+from robot_calib import codec, methods
 from robot_calib.core.series import Reservoir
 from robot_calib.io.bags import BagError, BagSet, normalize_topic
 from robot_calib.pipelines.base import Pipeline
@@ -83,8 +83,8 @@ def _candidates(nodes: Optional[Sequence[NodeSpec]]) -> tuple[list, dict[str, st
             raise ReplayError(f'node(s) {dup} given twice in --nodes')
         return candidates, skipped
     candidates = []
-    for name in pipelines.REGISTRY:
-        if name not in pipelines.available():
+    for name in methods.REGISTRY:
+        if name not in methods.available():
             skipped[name] = 'not installed (module missing)'
             continue
         try:

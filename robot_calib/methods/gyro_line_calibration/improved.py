@@ -5,7 +5,7 @@ Improved variant of ``gyro_line_calibration`` (``mode='improved'``, automatic).
 
 For robots that never announce a phase: an extended Kalman filter over
 ``[x, y, heading, gyro bias, gyro scale]`` (odometry and gyro predict,
-:mod:`.base`; a matched wall line updates angle and distance, here).
+:mod:`.variant_base`; a matched wall line updates angle and distance, here).
 References accumulate all the time: a line that matches nothing becomes a
 tentative reference, confirmed after it was seen again in several scans
 (people and other moving things are never confirmed). Each reference keeps
@@ -40,11 +40,11 @@ import numpy as np
 from robot_calib.core import types as T
 from robot_calib.core.geometry import rot2, wrap_angle, wrap_half_pi
 from robot_calib.core.lines import Line, line_from_endpoints
-from robot_calib.methods.gyro_line_calibration.base import GyroLineBase
 from robot_calib.methods.gyro_line_calibration.common import Correction, Reference
 from robot_calib.methods.gyro_line_calibration.improved_gate import (
     gate, gate_state, line_jacobian, line_model, line_noise, line_noise_diag, overlaps, prefilter,
     ref_arrays)
+from robot_calib.methods.gyro_line_calibration.variant_base import GyroLineBase
 
 _I2 = np.eye(2)
 _I5 = np.eye(5)

@@ -22,7 +22,7 @@ Seed-faithful variant of ``gyro_line_calibration`` (``mode='seed'``, seed 000 S1
   ``recalibration_length_ratio`` times as long as the first line, is the
   *second line* and is calibrated the same way.
 
-The input handling (heading, pose, scans, trust) is :mod:`.base`'s.
+The input handling (heading, pose, scans, trust) is :mod:`.variant_base`'s.
 """
 
 from __future__ import annotations
@@ -34,9 +34,9 @@ import numpy as np
 
 from robot_calib.core.geometry import wrap_half_pi
 from robot_calib.core.lines import Line
-from robot_calib.methods.gyro_line_calibration.base import GyroLineBase
 from robot_calib.methods.gyro_line_calibration.common import Correction
 from robot_calib.methods.gyro_line_calibration.params import MatchParams
+from robot_calib.methods.gyro_line_calibration.variant_base import GyroLineBase
 
 
 def condition2(ref: Line, new: Line, match: MatchParams) -> Optional[float]:

@@ -6,10 +6,10 @@ from __future__ import annotations
 
 from typing import Optional
 
-from robot_calib.methods.gyro_line_calibration.base import GyroLineBase
 from robot_calib.methods.gyro_line_calibration.improved import ImprovedGyroLine
 from robot_calib.methods.gyro_line_calibration.params import GyroLineParams
 from robot_calib.methods.gyro_line_calibration.seed import SeedGyroLine
+from robot_calib.methods.gyro_line_calibration.variant_base import GyroLineBase
 
 VARIANTS = {'seed': SeedGyroLine, 'improved': ImprovedGyroLine}
 """The estimator variant of each ``mode``."""

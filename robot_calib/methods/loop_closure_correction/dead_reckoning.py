@@ -4,7 +4,7 @@
 Loop closure's dead reckoning: heading from the gyro (or the odometry), distance from the wheels.
 
 :class:`DeadReckoning` is a mixin of
-:class:`robot_calib.methods.loop_closure_correction.corrector.LoopClosureBase`;
+:class:`robot_calib.methods.loop_closure_correction.variant_base.LoopClosureBase`;
 it expects of it ``params``, the raw pose ``raw`` (x m, y m, yaw rad), the
 learnt gyro terms (``gyro_bias``, ``gyro_bias_rate``, ``gyro_scale``,
 ``_bias_t``), the uncertainties ``sigma_yaw`` and ``sigma_xy``, ``path``,

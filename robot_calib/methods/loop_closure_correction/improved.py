@@ -25,9 +25,9 @@ from robot_calib.core.geometry import rot2, se2_compose, se2_inverse, wrap_angle
 from robot_calib.core.scan_match import MatchResult, PreparedScan, ScanMatchParams
 from robot_calib.methods.loop_closure_correction.common import (base_refusal, Candidate,
                                                                 Keyframe)
-from robot_calib.methods.loop_closure_correction.corrector import LoopClosureBase
 from robot_calib.methods.loop_closure_correction.gyro_filter import GyroErrorFilter
 from robot_calib.methods.loop_closure_correction.params import ScoringParams
+from robot_calib.methods.loop_closure_correction.variant_base import LoopClosureBase
 
 
 def refusal(best: Candidate, cands: list, pose: np.ndarray, sigma_xy: float,
@@ -67,7 +67,7 @@ class ImprovedLoopClosure(LoopClosureBase):
     """
     Loop-closure correction with refusals, map consistency and bias learning (Estimator).
 
-    See :class:`robot_calib.methods.loop_closure_correction.corrector.LoopClosureBase`
+    See :class:`robot_calib.methods.loop_closure_correction.variant_base.LoopClosureBase`
     for ``set_mounting``, ``update``, ``result`` and ``reset``.
     """
 

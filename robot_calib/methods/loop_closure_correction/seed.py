@@ -21,8 +21,8 @@ from robot_calib.core.geometry import se2_apply, se2_between, se2_compose, se2_i
 from robot_calib.core.scan_match import MatchResult, PreparedScan, ScanMatchParams
 from robot_calib.methods.loop_closure_correction.common import (base_refusal, Candidate,
                                                                 Keyframe)
-from robot_calib.methods.loop_closure_correction.corrector import LoopClosureBase
 from robot_calib.methods.loop_closure_correction.params import ScoringParams
+from robot_calib.methods.loop_closure_correction.variant_base import LoopClosureBase
 
 
 def centroid_heading(kf_pose: np.ndarray, kf_points: np.ndarray, cur_position: np.ndarray,
@@ -58,7 +58,7 @@ class SeedLoopClosure(LoopClosureBase):
     """
     Loop-closure correction as seed 001 describes it (Estimator protocol).
 
-    See :class:`robot_calib.methods.loop_closure_correction.corrector.LoopClosureBase`
+    See :class:`robot_calib.methods.loop_closure_correction.variant_base.LoopClosureBase`
     for ``set_mounting``, ``update``, ``result`` and ``reset``.
     """
 

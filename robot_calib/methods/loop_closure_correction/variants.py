@@ -6,10 +6,10 @@ from __future__ import annotations
 
 from typing import Optional
 
-from robot_calib.methods.loop_closure_correction.corrector import LoopClosureBase
 from robot_calib.methods.loop_closure_correction.improved import ImprovedLoopClosure
 from robot_calib.methods.loop_closure_correction.params import LoopClosureParams
 from robot_calib.methods.loop_closure_correction.seed import SeedLoopClosure
+from robot_calib.methods.loop_closure_correction.variant_base import LoopClosureBase
 
 VARIANTS: dict[str, type[LoopClosureBase]] = {
     SeedLoopClosure.mode: SeedLoopClosure,

@@ -44,9 +44,9 @@ from robot_calib.core.chi2 import chi2_ppf
 from robot_calib.core.geometry import wrap_scalar
 from robot_calib.methods.odometry_fusion.common import FusionOutput
 from robot_calib.methods.odometry_fusion.delay import DelayedOdometry
-from robot_calib.methods.odometry_fusion.filter_base import FusionFilter
 from robot_calib.methods.odometry_fusion.gravity import GravityTracker, WheelAcceleration
 from robot_calib.methods.odometry_fusion.improved_consistency import NisMonitor, NoiseAdapter
+from robot_calib.methods.odometry_fusion.variant_base import FusionFilter
 
 IX, IY, IYAW, IV, IBG, IBA, IKW, IKV = range(8)
 """Indices of the improved state."""

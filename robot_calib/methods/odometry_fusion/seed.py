@@ -21,7 +21,7 @@ import numpy as np
 from robot_calib.core import types as T
 from robot_calib.core.geometry import wrap_angle
 from robot_calib.methods.odometry_fusion.common import FusionOutput
-from robot_calib.methods.odometry_fusion.filter_base import FusionFilter
+from robot_calib.methods.odometry_fusion.variant_base import FusionFilter
 
 SX, SY, SVX, SVY, SAX, SAY = range(6)
 """Indices of the seed state."""

@@ -6,10 +6,10 @@ from __future__ import annotations
 
 from typing import Optional
 
-from robot_calib.methods.odometry_fusion.filter_base import FusionFilter, Log
 from robot_calib.methods.odometry_fusion.improved import ImprovedFusion
 from robot_calib.methods.odometry_fusion.params import FusionParams
 from robot_calib.methods.odometry_fusion.seed import SeedFusion
+from robot_calib.methods.odometry_fusion.variant_base import FusionFilter, Log
 
 
 VARIANTS = {'seed': SeedFusion, 'improved': ImprovedFusion}

@@ -31,11 +31,11 @@ from __future__ import annotations
 import math
 from typing import Optional
 
-from robot_calib.methods.tilt_detection.common import TiltEstimatorBase
 from robot_calib.methods.tilt_detection.lowpass import LowPass, LowPass3
 from robot_calib.methods.tilt_detection.params import ImprovedFilterParams
 from robot_calib.methods.tilt_detection.quaternion import (align_up, positive_w, qmul, qnorm,
                                                            qrot)
+from robot_calib.methods.tilt_detection.variant_base import TiltEstimatorBase
 
 
 class AttitudeEstimator:

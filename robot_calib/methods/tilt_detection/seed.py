@@ -20,9 +20,9 @@ from typing import Optional
 import numpy as np
 
 from robot_calib.core.geometry import quat_tuple_from_rpy
-from robot_calib.methods.tilt_detection.common import TiltEstimatorBase
 from robot_calib.methods.tilt_detection.params import SeedFilterParams
 from robot_calib.methods.tilt_detection.quaternion import positive_w, qrot, tilt_of
+from robot_calib.methods.tilt_detection.variant_base import TiltEstimatorBase
 
 
 class SeedKalmanAxis:

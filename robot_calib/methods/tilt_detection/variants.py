@@ -8,10 +8,11 @@ from typing import Any, Optional
 
 from robot_calib.core.types import imu_samples
 from robot_calib.methods.tilt_detection.common import (NOMINAL_PERIOD, nominal_period,
-                                                       outputs_as_arrays, TiltEstimatorBase)
+                                                       outputs_as_arrays)
 from robot_calib.methods.tilt_detection.improved import ImprovedTiltEstimator
 from robot_calib.methods.tilt_detection.params import TiltParams
 from robot_calib.methods.tilt_detection.seed import SeedTiltEstimator
+from robot_calib.methods.tilt_detection.variant_base import TiltEstimatorBase
 
 VARIANTS: dict[str, type[TiltEstimatorBase]] = {
     SeedTiltEstimator.mode: SeedTiltEstimator,

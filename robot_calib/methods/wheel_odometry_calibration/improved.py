@@ -20,7 +20,7 @@ from typing import Optional
 import numpy as np
 from robot_calib.methods.wheel_odometry_calibration.common import CalibResult
 from robot_calib.methods.wheel_odometry_calibration.solver import calibrate
-from robot_calib.methods.wheel_odometry_calibration.stream import StreamingCalibrator
+from robot_calib.methods.wheel_odometry_calibration.variant_base import StreamingCalibrator
 
 
 class ImprovedWheelCalibrator(StreamingCalibrator):

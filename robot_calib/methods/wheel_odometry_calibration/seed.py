@@ -15,7 +15,7 @@ from __future__ import annotations
 
 from robot_calib.methods.wheel_odometry_calibration.common import CalibResult
 from robot_calib.methods.wheel_odometry_calibration.solver import censi_result
-from robot_calib.methods.wheel_odometry_calibration.stream import StreamingCalibrator
+from robot_calib.methods.wheel_odometry_calibration.variant_base import StreamingCalibrator
 
 
 class SeedWheelCalibrator(StreamingCalibrator):

@@ -9,7 +9,7 @@ from typing import Any, Optional
 from robot_calib.methods.wheel_odometry_calibration.improved import ImprovedWheelCalibrator
 from robot_calib.methods.wheel_odometry_calibration.params import WheelCalibParams
 from robot_calib.methods.wheel_odometry_calibration.seed import SeedWheelCalibrator
-from robot_calib.methods.wheel_odometry_calibration.stream import StreamingCalibrator
+from robot_calib.methods.wheel_odometry_calibration.variant_base import StreamingCalibrator
 
 VARIANTS = {'seed': SeedWheelCalibrator, 'improved': ImprovedWheelCalibrator}
 """The estimator variant of each ``mode``."""
