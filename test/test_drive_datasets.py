@@ -100,3 +100,25 @@ def test_real_mrclam_and_woods(shared_data):
         assert 0.8 < np.median(np.diff(p.real['t'])) * D.RATE < 1.2
     w = D.woods_pair(shared_data / 'utias_lost_in_woods' / 'dataset2.mat', window=300.0)
     assert w.real['t'].size == 3000 and w.sim['t'].size > 2800
+
+
+def test_independent_fit_recovers_known_drive():
+    import drive_fit as F
+    rng = np.random.default_rng(3)
+    tc = np.cumsum(rng.uniform(0.5, 2.0, 60))
+    vc = rng.choice([0.0, 0.1, 0.2, 0.3], tc.size)
+    wc = rng.choice([-0.4, 0.0, 0.0, 0.2, 0.4], tc.size)
+    dt = 0.02
+    grid = np.arange(0.0, tc[-1], dt)
+    d, tau, g, k = 0.12, 0.2, 0.97, 1.1
+    u = F.held(tc, vc, grid - d) * (1 - k * np.abs(F.held(tc, wc, grid - d)))
+    v = g * F.lag(u, dt, tau) + 0.003 * rng.standard_normal(grid.size)
+    w = 1.02 * F.lag(F.held(tc, wc, grid - 0.06), dt, 0.15)
+    prm = F.FitParams(dead_max=0.3, tau_points=20)
+    fw = F.fit_axis('forward', tc, vc, wc, grid, v, prm)
+    assert fw['dead_time'] == pytest.approx(d, abs=0.02)
+    assert fw['tau'] == pytest.approx(tau, abs=0.02)
+    assert fw['gain'] == pytest.approx(g, abs=0.01) and fw['k'] == pytest.approx(k, abs=0.05)
+    tn = F.fit_axis('turn', tc, vc, wc, grid, w, prm)
+    assert tn['gain'] == pytest.approx(1.02, abs=0.01)
+    assert tn['dead_time'] + tn['tau'] == pytest.approx(0.21, abs=0.02)
