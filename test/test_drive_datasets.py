@@ -122,3 +122,28 @@ def test_independent_fit_recovers_known_drive():
     tn = F.fit_axis('turn', tc, vc, wc, grid, w, prm)
     assert tn['gain'] == pytest.approx(1.02, abs=0.01)
     assert tn['dead_time'] + tn['tau'] == pytest.approx(0.21, abs=0.02)
+
+
+def test_added_drive_effects_act_as_described():
+    import drive_added as DA
+    t = np.concatenate((np.arange(0.0, 10.0, 0.02), np.arange(11.0, 20.0, 0.02)))
+    step = (t > 2.0).astype(float)
+    f = {DA.FWD: 0.2 * step, DA.TURN: 0.4 * step}
+    cmd = {'t': np.array([0.0, 2.0, 15.0]), 'v': np.array([0.0, 0.2, 0.2]),
+           'w': np.array([0.0, 0.4, 0.01])}
+    e = {'effect': 'speed_scale', 'field': DA.FWD, 'parameters': {'scale': 0.08}}
+    assert np.allclose(DA.apply(t, f, e, cmd)[1][DA.FWD], 1.08 * f[DA.FWD])
+    e = {'effect': 'transport_delay', 'field': None, 'parameters': {'tau': 0.1}}
+    assert np.allclose(DA.apply(t, f, e, cmd)[0], t + 0.1)
+    e = {'effect': 'time_constant', 'field': DA.TURN, 'parameters': {'tau': 0.3}}
+    y = DA.apply(t, f, e, cmd)[1][DA.TURN]
+    i = np.searchsorted(t, 2.0 + 0.3)
+    assert y[i] == pytest.approx(0.4 * (1 - np.exp(-1)), abs=0.02)  # one time constant
+    assert y[np.searchsorted(t, 11.0)] == pytest.approx(0.4, abs=1e-3)  # restarts per stretch
+    e = {'effect': 'accel_limit', 'field': DA.FWD, 'parameters': {'limit': 0.1}}
+    y = DA.apply(t, f, e, cmd)[1][DA.FWD]
+    assert np.max(np.diff(y[:500])) <= 0.1 * 0.02 + 1e-12
+    assert y[np.searchsorted(t, 3.0)] == pytest.approx(0.1, abs=0.003)
+    e = {'effect': 'deadband', 'field': DA.TURN, 'parameters': {'band': 0.03}}
+    y = DA.apply(t, f, e, cmd, response=0.2)[1][DA.TURN]
+    assert np.all(y[(t > 15.25)] == 0.0) and np.all(y[(t > 12.0) & (t < 15.0)] == 0.4)
