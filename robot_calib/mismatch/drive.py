@@ -198,7 +198,7 @@ def fit_axis(u: np.ndarray, wabs: Optional[np.ndarray], y: np.ndarray, w: np.nda
     scale = float(np.percentile(np.abs(u[w]), 95)) if w.any() else 0.0
     if 'drive_deadband' in parts and scale > 0:
         best = (math.inf, m)
-        for f in (0.0, 0.01, 0.02, 0.04, 0.06, 0.08, 0.1, 0.13, 0.16, 0.2):
+        for f in (0.0, 0.01, 0.02, 0.04, 0.06, 0.08, 0.1, 0.13, 0.16, 0.2, 0.25, 0.3, 0.4):
             mm = replace(m, band=f * scale)
             c, s = _solve(regressors(u, wabs, dt, mm, coupled), y, w)
             if s < best[0]:
@@ -259,15 +259,19 @@ def analyse_drive(pt: PairedTopic, prm) -> Optional[DriveResult]:
     fields = [f for f in (V, W) if f in pt.sim and f in pt.real]
     if not fields or pt.t.size < 200:
         return None
-    dt = pt.dt
-    n = pt.t.size
+    # the parts are chosen and fitted on block averages of at least 10 Hz (cost)
+    q = max(1, min(pt.t.size // 4000, int(0.1 / max(pt.dt, 1e-9))))
+    dt = pt.dt * q
+    n = pt.t.size // q
     held = held_mask(n, prm.heldout_chunks)
     chunk = max(1, n // prm.heldout_chunks)
-    wabs = np.abs(_filled(pt.sim[W])) if W in pt.sim else None
+    sim_d = {f: _blocks(pt.sim[f], q, n) for f in fields}
+    real_d = {f: _blocks(pt.real[f], q, n) for f in fields}
+    wabs = np.abs(_filled(sim_d[W])) if W in sim_d else None
     out_models, found, sims = {}, [], {}
     for f in fields:
-        u, y = _filled(pt.sim[f]), pt.real[f]
-        ok = np.isfinite(pt.sim[f]) & np.isfinite(y)
+        u, y = _filled(sim_d[f]), real_d[f]
+        ok = np.isfinite(sim_d[f]) & np.isfinite(y)
         if ok.sum() < 100 or np.std(u[ok]) <= 0:
             continue
         yf = np.nan_to_num(y)
@@ -281,11 +285,13 @@ def analyse_drive(pt: PairedTopic, prm) -> Optional[DriveResult]:
     dyn = {p for m, _, _ in out_models.values() for p in m.parts} - {'drive_dead_time'}
     if not dyn:
         return None
+    wfull = np.abs(_filled(pt.sim[W])) if W in pt.sim else None
     for f, (model, stats, ok) in out_models.items():
-        wa = wabs if f == V else None
         u = _filled(pt.sim[f])
-        sims[f] = np.where(np.isfinite(pt.sim[f]), predict(u, wa, dt, model, gain=False), np.nan)
-        found.extend(_findings(pt, f, model, stats, ok, held, u, wa))
+        sims[f] = np.where(np.isfinite(pt.sim[f]), predict(u, wfull if f == V else None, pt.dt,
+                                                           model, gain=False), np.nan)
+        found.extend(_findings(pt, f, model, stats, ok, held, _filled(sim_d[f]), real_d[f],
+                               wabs if f == V else None, dt))
     text = describe({f: m for f, (m, _, _) in out_models.items()})
     for fd in found:
         fd['explanation'] += ' ' + text
@@ -311,7 +317,10 @@ def _eliminate(u, wa, yf, ok, held, chunk, dt, prm, parts: set, thr: float) -> t
         for p in sorted(cur):
             red = fit_axis(u, wa, yf, fitw, dt, prm.drive_max_dead_time, cur - {p})
             r_red = yf - predict(u, wa, dt, red)
-            dlt = (_chunk_sse(r_red, held, ok, chunk) - s_full)[has]
+            # log ratio per chunk: scale-free, so a few chunks of fast motion do not make the
+            # spread that hides a part every other chunk needs
+            s_red = _chunk_sse(r_red, held, ok, chunk)
+            dlt = np.log((s_red[has] + 1e-300) / (s_full[has] + 1e-300))
             se = float(np.std(dlt, ddof=1) / math.sqrt(dlt.size)) if dlt.size > 1 else math.inf
             z = float(np.mean(dlt) / se) if se > 0 else 0.0
             hb, ha = rmse(r_red, ok & held), rmse(r_full, ok & held)
@@ -333,22 +342,29 @@ _VALUE = {'drive_dead_time': ('tau', 's', lambda m: m.d),
           'turn_speed_loss': ('coefficient', 's/rad', lambda m: m.k)}
 
 
+def _blocks(x: np.ndarray, q: int, n: int) -> np.ndarray:
+    """Return the means of ``q`` consecutive samples (NaN where one is missing)."""
+    return x[:n * q].reshape(n, q).mean(axis=1) if q > 1 else x[:n].copy()
+
+
 def _findings(pt: PairedTopic, f: str, m: AxisModel, stats: dict, ok: np.ndarray,
-              held: np.ndarray, u: np.ndarray, wa: Optional[np.ndarray]) -> list:
+              held: np.ndarray, u: np.ndarray, yr: np.ndarray, wa: Optional[np.ndarray],
+              dt: float) -> list:
     """Return one finding per named part of the axis (contract keys, held-out fit)."""
     from robot_calib.mismatch.effects import separating_motion
     out = []
-    y = np.nan_to_num(pt.real[f])
-    r_full = y - predict(u, wa, pt.dt, m)
+    y = np.nan_to_num(yr)
+    r_full = y - predict(u, wa, dt, m)
     for p in sorted(m.parts):
         z, thr, nb, red, hb, ha, _ = stats[p]
-        r_red = y - predict(u, wa, pt.dt, red)
+        r_red = y - predict(u, wa, dt, red)
         fitd = {'rmse_before': rmse(r_red, ok & ~held), 'rmse_after': rmse(r_full, ok & ~held),
                 'heldout_rmse_before': hb, 'heldout_rmse_after': ha}
         key, unit, get = _VALUE[p]
         unit = unit or (UNIT[f] if p == 'drive_deadband' else UNIT[f] + '/s')
         val = float(get(m))
-        strength = 1.0 - (thr / max(z, 1e-12)) ** 2
+        # the part passed the test at drive_alpha; its strength grows from the 5 % bar
+        strength = 1.0 - (L.t_quantile(0.05, max(nb - 1, 1)) / max(z, 1e-12)) ** 2
         alts = []
         if p in ('drive_lag', 'drive_dead_time'):
             other = 'drive_dead_time' if p == 'drive_lag' else 'drive_lag'
