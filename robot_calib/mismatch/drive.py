@@ -31,18 +31,27 @@ import math
 from typing import Optional
 
 import numpy as np
-from scipy.signal import lfilter
 
+from robot_calib.mismatch import effects as E
 from robot_calib.mismatch import latency as L
 from robot_calib.mismatch.channels import ODOM_TYPE, PairedTopic
 from robot_calib.mismatch.findings import confidence, evidence
 from robot_calib.mismatch.problem import held_mask, rmse
+from scipy.signal import lfilter
 
 V, W = 'twist.twist.linear.x', 'twist.twist.angular.z'
 AXIS = {V: 'forward speed', W: 'turn rate'}
 UNIT = {V: 'm/s', W: 'rad/s'}
 PARTS = ('drive_dead_time', 'drive_lag', 'drive_deadband', 'drive_rate_limit',
          'turn_speed_loss')
+E.SEPARATE.update({
+    frozenset(('drive_deadband', 'drive_gain')): 'slow commands near zero beside fast ones '
+    'separate a deadband from a gain',
+    frozenset(('turn_speed_loss', 'drive_gain')): 'driving straight at the same speeds as in '
+    'the turns separates a turn-coupled speed loss from a speed gain',
+    frozenset(('drive_rate_limit', 'drive_lag')): 'large steps of the command beside small '
+    'ones separate an acceleration limit (binds on large steps only) from a lag',
+})
 _TAUS = np.concatenate(([0.0], np.geomspace(0.02, 2.0, 22)))
 
 
@@ -351,7 +360,6 @@ def _findings(pt: PairedTopic, f: str, m: AxisModel, stats: dict, ok: np.ndarray
               held: np.ndarray, u: np.ndarray, yr: np.ndarray, wa: Optional[np.ndarray],
               dt: float) -> list:
     """Return one finding per named part of the axis (contract keys, held-out fit)."""
-    from robot_calib.mismatch.effects import separating_motion
     out = []
     y = np.nan_to_num(yr)
     r_full = y - predict(u, wa, dt, m)
@@ -368,9 +376,10 @@ def _findings(pt: PairedTopic, f: str, m: AxisModel, stats: dict, ok: np.ndarray
         alts = []
         if p in ('drive_lag', 'drive_dead_time'):
             other = 'drive_dead_time' if p == 'drive_lag' else 'drive_lag'
-            alts_sep = separating_motion(p, other)
+            alts_sep = E.separating_motion(p, other)
         else:
-            alts_sep = separating_motion(p, 'drive_gain')
+            alts_sep = E.separating_motion(p, 'drive_lag' if p == 'drive_rate_limit'
+                                           else 'drive_gain')
         fd = {'channel': f'{pt.name}.{f}', 'effect': p, 'parameters': {key: val},
               'window': None, 'fit': fitd, 'units': {key: unit},
               'std': {key: float('nan')}, 'channels': [f'{pt.name}.{f}'],
