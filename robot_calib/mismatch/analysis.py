@@ -365,14 +365,6 @@ def _heldout_worse(weighted: dict) -> set:
 
 
 # -- findings -------------------------------------------------------------------------------
-def _without(pt: PairedTopic, fields: dict) -> PairedTopic:
-    """Return ``pt`` without ``fields`` (judged by the drive model, not the time stage)."""
-    keep = {k: v for k, v in pt.sim.items() if k not in fields}
-    return replace(pt, sim=keep, real={k: v for k, v in pt.real.items() if k in keep},
-                   sim_reg={k: v for k, v in pt.sim_reg.items() if k in keep},
-                   sim_noisy={k: v for k, v in pt.sim_noisy.items() if k in keep})
-
-
 def _drive_tau(drive: Optional[D.DriveResult]) -> float:
     """Return the forward axis' dead time plus lag (s) of a drive model, 0 without one."""
     m = drive.models.get(D.V) if drive is not None else None
@@ -387,23 +379,25 @@ def _analyse_topic(pt: PairedTopic, sim: Recording, real: Recording, t0: float,
         return [], None, [], {}
     edges = R.block_edges(prob0.n, pt.dt, prm.blocks, prm.min_block_s)
     acmd = _aux(sim, real, pt, t0, []).get('acmd') if pt.msgtype == ODOM_TYPE else None
-    drive = D.analyse_drive(pt, prm)
-    ptt, probt = pt, prob0
-    if drive is not None:  # the time stage judges the fields the drive model leaves
-        ptt = _without(pt, drive.sim)
-        probt = make_problem(ptt, prm.noise_smooth, None) if ptt.sim else None
-    timing = T.time_stage(ptt, probt, prm, edges, acmd) if probt is not None else []
-    findings = T.time_findings(ptt, probt, timing, prm, edges, acmd) if timing else []
-    if drive is not None:
-        findings = drive.findings + findings
-        channel_info.setdefault('_drive', {})[pt.name] = drive.text
+    timing = T.time_stage(pt, prob0, prm, edges, acmd)
+    findings = T.time_findings(pt, prob0, timing, prm, edges, acmd)
     taus = {}
     for kind, te, _ in timing:
         if kind in ('time_offset', 'timing_drift'):
             # a drifting delay too: its run-wide value is the best single alignment
             taus.update(T.field_taus(te, list(pt.sim)))
     pta = T.aligned(pt, taus)
+    # the drive chain, on the time stage's delays; when it names dynamics it replaces the
+    # time stage's lag on the speed and turn rate
+    drive = D.analyse_drive(pta, prm, _aux(sim, real, pta, t0, [], taus.get(T.SLIP_FIELD, 0.0))
+                            .get('acmd') if pt.msgtype == ODOM_TYPE else None)
     lags = [(te, info) for kind, te, info in timing if kind == 'drive_lag']
+    if drive is not None:
+        mine = {f'{pt.name}.{f}' for f in drive.sim}
+        findings = drive.findings + [f for f in findings if not (
+            f['effect'] == 'drive_lag' and mine & set(f.get('channels', [f['channel']])))]
+        lags = [(te, info) for te, info in lags if not set(te.fields) & set(drive.sim)]
+        channel_info.setdefault('_drive', {})[pt.name] = drive.text
     if lags:
         sim_l = dict(pta.sim)
         for te, info in lags:

@@ -57,7 +57,7 @@ _TAUS = np.concatenate(([0.0], np.geomspace(0.02, 2.0, 22)))
 
 @dataclass
 class AxisModel:
-    """One axis of the drive: dead time d (s), lag tau (s), band, rate limit, gain g, k (s/rad)."""
+    """One axis: dead time d, lag tau (s), band, rate limit, gain g, k (s/rad), slip (s^2/m)."""
 
     d: float = 0.0
     tau: float = 0.0
@@ -65,6 +65,7 @@ class AxisModel:
     limit: float = math.inf
     gain: float = 0.0
     k: float = 0.0
+    slip: float = 0.0
     parts: set = field(default_factory=set)
 
 
@@ -117,22 +118,40 @@ def _filled(x: np.ndarray) -> np.ndarray:
 
 
 def regressors(u: np.ndarray, wabs: Optional[np.ndarray], dt: float, m: AxisModel,
-               coupled: bool) -> np.ndarray:
-    """Return the response columns: [chain(u)] and, forward, [chain(u |omega|)]."""
+               coupled: bool, acmd: Optional[np.ndarray] = None) -> np.ndarray:
+    """
+    Return the response columns: chain(u); forward, chain(u |omega|) and slip.
+
+    The slip column is chain(u) times the commanded acceleration ``acmd``
+    through the same dead time and lag (m^2/s^3): wheel slip, fitted with the
+    dynamics so that the lag is not biased by it, judged by the amplitude stage.
+    """
     u1 = deadband(u, m.band)
     cols = [u1] + ([u1 * wabs] if coupled and wabs is not None else [])
-    out = [shift(lag(rate_limit(c, dt, m.limit), dt, m.tau), m.d, dt) for c in cols]
-    return np.column_stack(out)
+    out = [lag(rate_limit(c, dt, m.limit), dt, m.tau) for c in cols]
+    if acmd is not None:
+        out.append(out[0] * lag(acmd, dt, m.tau))
+    return shift(np.column_stack(out), m.d, dt)
 
 
 def predict(u: np.ndarray, wabs: Optional[np.ndarray], dt: float, m: AxisModel,
-            gain: bool = True) -> np.ndarray:
-    """Return the modelled real channel (exact chain, k applied before the rate limit)."""
+            gain: bool = True, acmd: Optional[np.ndarray] = None) -> np.ndarray:
+    """
+    Return the modelled real channel (exact chain, k applied before the rate limit).
+
+    ``gain``: with the steady-state gain and the slip term (False: the dynamics alone).
+    """
     u1 = deadband(u, m.band)
     if wabs is not None and m.k:
         u1 = u1 * (1.0 - m.k * wabs)
     y = shift(lag(rate_limit(u1, dt, m.limit), dt, m.tau), m.d, dt)
-    return (1.0 + m.gain) * y if gain else y
+    if not gain:
+        return y
+    y = (1.0 + m.gain) * y
+    if acmd is not None and m.slip:
+        y = y + m.slip * shift(lag(rate_limit(deadband(u, m.band), dt, m.limit), dt, m.tau) *
+                               lag(acmd, dt, m.tau), m.d, dt)
+    return y
 
 
 def _solve(X: np.ndarray, y: np.ndarray, w: np.ndarray) -> tuple[np.ndarray, float]:
@@ -146,35 +165,42 @@ def _solve(X: np.ndarray, y: np.ndarray, w: np.ndarray) -> tuple[np.ndarray, flo
     return c, max(yy - float(c @ b), 0.0)
 
 
-def _linear(m: AxisModel, c: np.ndarray) -> AxisModel:
+def _linear(m: AxisModel, c: np.ndarray, coupled: bool = False,
+            slip: bool = False) -> AxisModel:
     g = float(c[0]) - 1.0
-    k = float(-c[1] / c[0]) if c.size > 1 and c[0] != 0 else 0.0
-    return replace(m, gain=g, k=k)
+    k = float(-c[1] / c[0]) if coupled and c[0] != 0 else 0.0
+    return replace(m, gain=g, k=k, slip=float(c[-1]) if slip else 0.0)
 
 
 def _grid(u, wabs, y, w, dt, m: AxisModel, coupled: bool, max_d: float,
-          free: tuple = ('d', 'tau')) -> tuple[AxisModel, float]:
-    """Return the best (d, tau) on grids (others fixed) with g, k solved linearly."""
+          free: tuple = ('d', 'tau'), acmd=None) -> tuple[AxisModel, float]:
+    """Return the best (d, tau) on grids (others fixed) with g, k, slip solved linearly."""
     taus = _TAUS if 'tau' in free else [m.tau]
     step = max(1, int(round(0.04 / dt)))
     ds = [k * dt for k in range(0, int(max_d / dt) + 1, step)] if 'd' in free else [m.d]
-    rl = regressors(u, wabs, dt, replace(m, tau=0.0, d=0.0), coupled)
+    u1 = deadband(u, m.band)
+    cols = [u1] + ([u1 * wabs] if coupled and wabs is not None else [])
+    rl = np.column_stack([rate_limit(c, dt, m.limit) for c in cols])
     best = (math.inf, m)
     for tau in taus:
         base = lag(rl, dt, float(tau))
+        if acmd is not None:
+            base = np.column_stack((base, base[:, 0] * lag(acmd, dt, float(tau))))
         for d in ds:
             c, sse = _solve(shift(base, d, dt), y, w)
             if sse < best[0]:
-                best = (sse, _linear(replace(m, tau=float(tau), d=float(d)), c))
+                best = (sse, _linear(replace(m, tau=float(tau), d=float(d)), c, coupled,
+                                     acmd is not None))
     return best[1], best[0]
 
 
-def _refine(u, wabs, y, w, dt, m: AxisModel, coupled: bool, max_d: float) -> AxisModel:
+def _refine(u, wabs, y, w, dt, m: AxisModel, coupled: bool, max_d: float,
+            acmd=None) -> AxisModel:
     """Return ``m`` with d and tau refined between grid points (golden search, each in turn)."""
     from scipy.optimize import minimize_scalar
 
     def sse(mm: AxisModel) -> float:
-        return _solve(regressors(u, wabs, dt, mm, coupled), y, w)[1]
+        return _solve(regressors(u, wabs, dt, mm, coupled, acmd), y, w)[1]
 
     for _ in range(2):
         if 'd' in m.parts or m.d > 0:
@@ -187,12 +213,13 @@ def _refine(u, wabs, y, w, dt, m: AxisModel, coupled: bool, max_d: float) -> Axi
                                 bounds=(0.7 * m.tau, 1.4 * m.tau), method='bounded',
                                 options={'xatol': 1e-4})
             m = replace(m, tau=float(r.x))
-    c, _ = _solve(regressors(u, wabs, dt, m, coupled), y, w)
-    return _linear(m, c)
+    c, _ = _solve(regressors(u, wabs, dt, m, coupled, acmd), y, w)
+    return _linear(m, c, coupled, acmd is not None)
 
 
 def fit_axis(u: np.ndarray, wabs: Optional[np.ndarray], y: np.ndarray, w: np.ndarray,
-             dt: float, max_d: float, parts: set, refine: bool = False) -> AxisModel:
+             dt: float, max_d: float, parts: set, refine: bool = False,
+             acmd: Optional[np.ndarray] = None) -> AxisModel:
     """
     Fit the chain with only ``parts`` free (names of :data:`PARTS`); return the model.
 
@@ -202,16 +229,18 @@ def fit_axis(u: np.ndarray, wabs: Optional[np.ndarray], y: np.ndarray, w: np.nda
     coupled = 'turn_speed_loss' in parts and wabs is not None
     free = tuple(p for p, n in (('d', 'drive_dead_time'), ('tau', 'drive_lag')) if n in parts)
     m = AxisModel(parts=set(parts))
-    m, sse = _grid(u, wabs, y, w, dt, m, coupled, max_d, free) if free else \
-        (_linear(m, _solve(regressors(u, wabs, dt, m, coupled), y, w)[0]), 0.0)
+    slip = acmd is not None
+    m, sse = _grid(u, wabs, y, w, dt, m, coupled, max_d, free, acmd) if free else \
+        (_linear(m, _solve(regressors(u, wabs, dt, m, coupled, acmd), y, w)[0], coupled,
+                 slip), 0.0)
     scale = float(np.percentile(np.abs(u[w]), 95)) if w.any() else 0.0
     if 'drive_deadband' in parts and scale > 0:
         best = (math.inf, m)
         for f in (0.0, 0.01, 0.02, 0.04, 0.06, 0.08, 0.1, 0.13, 0.16, 0.2, 0.25, 0.3, 0.4):
             mm = replace(m, band=f * scale)
-            c, s = _solve(regressors(u, wabs, dt, mm, coupled), y, w)
+            c, s = _solve(regressors(u, wabs, dt, mm, coupled, acmd), y, w)
             if s < best[0]:
-                best = (s, _linear(mm, c))
+                best = (s, _linear(mm, c, coupled, slip))
         m = best[1]
     if 'drive_rate_limit' in parts and scale > 0:
         jumps = np.abs(np.diff(u))
@@ -220,14 +249,14 @@ def fit_axis(u: np.ndarray, wabs: Optional[np.ndarray], y: np.ndarray, w: np.nda
         best = (math.inf, m)
         for ramp in (0.0, 0.05, 0.1, 0.2, 0.3, 0.45, 0.65, 0.9, 1.3, 2.0):
             mm = replace(m, limit=step / ramp if ramp > 0 else math.inf)
-            c, s = _solve(regressors(u, wabs, dt, mm, coupled), y, w)
+            c, s = _solve(regressors(u, wabs, dt, mm, coupled, acmd), y, w)
             if s < best[0]:
-                best = (s, _linear(mm, c))
+                best = (s, _linear(mm, c, coupled, slip))
         m = best[1]
     if free and (m.band > 0 or math.isfinite(m.limit)):
-        m, _ = _grid(u, wabs, y, w, dt, m, coupled, max_d, free)
+        m, _ = _grid(u, wabs, y, w, dt, m, coupled, max_d, free, acmd)
     if refine and free:
-        m = _refine(u, wabs, y, w, dt, m, coupled, max_d)
+        m = _refine(u, wabs, y, w, dt, m, coupled, max_d, acmd)
     m.parts = set(parts)
     return m
 
@@ -255,13 +284,15 @@ class DriveResult:
     text: str
 
 
-def analyse_drive(pt: PairedTopic, prm) -> Optional[DriveResult]:
+def analyse_drive(pt: PairedTopic, prm,
+                  acmd: Optional[np.ndarray] = None) -> Optional[DriveResult]:
     """
     Fit the drive chain to an odometry topic; return it when any dynamic part is named.
 
     None when the topic has no forward or turn channel, when nothing beyond a
     pure delay (which the time stage judges) is named, or when the drive
-    model is off (``prm.drive_model``).
+    model is off (``prm.drive_model``). ``acmd``: the commanded acceleration
+    on the topic's grid (m/s^2), for the slip fitted beside the forward axis.
     """
     if not getattr(prm, 'drive_model', True) or pt.msgtype != ODOM_TYPE or prm.mode == 'seed':
         return None
@@ -277,6 +308,7 @@ def analyse_drive(pt: PairedTopic, prm) -> Optional[DriveResult]:
     sim_d = {f: _blocks(pt.sim[f], q, n) for f in fields}
     real_d = {f: _blocks(pt.real[f], q, n) for f in fields}
     wabs = np.abs(_filled(sim_d[W])) if W in sim_d else None
+    acd = np.nan_to_num(_blocks(acmd, q, n)) if acmd is not None and V in fields else None
     out_models, found, sims = {}, [], {}
     for f in fields:
         u, y = _filled(sim_d[f]), real_d[f]
@@ -288,8 +320,10 @@ def analyse_drive(pt: PairedTopic, prm) -> Optional[DriveResult]:
         parts = _axis_parts(f, wa is not None)
         nchunks = int(np.count_nonzero(np.bincount(np.flatnonzero(held & ok) // chunk)))
         thr = L.t_quantile(prm.drive_alpha, max(nchunks - 1, 1))
-        named, stats = _eliminate(u, wa, yf, ok, held, chunk, dt, prm, parts, thr)
-        model = fit_axis(u, wa, yf, ok, dt, prm.drive_max_dead_time, named, refine=True)
+        ac = acd if f == V else None
+        named, stats = _eliminate(u, wa, yf, ok, held, chunk, dt, prm, parts, thr, ac)
+        model = fit_axis(u, wa, yf, ok, dt, prm.drive_max_dead_time, named, refine=True,
+                         acmd=ac)
         out_models[f] = (model, stats, ok)
     dyn = {p for m, _, _ in out_models.values() for p in m.parts} - {'drive_dead_time'}
     if not dyn:
@@ -300,14 +334,15 @@ def analyse_drive(pt: PairedTopic, prm) -> Optional[DriveResult]:
         sims[f] = np.where(np.isfinite(pt.sim[f]), predict(u, wfull if f == V else None, pt.dt,
                                                            model, gain=False), np.nan)
         found.extend(_findings(pt, f, model, stats, ok, held, _filled(sim_d[f]), real_d[f],
-                               wabs if f == V else None, dt))
+                               wabs if f == V else None, dt, acd if f == V else None))
     text = describe({f: m for f, (m, _, _) in out_models.items()})
     for fd in found:
         fd['explanation'] += ' ' + text
     return DriveResult({f: m for f, (m, _, _) in out_models.items()}, found, sims, text)
 
 
-def _eliminate(u, wa, yf, ok, held, chunk, dt, prm, parts: set, thr: float) -> tuple:
+def _eliminate(u, wa, yf, ok, held, chunk, dt, prm, parts: set, thr: float,
+               acmd=None) -> tuple:
     """
     Backward elimination of the drive's parts by the held-out chunk test; return (named, stats).
 
@@ -318,14 +353,14 @@ def _eliminate(u, wa, yf, ok, held, chunk, dt, prm, parts: set, thr: float) -> t
     fitw = ok & ~held
     cur = set(parts)
     while True:
-        full = fit_axis(u, wa, yf, fitw, dt, prm.drive_max_dead_time, cur)
-        r_full = yf - predict(u, wa, dt, full)
+        full = fit_axis(u, wa, yf, fitw, dt, prm.drive_max_dead_time, cur, acmd=acmd)
+        r_full = yf - predict(u, wa, dt, full, acmd=acmd)
         s_full = _chunk_sse(r_full, held, ok, chunk)
         has = np.bincount(np.flatnonzero(held & ok) // chunk, minlength=s_full.size) > 0
         stats = {}
         for p in sorted(cur):
-            red = fit_axis(u, wa, yf, fitw, dt, prm.drive_max_dead_time, cur - {p})
-            r_red = yf - predict(u, wa, dt, red)
+            red = fit_axis(u, wa, yf, fitw, dt, prm.drive_max_dead_time, cur - {p}, acmd=acmd)
+            r_red = yf - predict(u, wa, dt, red, acmd=acmd)
             # log ratio per chunk: scale-free, so a few chunks of fast motion do not make the
             # spread that hides a part every other chunk needs
             s_red = _chunk_sse(r_red, held, ok, chunk)
@@ -358,14 +393,14 @@ def _blocks(x: np.ndarray, q: int, n: int) -> np.ndarray:
 
 def _findings(pt: PairedTopic, f: str, m: AxisModel, stats: dict, ok: np.ndarray,
               held: np.ndarray, u: np.ndarray, yr: np.ndarray, wa: Optional[np.ndarray],
-              dt: float) -> list:
+              dt: float, acmd: Optional[np.ndarray] = None) -> list:
     """Return one finding per named part of the axis (contract keys, held-out fit)."""
     out = []
     y = np.nan_to_num(yr)
-    r_full = y - predict(u, wa, dt, m)
+    r_full = y - predict(u, wa, dt, m, acmd=acmd)
     for p in sorted(m.parts):
         z, thr, nb, red, hb, ha, _ = stats[p]
-        r_red = y - predict(u, wa, dt, red)
+        r_red = y - predict(u, wa, dt, red, acmd=acmd)
         fitd = {'rmse_before': rmse(r_red, ok & ~held), 'rmse_after': rmse(r_full, ok & ~held),
                 'heldout_rmse_before': hb, 'heldout_rmse_after': ha}
         key, unit, get = _VALUE[p]
