@@ -267,9 +267,23 @@ def _chunk_sse(r: np.ndarray, held: np.ndarray, ok: np.ndarray, chunk: int) -> n
     return np.bincount(idx // chunk, weights=r[idx] ** 2, minlength=r.size // chunk + 1)
 
 
-def _axis_parts(f: str, has_w: bool) -> set:
+def _axis_parts(f: str, u: np.ndarray, wabs: Optional[np.ndarray], ok: np.ndarray) -> set:
+    """
+    Return the parts the motion can separate on field ``f``.
+
+    The turn speed loss ``-k u |omega|`` is told from a gain ``g u`` only when
+    ``|omega|`` varies while the robot drives: when the part of ``u |omega|``
+    that ``u`` does not explain is under 5 % of its RMS (a constant turn rate,
+    or no turning), the two are the same regressor and the loss is not fitted.
+    """
     parts = set(PARTS)
-    if f != V or not has_w:
+    if f != V or wabs is None:
+        parts.discard('turn_speed_loss')
+        return parts
+    x, c = u[ok], (u * wabs)[ok]
+    uu = float(x @ x)
+    left = c - x * (float(x @ c) / uu) if uu > 0 else c
+    if float(np.sqrt(np.mean(left ** 2))) < 0.05 * float(np.sqrt(np.mean(c ** 2))) + 1e-12:
         parts.discard('turn_speed_loss')
     return parts
 
@@ -317,7 +331,7 @@ def analyse_drive(pt: PairedTopic, prm,
             continue
         yf = np.nan_to_num(y)
         wa = wabs if f == V else None
-        parts = _axis_parts(f, wa is not None)
+        parts = _axis_parts(f, u, wa, ok)
         nchunks = int(np.count_nonzero(np.bincount(np.flatnonzero(held & ok) // chunk)))
         thr = L.t_quantile(prm.drive_alpha, max(nchunks - 1, 1))
         ac = acd if f == V else None
