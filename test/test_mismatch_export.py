@@ -61,10 +61,14 @@ def test_mismatch_writes_settings_that_follow_takes(pair, capsys):
     text = (out / 'sim_params.yaml').read_text()
     assert str(real) in text and str(ideal) in text
     found = json.loads((out / 'findings.json').read_text())
-    # every named drive lag is carried into the simulator's drive
-    for f in found['findings']:
-        if f['effect'] == 'drive_lag' and not f['window']:
-            assert params['sim']['drive']['linear_time_constant'] >= f['parameters']['tau'] - 1e-9
+    # every named drive lag is carried into the simulator's drive, on its own axis
+    lags = [f for f in found['findings'] if f['effect'] == 'drive_lag' and not f['window']]
+    assert lags
+    for axis in ('linear', 'angular'):
+        taus = [f['parameters']['tau'] for f in lags
+                if f['channel'].endswith('angular.z') == (axis == 'angular')]
+        if taus:  # one odometry topic per axis is carried (ground truth first)
+            assert params['sim']['drive'][f'{axis}_time_constant'] >= min(taus) - 1e-9
     corrected = d / 'corrected'
     assert cli.main(['simulate', 'follow', str(real), '--out', str(corrected), '--params',
                      str(out / 'sim_params.yaml')]) == 0

@@ -52,6 +52,7 @@ from typing import Optional
 
 import numpy as np
 
+from robot_calib.mismatch import drive as D
 from robot_calib.mismatch import effects as E
 from robot_calib.mismatch import latency as L
 from robot_calib.mismatch import residual as U
@@ -375,9 +376,11 @@ class TimeStage:
 
     ``delays``: ``[(effect, estimate, info)]`` (time offset, drift, drive lag);
     ``findings``: their findings; ``aligned``: the topic with the simulation
-    delayed by them; ``problem``: its residual problem (None: nothing left to
-    judge); ``taus``: the delay per field (s); ``lag_tau``: the drive lag of the
-    wheel-slip channel (s, 0 without one).
+    delayed by them and, where the drive chain names dynamics, the speed and turn
+    rate replaced by its output (:mod:`.drive`); ``problem``: its residual
+    problem (None: nothing left to judge); ``taus``: the delay per field (s);
+    ``lag_tau``: the drive lag of the wheel-slip channel (s, 0 without one);
+    ``drive``: the drive chain (None when it names nothing).
     """
 
     delays: list
@@ -386,6 +389,7 @@ class TimeStage:
     problem: Optional[Problem]
     taus: dict
     lag_tau: float
+    drive: Optional[D.DriveResult] = None
 
 
 @dataclass
@@ -415,11 +419,18 @@ class TopicResult:
     findings: list
     delays: list
     detail: Optional[TopicDetail]
+    drive_text: str = ''
+
+
+def _drive_tau(drive: Optional[D.DriveResult]) -> float:
+    """Return the forward axis' dead time plus lag (s) of a drive model, 0 without one."""
+    m = drive.models.get(D.V) if drive is not None else None
+    return float(m.d + m.tau) if m is not None else 0.0
 
 
 def _align_time(pt: PairedTopic, prob0: Problem, sim: Recording, real: Recording, t0: float,
                 prm: MismatchParams, edges: np.ndarray) -> TimeStage:
-    """Step 1: judge delays and the drive lag; return the topic with the simulation delayed."""
+    """Step 1: judge delays and the drive's dynamics; return the topic with the sim delayed."""
     acmd = _aux(sim, real, pt, t0, []).get('acmd') if pt.msgtype == ODOM_TYPE else None
     delays = timing.time_stage(pt, prob0, prm, edges, acmd)
     findings = timing.time_findings(pt, prob0, delays, prm, edges, acmd)
@@ -429,15 +440,28 @@ def _align_time(pt: PairedTopic, prob0: Problem, sim: Recording, real: Recording
             # a drifting delay too: its run-wide value is the best single alignment
             taus.update(timing.field_taus(te, list(pt.sim)))
     aligned = timing.aligned(pt, taus)
+    # the drive chain, on the clock delays; when it names dynamics it replaces the time
+    # stage's lag on the speed and turn rate
+    drive = D.analyse_drive(aligned, prm, _aux(sim, real, aligned, t0, [],
+                                               taus.get(timing.SLIP_FIELD, 0.0)).get('acmd')
+                            if pt.msgtype == ODOM_TYPE else None)
     lags = [(te, info) for kind, te, info in delays if kind == 'drive_lag']
+    if drive is not None:
+        mine = {f'{pt.name}.{f}' for f in drive.sim}
+        findings = drive.findings + [f for f in findings if not (
+            f['effect'] == 'drive_lag' and mine & set(f.get('channels', [f['channel']])))]
+        lags = [(te, info) for te, info in lags if not set(te.fields) & set(drive.sim)]
     if lags:
         sim_l = dict(aligned.sim)
         for te, info in lags:
             sim_l.update({f: timing.lagged(pt, f, info['lag_tau']) for f in te.fields})
         aligned = replace(aligned, sim=sim_l, sim_reg={}, sim_noisy={})
-    prob = make_problem(aligned, prm.noise_smooth, None) if (taus or lags) else prob0
-    lag_tau = next((info['lag_tau'] for te, info in lags if timing.SLIP_FIELD in te.fields), 0.0)
-    return TimeStage(delays, findings, aligned, prob, taus, lag_tau)
+    if drive is not None:  # the drive's dynamics replace the simulated speed and turn rate
+        aligned = replace(aligned, sim={**aligned.sim, **drive.sim}, sim_reg={}, sim_noisy={})
+    prob = make_problem(aligned, prm.noise_smooth, None) if (taus or lags or drive) else prob0
+    lag_tau = next((info['lag_tau'] for te, info in lags if timing.SLIP_FIELD in te.fields),
+                   _drive_tau(drive))
+    return TimeStage(delays, findings, aligned, prob, taus, lag_tau, drive)
 
 
 def _build_candidates(stage: TimeStage, sim: Recording, real: Recording, t0: float,
@@ -508,8 +532,9 @@ def _analyse_topic(pt: PairedTopic, sim: Recording, real: Recording, t0: float,
         return TopicResult([], [], None)
     edges = R.block_edges(prob0.n, pt.dt, prm.blocks, prm.min_block_s)
     stage = _align_time(pt, prob0, sim, real, t0, prm, edges)
+    text = stage.drive.text if stage.drive is not None else ''
     if stage.problem is None:
-        return TopicResult(list(stage.findings), [], None)  # as no topic detail: no delays
+        return TopicResult(list(stage.findings), [], None, text)  # no topic detail: no delays
     cands, aux = _build_candidates(stage, sim, real, t0, notes)
     sel, prob, implausible = _select(stage.problem, cands, prm, edges, notes, not_judged)
     check = _check_held_out(prob, sel, cands, prm, edges)
@@ -519,7 +544,7 @@ def _analyse_topic(pt: PairedTopic, sim: Recording, real: Recording, t0: float,
     findings = list(stage.findings) + term_findings + ([extra] if extra is not None else [])
     detail = TopicDetail(pt, prob0, prob, sel, check.final, term_findings,
                          list(stage.findings), extra, held_mask(prob.n, prm.heldout_chunks))
-    return TopicResult(findings, stage.delays, detail)
+    return TopicResult(findings, stage.delays, detail, text)
 
 
 # -- across topics ------------------------------------------------------------------------
@@ -590,6 +615,7 @@ def analyse_recordings(sim: Recording, real: Recording,
     details: list = []
     channel_info: dict = {}
     alignment: dict = {}
+    drive_text: dict = {}
     for pt in paired:
         notes.extend(pt.notes)
         res = _analyse_topic(pt, sim, real, t0, prm, notes, not_judged, channel_info)
@@ -598,6 +624,8 @@ def analyse_recordings(sim: Recording, real: Recording,
                                           'tau': te.delay.tau, 'std': te.delay.std}
                                          for kind, te, _ in res.delays]}
         findings.extend(res.findings)
+        if res.drive_text:
+            drive_text[pt.name] = res.drive_text
         if res.detail is not None:
             details.append(res.detail)
     findings = reconcile(findings, notes)
@@ -611,6 +639,7 @@ def analyse_recordings(sim: Recording, real: Recording,
     out = {'verdict': 'mismatch' if findings else 'consistent',
            'findings': findings, 'minor_findings': minor, 'weak_findings': weak,
            'time_alignment': {'clock': clock.as_dict(), **alignment},
+           'drive': drive_text,
            'channels': channel_info,
            'not_judged': not_judged, 'notes': notes, 'bag_start': t0}
     return out, details

@@ -1,0 +1,99 @@
+# Copyright 2026 robot_calib contributors
+# SPDX-License-Identifier: Apache-2.0
+"""The drive chain of the mismatch analyser: known drive effects found, none on a null pair."""
+
+from pathlib import Path
+import sys
+
+import numpy as np
+import pytest
+
+from robot_calib.mismatch import analyse_recordings
+from robot_calib.mismatch import drive as D
+from robot_calib.mismatch.channels import ODOM_TYPE, Topic
+
+DATA = Path(__file__).resolve().parents[1] / '..' / 'shared' / 'data' / 'mrclam'
+if not DATA.is_dir():
+    DATA = Path('/work/shared/data/mrclam')
+
+
+def _commands(seed: int, duration: float = 240.0, rate: float = 50.0):
+    """Return t, v, omega: held commands (1-4 s), stops, straight runs and turns both ways."""
+    rng = np.random.default_rng(seed)
+    t = np.arange(0.0, duration, 1.0 / rate)
+    edges = np.cumsum(rng.uniform(1.0, 4.0, int(duration)))
+    k = np.searchsorted(edges, t)
+    vs = np.where(rng.random(k.max() + 1) < 0.15, 0.0, rng.uniform(0.05, 0.35, k.max() + 1))
+    ws = np.where(rng.random(k.max() + 1) < 0.3, 0.0, rng.uniform(-0.7, 0.7, k.max() + 1))
+    return t, vs[k], ws[k]
+
+
+def _pair(seed: int, fwd: D.AxisModel, turn: D.AxisModel, noise=(0.004, 0.01)):
+    t, v, w = _commands(seed)
+    dt = t[1] - t[0]
+    rng = np.random.default_rng(seed + 100)
+    rv = D.predict(v, np.abs(w), dt, fwd) + noise[0] * rng.standard_normal(t.size)
+    rw = D.predict(w, None, dt, turn) + noise[1] * rng.standard_normal(t.size)
+
+    def rec(a, b):
+        return {'/odom': Topic('/odom', ODOM_TYPE, t, {D.V: a, D.W: b})}
+    return rec(v, w), rec(rv, rw)
+
+
+def _found(res: dict, effect: str, field: str) -> float:
+    for f in res['findings']:
+        if f['effect'] == effect and f['channel'].endswith(field):
+            return float(next(iter(f['parameters'].values())))
+    return float('nan')
+
+
+CASES = [
+    ('drive_lag', D.V, D.AxisModel(tau=0.35), D.AxisModel(tau=0.25), 0.35),
+    ('drive_lag', D.W, D.AxisModel(tau=0.35), D.AxisModel(tau=0.25), 0.25),
+    ('turn_speed_loss', D.V, D.AxisModel(tau=0.3, k=1.1), D.AxisModel(tau=0.25), 1.1),
+    ('drive_dead_time', D.W, D.AxisModel(tau=0.3), D.AxisModel(d=0.15, tau=0.2), 0.15),
+    pytest.param('drive_deadband', D.W, D.AxisModel(tau=0.3), D.AxisModel(tau=0.2, band=0.15),
+                 0.15, marks=pytest.mark.xfail(reason='known limit: the band is fitted (0.166) '
+                                               'but the chunk test (z 2.8-3.1) does not name it')),
+    ('drive_rate_limit', D.V, D.AxisModel(tau=0.1, limit=0.25), D.AxisModel(tau=0.2), 0.25),
+]
+
+
+@pytest.mark.parametrize('effect,field,fwd,turn,want', CASES)
+def test_drive_effect_found(effect, field, fwd, turn, want):
+    sim, real = _pair(3, fwd, turn)
+    res, _ = analyse_recordings(sim, real)
+    got = _found(res, effect, field)
+    assert abs(got - want) <= 0.25 * want, (effect, got, res['drive'])
+    assert 'Drive model' in res['drive']['/odom']
+
+
+def test_drive_null_pair_has_no_finding():
+    sim, real = _pair(5, D.AxisModel(), D.AxisModel())
+    res, _ = analyse_recordings(sim, real)
+    assert res['findings'] == [], [(f['effect'], f['parameters']) for f in res['findings']]
+
+
+def test_chain_pieces():
+    u = np.r_[np.zeros(10), np.ones(100)]
+    assert np.allclose(D.deadband(np.array([0.05, -0.2]), 0.1), [0.0, -0.2])
+    assert np.max(np.diff(D.rate_limit(u, 0.02, 1.0))) <= 0.02 + 1e-12
+    y = D.lag(u, 0.02, 0.2)
+    assert abs(y[10 + 10] - (1 - np.exp(-11 * 0.02 / 0.2))) < 1e-9
+    assert np.allclose(D.shift(u, 0.1, 0.02)[:15], 0.0)
+
+
+@pytest.mark.skipif(not DATA.is_dir(), reason='MR.CLAM data not available')
+def test_mrclam_names_lag_and_turn_speed_loss():
+    """Each 300 s window: the turn speed loss of the independent fit (0.99-1.12 s/rad)."""
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / 'benchmarks'))
+    import drive_pairs as DP
+    lags = 0
+    for p in DP.mrclam_pairs(DATA):
+        sim, real = DP.recordings(p)
+        res, _ = analyse_recordings(sim, real)
+        k = _found(res, 'turn_speed_loss', D.V)
+        assert 0.8 <= k <= 1.5, res['drive']
+        lags += 'time constant' in res['drive']['/odom']
+    # the forward lag is missed where the time stage took the turn rate's delay as a drift
+    assert lags >= 3
