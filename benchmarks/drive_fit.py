@@ -51,7 +51,7 @@ def held(t_cmd: np.ndarray, x: np.ndarray, t: np.ndarray) -> np.ndarray:
 
 
 def lag(u: np.ndarray, dt: float, tau: float) -> np.ndarray:
-    """Return the first-order lag (time constant ``tau`` s) of a held input ``u``."""
+    """Return a held input ``u`` passed through a first-order filter of time constant ``tau`` s."""
     if tau <= 1e-6:
         return u.copy()
     a = np.exp(-dt / tau)

@@ -209,7 +209,7 @@ def woods_pair(path: Optional[Path] = None, window: Optional[float] = None,
 
 
 def recordings(pair: DrivePair, odom: str = '/odom', cmd: str = '/cmd_vel') -> tuple:
-    """Return (sim, real) as analyser recordings (``{topic: Topic}``); the commands go real."""
+    """Return the pair as (sim, real) ``{topic: Topic}`` dicts; the commands go with the real."""
     def topic(d: dict, kernels: dict) -> Topic:
         return Topic(odom, ODOM_TYPE, np.asarray(d['t'], float),
                      {'twist.twist.linear.x': np.asarray(d['v'], float),
