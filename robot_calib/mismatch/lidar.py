@@ -450,7 +450,7 @@ def _mount_findings(ms, mr, sim, real, hs, hr, tau_s, tau_r, held, topic, window
         out.append({'channel': f'{topic}.mounting', 'effect': effect,
                     'parameters': {k: float(v) for k, v in d.items()},
                     'std': {k: float(v) for k, v in se.items()}, 'window': window,
-                    'fit': _fit_dict(*res), 'confidence': _confidence(z, prm.z_min),
+                    'fit': _fit_dict(res[0], res[2], res[1], res[3]), 'confidence': _confidence(z, prm.z_min),
                     'evidence': {'z': float(z)}, 'explanation': txt})
     return out
 
@@ -500,3 +500,30 @@ def analyse_lidar(sim_scans: dict, real_scans: dict, sim_odom: Optional[tuple],
         findings.extend(beam + motion)
     notes.append('scan_distortion (an uncorrected sweep) is not estimated by this version')
     return {'findings': findings, 'not_judged': not_judged, 'notes': notes, 'judged': judged}
+
+
+def _odom_of(rec: dict) -> Optional[tuple]:
+    """Return ``(t, vx, wz)`` of a recording's odometry (ground truth last), or None."""
+    from robot_calib.mismatch.channels import ODOM_TYPE
+    odoms = [tp for tp in rec.values() if tp.msgtype == ODOM_TYPE and len(tp) > 10 and
+             'twist.twist.linear.x' in tp.fields]
+    odoms.sort(key=lambda tp: ('truth' in tp.name, tp.name))
+    if not odoms:
+        return None
+    o = odoms[0]
+    ok = np.isfinite(o.fields['twist.twist.linear.x']) & np.isfinite(o.fields['twist.twist.angular.z'])
+    return o.t[ok], o.fields['twist.twist.linear.x'][ok], o.fields['twist.twist.angular.z'][ok]
+
+
+def merge_into(findings: dict, sim_bag, real_bag, sim_rec: dict, real_rec: dict,
+               prm: Optional[LidarMismatchParams] = None) -> None:
+    """Add the lidar comparison of two bags to a findings dict (findings, verdict, not_judged)."""
+    ss, rs = read_scans(sim_bag), read_scans(real_bag)
+    if not ss and not rs:
+        return
+    res = analyse_lidar(ss, rs, _odom_of(sim_rec), _odom_of(real_rec), prm)
+    findings['findings'].extend(res['findings'])
+    findings.setdefault('not_judged', []).extend(res['not_judged'])
+    findings.setdefault('notes', []).extend(res['notes'])
+    findings['lidar'] = {'judged': res['judged']}
+    findings['verdict'] = 'mismatch' if findings['findings'] else 'consistent'

@@ -228,7 +228,7 @@ def _step(r: np.ndarray, y: np.ndarray, q: float, cands: np.ndarray) -> tuple:
         k = r >= c
         if k.sum() < 50:
             continue
-        p1 = min(max(float(y[k].mean()), q), 1 - 1e-6)
+        p1 = min(max(float(y[k].mean()), q, 1e-6), 1 - 1e-6)
         p0 = min(max(float(y[~k].mean()) if (~k).any() else q, 1e-6), 1 - 1e-6)
         ll = float(np.sum(np.where(k, y * np.log(p1) + (1 - y) * np.log(1 - p1),
                                    y * np.log(p0) + (1 - y) * np.log(1 - p0))))
