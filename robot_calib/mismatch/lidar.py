@@ -220,7 +220,7 @@ def base_motion(m: ScanMotion, odom: tuple, tau: float = 0.0) -> np.ndarray:
 
 
 def hand_eye(m: ScanMotion, odom: tuple, tau: float = 0.0, blocks: int = 6,
-             pairs: Optional[np.ndarray] = None) -> dict:
+             pairs: Optional[np.ndarray] = None, span: Optional[tuple] = None) -> dict:
     """
     Return the scanner mounting in one recording: ``x``, ``y`` (m), ``yaw`` (rad), ``scale``.
 
@@ -236,13 +236,15 @@ def hand_eye(m: ScanMotion, odom: tuple, tau: float = 0.0, blocks: int = 6,
     if x is None:
         return out
     est = _mount(x)
-    blk = np.minimum((np.arange(len(m)) * blocks) // max(len(m), 1), blocks - 1)
+    blk = time_blocks(m, blocks, span)
     loo = []
     for b in range(blocks):
         xb = _solve(a, y, np.repeat(use & (blk != b), 2))
         if xb is not None:
             loo.append(_mount(xb))
     out.update(dict(zip(('x', 'y', 'yaw', 'scale'), est)))
+    if len(loo) == blocks:
+        out['loo'] = np.array(loo)
     if len(loo) >= 3:
         loo = np.array(loo)
         nb = len(loo)
@@ -296,17 +298,46 @@ def _blocks(n: int, nb: int) -> np.ndarray:
     return np.minimum((np.arange(n) * nb) // max(n, 1), nb - 1)
 
 
+def time_blocks(m: ScanMotion, nb: int, span: Optional[tuple] = None) -> np.ndarray:
+    """Return each pair's block of ``nb`` equal time blocks over ``span`` (s; default its own)."""
+    lo, hi = span if span is not None else (float(m.t0[0]), float(m.t1[-1]))
+    k = np.floor((m.t0 - lo) / max(hi - lo, 1e-9) * nb).astype(int)
+    return np.clip(k, 0, nb - 1)
+
+
+def diff_std(a: dict, b: dict, key: str, col: Optional[int] = None) -> float:
+    """
+    Return the block-jackknife standard error of ``b[key] - a[key]``.
+
+    Both recordings' estimates left out block by block on the same time
+    blocks, so what the two share (the same surfaces, the same drive) cancels;
+    without them, the two standard errors combined as independent.
+    """
+    la, lb = a.get('loo'), b.get('loo')
+    if la is not None and lb is not None and len(la) == len(lb) and len(la) >= 3:
+        xa = la if col is None else la[:, col]
+        xb = lb if col is None else lb[:, col]
+        d = np.asarray(xb - xa, float)
+        if key == 'yaw':
+            d = np.angle(np.exp(1j * d))
+        n = d.size
+        return float(np.sqrt((n - 1) / n * ((d - d.mean()) ** 2).sum()))
+    return float(math.hypot(a[f'{key}_std'], b[f'{key}_std']))
+
+
 def delay_estimate(m: ScanMotion, th: tuple, prm: LidarMismatchParams,
-                   rows: Optional[np.ndarray] = None) -> dict:
+                   rows: Optional[np.ndarray] = None, span: Optional[tuple] = None) -> dict:
     """Return the scan delay ``tau`` (s), its block standard error ``tau_std`` and the turning."""
     rows = np.ones(len(m), bool) if rows is None else rows
     out = {'turn': float(np.abs(m.pose[rows, 2]).sum())}
     if rows.sum() < 10:
         return out
     out['tau'] = scan_delay(m, th, prm.max_lag, rows)
-    blk = _blocks(len(m), prm.blocks)
+    blk = time_blocks(m, prm.blocks, span)
     loo = np.array([scan_delay(m, th, prm.max_lag, rows & (blk != b))
                     for b in range(prm.blocks) if (rows & (blk != b)).sum() >= 10])
+    if loo.size == prm.blocks:
+        out['loo'] = loo
     if loo.size >= 3:
         out['tau_std'] = float(np.sqrt((loo.size - 1) / loo.size *
                                        ((loo - loo.mean()) ** 2).sum()))
@@ -354,7 +385,9 @@ def motion_findings(sim: Side, real: Side, topic: str, prm: LidarMismatchParams,
     held = (_blocks(len(mr), prm.heldout_chunks) % 3) == 2
     window = [float(min(mr.t0[0], ms.t0[0])), float(max(mr.t1[-1], ms.t1[-1]))]
     # delay first: the mounting is then fitted on aligned odometry
-    ds, dr = delay_estimate(ms, sim.heading, prm), delay_estimate(mr, real.heading, prm)
+    span = (window[0], window[1])
+    ds = delay_estimate(ms, sim.heading, prm, span=span)
+    dr = delay_estimate(mr, real.heading, prm, span=span)
     tau_s, tau_r = ds.get('tau', 0.0), dr.get('tau', 0.0)
     if min(ds['turn'], dr['turn']) < prm.min_turn:
         not_judged.append({'channel': f'{topic}.stamp', 'reason': 'the scan delay needs '
@@ -364,8 +397,8 @@ def motion_findings(sim: Side, real: Side, topic: str, prm: LidarMismatchParams,
         f = _delay_finding(ms, mr, sim, real, ds, dr, held, topic, window, prm, notes)
         if f is not None:
             out.append(f)
-    hs = hand_eye(ms, sim.odom, tau_s, prm.blocks)
-    hr = hand_eye(mr, real.odom, tau_r, prm.blocks)
+    hs = hand_eye(ms, sim.odom, tau_s, prm.blocks, span=span)
+    hr = hand_eye(mr, real.odom, tau_r, prm.blocks, span=span)
     out.extend(_mount_findings(ms, mr, sim, real, hs, hr, tau_s, tau_r, held, topic, window,
                                prm, notes, not_judged))
     return out
@@ -373,7 +406,7 @@ def motion_findings(sim: Side, real: Side, topic: str, prm: LidarMismatchParams,
 
 def _delay_finding(ms, mr, sim, real, ds, dr, held, topic, window, prm, notes):
     d = dr['tau'] - ds['tau']
-    se = math.hypot(ds['tau_std'], dr['tau_std'])
+    se = diff_std(ds, dr, 'tau')
     z = abs(d) / max(se, 1e-6)
     if z < prm.z_min or abs(d) < prm.floor_tau:
         if abs(d) >= prm.floor_tau:
@@ -420,7 +453,7 @@ def _mount_findings(ms, mr, sim, real, hs, hr, tau_s, tau_r, held, topic, window
     for effect, keys, floor, ok, why in specs:
         d = {k: (math.remainder(hr[k] - hs[k], 2 * math.pi) if k == 'yaw' else hr[k] - hs[k])
              for k in keys}
-        se = {k: math.hypot(hs[f'{k}_std'], hr[f'{k}_std']) for k in keys}
+        se = {k: diff_std(hs, hr, k, ('x', 'y', 'yaw').index(k)) for k in keys}
         z = math.sqrt(sum((d[k] / max(se[k], 1e-9)) ** 2 for k in keys))
         size = math.sqrt(sum(d[k] ** 2 for k in keys))
         if not ok:
@@ -522,6 +555,10 @@ def merge_into(findings: dict, sim_bag, real_bag, sim_rec: dict, real_rec: dict,
     if not ss and not rs:
         return
     res = analyse_lidar(ss, rs, _odom_of(sim_rec), _odom_of(real_rec), prm)
+    t0 = float(findings.get('bag_start') or 0.0)
+    for f in res['findings']:  # windows in seconds from the bag start (contract)
+        if f.get('window'):
+            f['window'] = [f['window'][0] - t0, f['window'][1] - t0]
     findings['findings'].extend(res['findings'])
     findings.setdefault('not_judged', []).extend(res['not_judged'])
     findings.setdefault('notes', []).extend(res['notes'])
