@@ -25,7 +25,7 @@ import time
 import numpy as np
 from robot_calib.io.datasets import carmen
 from robot_calib.mismatch import lidar as L
-from robot_calib.mismatch import lidar_inject as I
+from robot_calib.mismatch import lidar_inject as inj
 
 DATA = Path('/work/shared/data/carmen')
 EFFECTS = [('lidar_mounting_yaw', (math.radians(0.5), math.radians(2.0)), ('yaw',)),
@@ -64,9 +64,11 @@ def parts() -> list:
 
 
 def _row(res: dict) -> str:
-    return '; '.join(f'{f["effect"]} ' + ', '.join(f'{k} {v:.4g}' for k, v in
-                                                     f['parameters'].items())
-                     for f in res['findings']) or 'none'
+    parts = []
+    for f in res['findings']:
+        vals = ', '.join(f'{k} {v:.4g}' for k, v in f['parameters'].items())
+        parts.append(f'{f["effect"]} {vals}')
+    return '; '.join(parts) or 'none'
 
 
 def natural(items: list) -> None:
@@ -90,10 +92,10 @@ def injected(items: list, quick: bool) -> tuple[int, int]:
     print('|---|---|---|---|---|---|')
     good = total = 0
     for name, scans, odom, prm in items:
-        base = I.inject(scans, 'noise', 0.01, seed=11)
+        base = inj.inject(scans, 'noise', 0.01, seed=11)
         for effect, values, keys in EFFECTS:
             for v in values[:1] if quick else values:
-                real = I.inject(base, effect, v, seed=12)
+                real = inj.inject(base, effect, v, seed=12)
                 t = time.process_time()
                 res = L.analyse_lidar({'/scan': scans}, {'/scan': real}, odom, odom, prm)
                 dt = time.process_time() - t
@@ -118,7 +120,7 @@ def nulls(items: list) -> tuple[int, int]:
     clean = total = 0
     for name, scans, odom, prm in items:
         for seed in (21, 22):
-            real = I.inject(scans, 'noise', 0.01, seed=seed)
+            real = inj.inject(scans, 'noise', 0.01, seed=seed)
             res = L.analyse_lidar({'/scan': scans}, {'/scan': real}, odom, odom, prm)
             clean += not res['findings']
             total += 1
@@ -127,8 +129,8 @@ def nulls(items: list) -> tuple[int, int]:
 
 
 def timing() -> float:
-    run = I.simulated_run(600.0, seed=5)
-    real = I.inject(I.inject(run['scans'], 'noise', 0.005, seed=1), 'range_scale', 0.01)
+    run = inj.simulated_run(600.0, seed=5)
+    real = inj.inject(inj.inject(run['scans'], 'noise', 0.005, seed=1), 'range_scale', 0.01)
     t = time.process_time()
     res = L.analyse_lidar({'/scan': run['scans']}, {'/scan': real}, run['odom'], run['odom'])
     dt = time.process_time() - t

@@ -111,7 +111,7 @@ def read_scans(path: os.PathLike | str) -> dict:
 
 
 def scan_points(scan, max_range: float, max_points: int) -> np.ndarray:
-    """Return (N, 2) points (m) of a scan's returns within ``max_range``, at most ``max_points``."""
+    """Return (N, 2) points (m) of a scan's returns within ``max_range`` (``max_points``)."""
     _, r, a = scan.beams(max_range)
     if r.size > max_points:
         keep = np.linspace(0, r.size - 1, max_points).astype(int)
@@ -422,12 +422,12 @@ def _delay_finding(ms, mr, sim, real, ds, dr, held, topic, window, prm, notes):
                      'part and is not reported')
         return None
     return {'channel': f'{topic}.stamp', 'effect': 'lidar_time_offset',
-            'parameters': {'tau': float(d)}, 'std': {'tau': float(se)}, 'window': window,
+            'parameters': {'tau': float(d)}, 'std': {'tau': float(se)}, 'window': None,
             'fit': _fit_dict(res[0], res[2], res[1], res[3]),
             'confidence': _confidence(z, prm.z_min), 'evidence': {'z': float(z)},
             'explanation': f'The real scans are stamped {d * 1000:.0f} ms '
             f'{"later" if d > 0 else "earlier"} than the motion they saw (measured against '
-            'each recording\'s own odometry by the scan-to-scan turning); the simulation '
+            'the odometry of each recording by the scan-to-scan turning); the simulation '
             'stamps its scans at the instant they see.'}
 
 
@@ -444,10 +444,10 @@ def _mount_findings(ms, mr, sim, real, hs, hr, tau_s, tau_r, held, topic, window
     turned = min(hs['turn'], hr['turn']) >= prm.min_turn
     moved = min(hs['travel'], hr['travel']) >= prm.min_travel
     specs = [('lidar_mounting_yaw', ('yaw',), prm.floor_yaw, moved,
-              'the scanner\'s yaw needs the robot to drive (translate); the recordings travel '
+              "the scanner's yaw needs the robot to drive (translate); the recordings travel "
               f'{min(hs["travel"], hr["travel"]):.1f} m'),
              ('lidar_mounting_offset', ('x', 'y'), prm.floor_offset, turned,
-              'the scanner\'s offset needs the robot to turn (a turn on the spot or while '
+              "the scanner's offset needs the robot to turn (a turn on the spot or while "
               'driving separates it from the yaw); the recordings turn '
               f'{math.degrees(min(hs["turn"], hr["turn"])):.0f} deg in all')]
     for effect, keys, floor, ok, why in specs:
@@ -482,8 +482,9 @@ def _mount_findings(ms, mr, sim, real, hs, hr, tau_s, tau_r, held, topic, window
                'odometry while turning).')
         out.append({'channel': f'{topic}.mounting', 'effect': effect,
                     'parameters': {k: float(v) for k, v in d.items()},
-                    'std': {k: float(v) for k, v in se.items()}, 'window': window,
-                    'fit': _fit_dict(res[0], res[2], res[1], res[3]), 'confidence': _confidence(z, prm.z_min),
+                    'std': {k: float(v) for k, v in se.items()}, 'window': None,
+                    'fit': _fit_dict(res[0], res[2], res[1], res[3]),
+                    'confidence': _confidence(z, prm.z_min),
                     'evidence': {'z': float(z)}, 'explanation': txt})
     return out
 
@@ -492,7 +493,9 @@ def analyse_lidar(sim_scans: dict, real_scans: dict, sim_odom: Optional[tuple],
                   real_odom: Optional[tuple], prm: Optional[LidarMismatchParams] = None
                   ) -> dict:
     """
-    Compare the scans of two recordings; return ``findings``, ``not_judged``, ``notes``, ``judged``.
+    Compare the scans of two recordings.
+
+    Returns ``findings``, ``not_judged``, ``notes`` and ``judged`` (the scan topics compared).
 
     :param sim_scans: ``{topic: [ScanSample]}`` of the simulation
     :param real_scans: the same of the real recording
@@ -516,7 +519,7 @@ def analyse_lidar(sim_scans: dict, real_scans: dict, sim_odom: Optional[tuple],
         judged.append(topic)
         beam = B.beam_findings(ss, rs, topic, notes, not_judged)
         if sim_odom is None or real_odom is None:
-            not_judged.append({'channel': f'{topic}.motion', 'reason': 'the scanner\'s motion '
+            not_judged.append({'channel': f'{topic}.motion', 'reason': "the scanner's motion "
                                'is compared with odometry, which a recording lacks'})
             motion = []
         else:
@@ -544,8 +547,9 @@ def _odom_of(rec: dict) -> Optional[tuple]:
     if not odoms:
         return None
     o = odoms[0]
-    ok = np.isfinite(o.fields['twist.twist.linear.x']) & np.isfinite(o.fields['twist.twist.angular.z'])
-    return o.t[ok], o.fields['twist.twist.linear.x'][ok], o.fields['twist.twist.angular.z'][ok]
+    v, w = o.fields['twist.twist.linear.x'], o.fields['twist.twist.angular.z']
+    ok = np.isfinite(v) & np.isfinite(w)
+    return o.t[ok], v[ok], w[ok]
 
 
 def merge_into(findings: dict, sim_bag, real_bag, sim_rec: dict, real_rec: dict,

@@ -148,7 +148,7 @@ def beam_findings(sim: list, real: list, topic: str, notes: list, not_judged: li
                'simulated ones: the scanner is turned about z from where the simulation '
                'mounts it.'}[effect]
         out.append({'channel': f'{topic}.ranges', 'effect': effect,
-                    'parameters': {key: val}, 'std': {key: float(sd[j])}, 'window': window,
+                    'parameters': {key: val}, 'std': {key: float(sd[j])}, 'window': None,
                     'fit': {'rmse_before': res[0], 'rmse_after': res[2],
                             'heldout_rmse_before': res[1], 'heldout_rmse_after': res[3]},
                     'confidence': _conf(z), 'evidence': {'z': float(z)}, 'explanation': txt})
@@ -212,12 +212,12 @@ def _noise(rs, r0, e, bk, hd, topic, window, notes) -> list:
         return []
     return [{'channel': f'{topic}.ranges', 'effect': 'range_noise_growth',
              'parameters': {'s0': float(c[0]), 's1': float(c[1])},
-             'std': {'s0': float(sd[0]), 's1': float(sd[1])}, 'window': window,
+             'std': {'s0': float(sd[0]), 's1': float(sd[1])}, 'window': None,
              'fit': {'rmse_before': res[0], 'rmse_after': res[2], 'heldout_rmse_before': res[1],
                      'heldout_rmse_after': res[3], 'measure': 'mean negative log-likelihood'},
              'confidence': _conf(z), 'evidence': {'z': float(z), 'sim_noise': s_sim},
              'explanation': f'Real range noise grows with range: sigma = {c[0] * 100:.1f} cm + '
-             f'{c[1] * 100:.2f} cm per m (the simulation\'s is {s_sim * 100:.1f} cm at '
+             f'{c[1] * 100:.2f} cm per m (in the simulation {s_sim * 100:.1f} cm at '
              'every range).'}]
 
 
@@ -262,7 +262,7 @@ def _dropout(rs, rr, blk_s, held_s, topic, window) -> list:
     where = f'beyond {beyond:.1f} m' if beyond > 0 else 'at every range'
     return [{'channel': f'{topic}.ranges', 'effect': 'dropout_rate',
              'parameters': {'rate': float(rate), 'beyond': float(beyond)},
-             'std': {'rate': float(sd[0])}, 'window': window,
+             'std': {'rate': float(sd[0])}, 'window': None,
              'fit': {'rmse_before': res[0], 'rmse_after': res[2], 'heldout_rmse_before': res[1],
                      'heldout_rmse_after': res[3], 'measure': 'Brier score of a lost beam'},
              'confidence': _conf(z), 'evidence': {'z': float(z), 'sim_loss': q},
