@@ -525,14 +525,13 @@ def analyse_lidar(sim_scans: dict, real_scans: dict, sim_odom: Optional[tuple],
         else:
             sides = [make_side(sc, *od, prm) for sc, od in ((ss, sim_odom), (rs, real_odom))]
             motion = motion_findings(sides[0], sides[1], topic, prm, notes, not_judged)
-        # the beams see a turned scanner more precisely than the motion does
-        byaw = [f for f in beam if f['effect'] == 'lidar_mounting_yaw']
-        for f in [f for f in motion if f['effect'] == 'lidar_mounting_yaw' and byaw]:
-            motion.remove(f)
-            notes.append(f'{topic}: the scan-to-scan motion gives a mounting yaw of '
-                         f'{math.degrees(f["parameters"]["yaw"]):+.2f} deg; the beam '
-                         f'comparison gives {math.degrees(byaw[0]["parameters"]["yaw"]):+.2f} '
-                         'deg and is reported')
+        # the beams see a moved or turned scanner more precisely than the motion does
+        for eff in ('lidar_mounting_yaw', 'lidar_mounting_offset'):
+            bf = [f for f in beam if f['effect'] == eff]
+            for f in [f for f in motion if f['effect'] == eff and bf]:
+                motion.remove(f)
+                notes.append(f'{topic}: the scan-to-scan motion gives {eff} {f["parameters"]}; '
+                             f'the beam comparison gives {bf[0]["parameters"]} and is reported')
         findings.extend(beam + motion)
     notes.append('scan_distortion (an uncorrected sweep) is not estimated by this version')
     return {'findings': findings, 'not_judged': not_judged, 'notes': notes, 'judged': judged}

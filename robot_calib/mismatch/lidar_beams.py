@@ -10,7 +10,11 @@ the simulated scan at the same stamp see the same surface. Then, with
 ``d = r_real - r_sim`` and ``g = dr_sim / dangle`` (central difference along
 the beams; first-order Taylor expansion of a turned scanner)::
 
-    d = b + s r_sim + delta g            (range_bias, range_scale, mounting yaw)
+    d = b + s r_sim + delta g - d.u + g (d.n) / r   (range_bias, range_scale, mounting
+                                                    yaw delta and offset d)
+
+(``u``, ``n``: the beam's direction and its normal; the angle ``delta`` is
+iterated, the simulated beams re-sampled by the angle found, Gauss-Newton)
 
 fitted by Huber-weighted least squares. The noise left after it is binned by
 range: ``sigma_real(r)^2 = sigma_d(r)^2 - sigma_sim^2`` (the simulation's own
@@ -37,7 +41,7 @@ __all__ = ['beam_findings', 'pair_scans']
 BLOCKS = 6
 CHUNKS = 12
 Z_MIN = 5.0
-FLOORS = {'bias': 0.005, 'scale': 0.002, 'yaw': 0.0035, 's1': 0.0015, 'rate': 0.02}
+FLOORS = {'bias': 0.005, 'scale': 0.002, 'yaw': 0.0035, 'x': 0.015, 's1': 0.0015, 'rate': 0.02}
 
 
 def pair_scans(sim: list, real: list, tol: float = 0.02) -> tuple:
@@ -111,50 +115,82 @@ def beam_findings(sim: list, real: list, topic: str, notes: list, not_judged: li
     held_s = ((np.minimum((np.arange(ns) * CHUNKS) // ns, CHUNKS - 1)) % 3) == 2
     window = [float(tt[0]), float(tt[-1])]
     out = []
-    g = np.full_like(rs, np.nan)
-    g[:, 1:-1] = (rs[:, 2:] - rs[:, :-2]) / (2 * inc)
-    smooth = np.abs(g * inc) < 0.05 + 0.02 * np.nan_to_num(rs)  # no depth edge
-    use = agree & np.isfinite(g) & smooth
-    ii = np.nonzero(use)
-    r0, d0, g0 = rs[use], (rr - rs)[use], g[use]
-    bk, hd = blk_s[ii[0]], held_s[ii[0]]
-    a = np.c_[np.ones(r0.size), r0, g0]
-    if r0.size < 200:
-        not_judged.append({'channel': f'{topic}.ranges', 'reason': 'too few beams on smooth '
-                           'surfaces in both recordings'})
-        return []
-    x = _huber(a, d0)
+    turn = 0.0
+    for _ in range(4):  # Gauss-Newton on the angle: re-sample the sim beams, fit again
+        rsh = _turned(rs, turn / inc)
+        g = np.full_like(rsh, np.nan)
+        g[:, 1:-1] = (rsh[:, 2:] - rsh[:, :-2]) / (2 * inc)
+        smooth = np.abs(g * inc) < 0.05 + 0.02 * np.nan_to_num(rsh)  # no depth edge
+        agree2 = agree & (np.abs(rr - rsh) < 0.1 + 0.05 * np.nan_to_num(rsh))
+        use = agree2 & np.isfinite(g) & smooth
+        ii = np.nonzero(use)
+        r0, d0, g0 = rsh[use], (rr - rsh)[use], g[use]
+        bk, hd = blk_s[ii[0]], held_s[ii[0]]
+        b = np.broadcast_to(ang, rs.shape)[use]
+        cb, sb = np.cos(b), np.sin(b)
+        # a scanner moved by (dx, dy): dr = -d.u + g (d.n) / r, u = (cos, sin), n = (-sin, cos)
+        a = np.c_[np.ones(r0.size), r0, g0, -cb - g0 * sb / r0, -sb + g0 * cb / r0]
+        if r0.size < 200:
+            not_judged.append({'channel': f'{topic}.ranges', 'reason': 'too few beams on '
+                               'smooth surfaces in both recordings'})
+            return []
+        x = _huber(a, d0)
+        if abs(x[2]) < 0.05 * inc:
+            break
+        turn += x[2]
     sd = _jack(lambda m: _huber(a[m], d0[m]), bk, BLOCKS)
     xf = _huber(a[~hd], d0[~hd])
-    names = [('range_bias', 'bias', 0), ('range_scale', 'scale', 1),
-             ('lidar_mounting_yaw', 'yaw', 2)]
-    for effect, key, j in names:
-        z = abs(x[j]) / max(sd[j], 1e-12)
-        if z < Z_MIN or abs(x[j]) < FLOORS[key]:
+    x[2] += turn
+    # held out: the turn found on all time is a part of the model, so it too must help
+    d0 = d0 + turn * g0
+    xf[2] += turn
+    names = [('range_bias', ('bias',), (0,)), ('range_scale', ('scale',), (1,)),
+             ('lidar_mounting_yaw', ('yaw',), (2,)), ('lidar_mounting_offset', ('x', 'y'), (3, 4))]
+    for effect, keys, js in names:
+        z = math.sqrt(sum((x[j] / max(sd[j], 1e-12)) ** 2 for j in js))
+        size = math.sqrt(sum(x[j] ** 2 for j in js))
+        if z < Z_MIN or size < FLOORS[keys[0]]:
             continue
         without = xf.copy()
-        without[j] = 0.0
+        without[list(js)] = 0.0
         res = [float(np.sqrt(np.mean(_clip(d0 - a @ c)[rows] ** 2)))
                for c in (without, xf) for rows in (~hd, hd)]
         if not res[3] < res[1]:
             notes.append(f'{topic}: a candidate {effect} did not improve the held-out part')
             continue
-        val = float(x[j])
+        val = float(x[js[0]])
         txt = {'range_bias': f'Real ranges are {val * 100:+.1f} cm longer than the simulated '
                'ones at the same beam (offset at every range).',
                'range_scale': f'Real ranges are {val * 100:+.2f} % longer than the simulated '
                'ones, in proportion to range.',
                'lidar_mounting_yaw': f'Real beams look {math.degrees(val):+.2f} deg off the '
                'simulated ones: the scanner is turned about z from where the simulation '
-               'mounts it.'}[effect]
+               'mounts it.',
+               'lidar_mounting_offset': 'Real beams look as if the scanner sat '
+               f'({x[3] * 100:+.1f}, {x[4] * 100:+.1f}) cm from where the simulation mounts it.'}[effect]
         out.append({'channel': f'{topic}.ranges', 'effect': effect,
-                    'parameters': {key: val}, 'std': {key: float(sd[j])}, 'window': None,
+                    'parameters': {k: float(x[j]) for k, j in zip(keys, js)},
+                    'std': {k: float(sd[j]) for k, j in zip(keys, js)}, 'window': None,
                     'fit': {'rmse_before': res[0], 'rmse_after': res[2],
                             'heldout_rmse_before': res[1], 'heldout_rmse_after': res[3]},
                     'confidence': _conf(z), 'evidence': {'z': float(z)}, 'explanation': txt})
     e = d0 - a @ x
     out.extend(_noise(rs, r0, e, bk, hd, topic, window, notes))
     out.extend(_dropout(rs, rr, blk_s, held_s, topic, window))
+    return out
+
+
+def _turned(rs: np.ndarray, k: float) -> np.ndarray:
+    """Return the beams re-sampled ``k`` beams later (linear, NaN past the ends)."""
+    if k == 0.0:
+        return rs
+    n = rs.shape[1]
+    pos = np.arange(n) + k
+    i0 = np.floor(pos).astype(int)
+    f = pos - i0
+    ok = (i0 >= 0) & (i0 + 1 < n)
+    out = np.full_like(rs, np.nan)
+    out[:, ok] = (1 - f[ok]) * rs[:, i0[ok]] + f[ok] * rs[:, i0[ok] + 1]
     return out
 
 

@@ -5,8 +5,8 @@ Known lidar effects added to scans (tests and benchmarks), and a small simulated
 
 :func:`inject` returns copies of :class:`~robot_calib.core.types.ScanSample`
 with one effect of the contract table added: a mounting yaw (the beams'
-angles relabelled), a mounting offset (points moved, re-binned to the beam
-angles, the nearest return per beam), a stamp delay, a range bias or scale,
+ranges re-cast from the scan's own returns joined into a polyline), a
+mounting offset (the same, from the moved origin), a stamp delay, a range bias or scale,
 range noise growing with range, dropouts beyond a range. All randomness from
 a seeded generator.
 """
@@ -22,14 +22,24 @@ from robot_calib.core.types import ScanSample
 __all__ = ['inject', 'simulated_run']
 
 
-def _rebin(s: ScanSample, pts: np.ndarray) -> np.ndarray:
-    """Return ranges at the scan's beam angles of points (m) in its frame (nearest per beam)."""
-    r = np.hypot(pts[:, 0], pts[:, 1])
-    a = np.arctan2(pts[:, 1], pts[:, 0])
-    i = np.round((a - s.angle_min) / s.angle_increment).astype(int)
-    out = np.full(s.ranges.size, np.inf)
-    ok = (i >= 0) & (i < out.size)
-    np.minimum.at(out, i[ok], r[ok])
+def _recast(s: ScanSample, origin: tuple, yaw: float) -> np.ndarray:
+    """
+    Return the scan seen from ``origin`` (m) turned by ``yaw`` (rad) in its own frame.
+
+    The returns become a polyline (neighbours joined unless a depth edge,
+    more than 0.1 m + 5 % apart); each beam is cast against it. A surface the
+    original scan did not see stays unseen (inf).
+    """
+    from robot_calib.sim.world import World
+    r = np.array(s.ranges, float)
+    a = s.angles()
+    p = np.c_[r * np.cos(a), r * np.sin(a)]
+    fin = np.isfinite(r)
+    join = fin[:-1] & fin[1:]
+    join[join] &= np.abs(np.diff(r)[join]) < 0.1 + 0.05 * r[:-1][join]
+    w = World(segments=np.hstack((p[:-1][join], p[1:][join])))
+    out = w.raycast(float(origin[0]), float(origin[1]), a + yaw)
+    out[~np.isfinite(out)] = np.inf
     return out
 
 
@@ -49,12 +59,9 @@ def inject(scans: list, effect: str, value, seed: int = 0) -> list:
         fin = np.isfinite(r)
         if effect == 'lidar_mounting_yaw':
             # the scanner turned by +yaw: a surface at base angle a is seen at beam a - yaw
-            a = s.angles()[fin] - float(value)
-            r = _rebin(s, np.c_[r[fin] * np.cos(a), r[fin] * np.sin(a)])
+            r = _recast(s, (0.0, 0.0), float(value))
         elif effect == 'lidar_mounting_offset':
-            a = s.angles()[fin]
-            pts = np.c_[r[fin] * np.cos(a), r[fin] * np.sin(a)] - np.asarray(value, float)
-            r = _rebin(s, pts)
+            r = _recast(s, tuple(value), 0.0)
         elif effect == 'lidar_time_offset':
             out.append(replace(s, t=s.t + float(value)))
             continue
