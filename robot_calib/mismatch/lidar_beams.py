@@ -167,7 +167,8 @@ def beam_findings(sim: list, real: list, topic: str, notes: list, not_judged: li
                'simulated ones: the scanner is turned about z from where the simulation '
                'mounts it.',
                'lidar_mounting_offset': 'Real beams look as if the scanner sat '
-               f'({x[3] * 100:+.1f}, {x[4] * 100:+.1f}) cm from where the simulation mounts it.'}[effect]
+               f'({x[3] * 100:+.1f}, {x[4] * 100:+.1f}) cm from where the simulation '
+               'mounts it.'}[effect]
         out.append({'channel': f'{topic}.ranges', 'effect': effect,
                     'parameters': {k: float(x[j]) for k, j in zip(keys, js)},
                     'std': {k: float(sd[j]) for k, j in zip(keys, js)}, 'window': None,
