@@ -19,7 +19,7 @@ import shutil
 import tempfile
 from typing import Optional
 
-from robot_calib.mismatch import export, trajectory
+from robot_calib.mismatch import coverage, export, lidar, trajectory
 from robot_calib.mismatch.analysis import analyse_recordings, MismatchParams
 from robot_calib.mismatch.channels import ChannelError, read_bag
 
@@ -61,6 +61,8 @@ def analyse(sim_bag: os.PathLike | str, real_bag: os.PathLike | str,
         if not real:
             raise MismatchError(f'the real bag {real_bag} has no IMU, odometry or command topic')
         findings, details = analyse_recordings(sim, real, params, remaps)
+        lidar.merge_into(findings, sim_bag, real_bag, sim, real)
+        coverage.list_unjudged(findings, sim_bag, real_bag)
     except ChannelError as exc:
         raise MismatchError(str(exc).splitlines()[0]) from None
     out = Path(out_dir)

@@ -205,8 +205,36 @@ class _Mapper:
             self.add('drive.turn_speed_loss', par['coefficient'], why)
         elif e == 'steering_offset':
             self.add('wheels.steering_offset', par['offset'], why)
+        elif e in LIDAR_KEYS:
+            self._lidar(f, e, par, why)
         else:
             self.cannot(f, _NO_COUNTERPART.get(e, 'no simulator parameter models it'))
+
+    def _lidar(self, f: dict, e: str, par: dict, why: str) -> None:
+        """Compose a lidar finding onto the simulator's lidar effects (``lidar.*``)."""
+        if e == 'lidar_time_offset' and 'lidar.time_offset' not in self.v:
+            new = float(self.v.get('latency.scan', 0.0)) + float(par['tau'])
+            if 'latency.scan' in self.v and 0.0 <= new <= 1.0:
+                self.add('latency.scan', par['tau'], why)
+            else:
+                self.cannot(f, 'the simulator delays its scans by 0 to 1 s only')
+            return
+        keys = LIDAR_KEYS[e]
+        missing = [k for k, _ in keys if k not in self.v]
+        if missing:
+            self.cannot(f, f'this simulator has no {", ".join(missing)} (its lidar effects)')
+            return
+        if e == 'dropout_rate':
+            if float(par.get('beyond', 0.0)) > 0:
+                self.v['lidar.dropout_beyond'] = float(par['beyond'])
+                self.v['lidar.dropout_beyond_rate'] = float(par['rate'])
+                self.note('lidar.dropout_beyond', why)
+                self.note('lidar.dropout_beyond_rate', why)
+            else:
+                self.add('lidar.dropout', par['rate'], why)
+            return
+        for key, name in keys:
+            self.add(key, par[name], why)
 
     def _scale(self, f: dict, e: str, par: dict, field: str, why: str) -> None:
         k = float(par['scale'])
@@ -259,6 +287,17 @@ _NO_COUNTERPART = {
 
 DRIVE_EFFECTS = ('drive_lag', 'drive_dead_time', 'drive_gain', 'drive_rate_limit',
                  'drive_deadband')
+
+
+LIDAR_KEYS = {'lidar_mounting_yaw': [('lidar.yaw_error', 'yaw')],
+              'lidar_mounting_offset': [('lidar.x_error', 'x'), ('lidar.y_error', 'y')],
+              'lidar_time_offset': [('lidar.time_offset', 'tau')],
+              'range_bias': [('lidar.range_bias', 'bias')],
+              'range_scale': [('lidar.range_scale', 'scale')],
+              'range_noise_growth': [('lidar.noise_growth', 's1')],
+              'dropout_rate': [('lidar.dropout_beyond', 'beyond'),
+                               ('lidar.dropout_beyond_rate', 'rate')]}
+"""Simulator parameters (the lidar effects of ``sim.params.LidarParams``) per lidar finding."""
 
 
 def one_per_slot(findings: list, topic_map: dict) -> tuple[list, list]:

@@ -1,0 +1,158 @@
+# Copyright 2026 robot_calib contributors
+# SPDX-License-Identifier: Apache-2.0
+"""
+The lidar in the mismatch analyser: coverage of every topic, motion and beam effects.
+
+Simulated pairs in a room (:func:`lidar_inject.simulated_run`): the real side is
+the simulated scans with fresh noise and one known effect; each effect must be
+found within 25 %, a null pair must give nothing, and a drive without turning
+must refuse the mounting offset. A real-data check on the MIT CSAIL log skips
+without the shared data.
+"""
+
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from robot_calib.core import types as T
+from robot_calib.io.bags import BagWriter
+from robot_calib.mismatch import analyse
+from robot_calib.mismatch import lidar as L
+from robot_calib.mismatch import lidar_inject as inj
+
+DATA = Path('/work/shared/data/carmen')
+
+
+@pytest.fixture(scope='module')
+def run():
+    return inj.simulated_run(60.0, seed=1)
+
+
+def _analyse(run, effect=None, value=None, odom=None, seed=3):
+    real = inj.inject(run['scans'], 'noise', 0.005, seed=seed)
+    if effect is not None:
+        real = inj.inject(real, effect, value, seed=seed + 1)
+    od = odom or run['odom']
+    return L.analyse_lidar({'/scan': run['scans']}, {'/scan': real}, od, od)
+
+
+CASES = [('lidar_mounting_yaw', math.radians(1.0), 'yaw'),
+         ('lidar_mounting_offset', (0.06, -0.04), ('x', 'y')),
+         ('lidar_time_offset', 0.05, 'tau'),
+         ('range_bias', 0.03, 'bias'),
+         ('range_scale', 0.01, 'scale'),
+         ('range_noise_growth', 0.004, 's1'),
+         ('dropout_rate', (0.1, 4.0), ('rate', 'beyond'))]
+
+
+@pytest.mark.parametrize('effect,value,keys', CASES, ids=[c[0] for c in CASES])
+def test_each_injected_effect_is_found_within_25_percent(run, effect, value, keys):
+    out = _analyse(run, effect, value)
+    found = [f for f in out['findings'] if f['effect'] == effect]
+    assert found, out
+    keys = keys if isinstance(keys, tuple) else (keys,)
+    values = value if isinstance(value, tuple) else (value,)
+    for k, v in zip(keys, values):
+        assert abs(found[0]['parameters'][k] - v) <= 0.25 * abs(v), (k, found[0])
+    f = found[0]
+    assert 0.0 < f['confidence'] <= 1.0 and f['window'] is None
+    assert f['fit']['heldout_rmse_after'] < f['fit']['heldout_rmse_before']
+    # nothing else is named alongside
+    others = {g['effect'] for g in out['findings']} - {effect}
+    assert not others, out['findings']
+
+
+def test_null_pair_has_no_finding(run):
+    for seed in (5, 9):
+        assert _analyse(run, seed=seed)['findings'] == []
+
+
+def test_offset_refused_without_turning():
+    run = inj.simulated_run(60.0, seed=2, turn=False)
+    out = _analyse(run, 'lidar_time_offset', 0.0)
+    real = inj.inject(inj.inject(run['scans'], 'noise', 0.005, seed=3),
+                      'lidar_mounting_offset', (0.06, 0.0))
+    # stamps shifted with the odometry: the beams are not compared, the motion is
+    res = L.analyse_lidar({'/scan': run['scans']}, {'/scan': [T.ScanSample(
+        t=s.t + 0.5, angle_min=s.angle_min, angle_increment=s.angle_increment,
+        ranges=s.ranges) for s in real]}, run['odom'],
+        (run['odom'][0] + 0.5, run['odom'][1], run['odom'][2]))
+    assert not [f for f in res['findings'] if f['effect'] == 'lidar_mounting_offset']
+    reasons = ' '.join(d['reason'] for d in res['not_judged'])
+    assert 'turn' in reasons, res['not_judged']
+    assert out['findings'] == []
+
+
+def _bag(path, run, scans, with_scan=True, extra=False):
+    t, v, w = run['odom']
+    items = [('/odom', T.OdomSample(float(a), 0.0, 0.0, 0.0, vx=float(b), wz=float(c)))
+             for a, b, c in zip(t, v, w)]
+    items += [('/cmd_vel', T.TwistSample(float(a), vx=float(b), wz=float(c)))
+              for a, b, c in zip(t[::5], v[::5], w[::5])] if extra else []
+    if with_scan:
+        items += [('/scan', s) for s in scans]
+    with BagWriter(path) as bag:
+        for topic, s in sorted(items, key=lambda z: z[1].t):
+            bag.write(topic, s)
+
+
+def test_scan_topic_compared_or_listed_in_not_judged(tmp_path, run):
+    short = inj.simulated_run(40.0, seed=4)
+    sim, real = tmp_path / 'sim', tmp_path / 'real'
+    _bag(sim, short, short['scans'])
+    noisy = inj.inject(short['scans'], 'noise', 0.005, seed=1)
+    _bag(real, short, inj.inject(noisy, 'range_scale', 0.015), extra=True)
+    out = analyse(sim, real, tmp_path / 'out', plots=False)
+    assert '/scan' in out['lidar']['judged']
+    assert any(f['effect'] == 'range_scale' for f in out['findings'])
+    assert out['verdict'] == 'mismatch'
+    # a scan in one bag only, and a topic nobody compares, are listed with a reason
+    real2 = tmp_path / 'real2'
+    _bag(real2, short, short['scans'], with_scan=False, extra=True)
+    out = analyse(sim, real2, tmp_path / 'out2', plots=False)
+    nj = {d['channel']: d['reason'] for d in out['not_judged']}
+    assert '/scan' in nj and 'missing' in nj['/scan']
+    listed = {d['channel'] for d in out['not_judged']} | set(out['channels']) | \
+        set(out['time_alignment'])
+    for topic in ('/odom', '/cmd_vel', '/scan'):
+        assert any(x == topic or x.startswith(topic + '.') for x in listed), (topic, listed)
+
+
+@pytest.mark.skipif(not (DATA / 'mit-csail.clf').exists(), reason='shared data absent')
+def test_mit_csail_injected_yaw_and_null():
+    from robot_calib.io.datasets import carmen
+    log = carmen.read_log(DATA / 'mit-csail.clf')
+    scans = log.scans[:700]
+    od = log.odometry()[:700]
+    odom = (np.array([o.t for o in od]), np.array([o.vx for o in od]),
+            np.array([o.wz for o in od]))
+    prm = L.LidarMismatchParams(max_pairs=400)
+    base = inj.inject(scans, 'noise', 0.01, seed=1)
+    null = L.analyse_lidar({'/scan': scans}, {'/scan': base}, odom, odom, prm)
+    assert null['findings'] == []
+    real = inj.inject(base, 'lidar_time_offset', 0.06)
+    out = L.analyse_lidar({'/scan': scans}, {'/scan': real}, odom, odom, prm)
+    tau = [f['parameters']['tau'] for f in out['findings']
+           if f['effect'] == 'lidar_time_offset']
+    assert tau and abs(tau[0] - 0.06) < 0.015
+
+
+def test_lidar_findings_reach_the_simulator_parameters():
+    from robot_calib.core.params import to_flat
+    from robot_calib.mismatch import export
+    from robot_calib.sim.params import SimParams
+    fs = {'verdict': 'mismatch', 'findings': [
+        {'channel': '/scan.ranges', 'effect': 'range_scale', 'parameters': {'scale': 0.012},
+         'window': None, 'confidence': 0.9},
+        {'channel': '/scan.stamp', 'effect': 'lidar_time_offset', 'parameters': {'tau': 0.04},
+         'window': None, 'confidence': 0.9}]}
+    text = export.sim_params_text(fs)
+    flat = to_flat(SimParams())
+    if 'lidar.range_scale' in flat:
+        import yaml
+        written = yaml.safe_load(text)
+        assert written['sim']['lidar']['range_scale'] == pytest.approx(0.012)
+    else:
+        assert 'range_scale on /scan.ranges' in text
