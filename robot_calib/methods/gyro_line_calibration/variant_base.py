@@ -33,10 +33,8 @@ from typing import Any, Optional, Union
 import numpy as np
 
 from robot_calib.core import types as T
-from robot_calib.core.frames import (constant_motion, find_mounting, mirrored, planar_pose,
-                                     rotation_matrix, scan_points, SENSOR_WORDS, StaticTree,
-                                     upside_down)
-from robot_calib.core.geometry import quat_from_rpy, quat_to_matrix, rot2, wrap_angle
+from robot_calib.core.frames import constant_motion, mirrored, scan_points, StaticTree
+from robot_calib.core.geometry import rot2, wrap_angle
 from robot_calib.core.lines import extract_lines, Line, ObstacleGrid
 from robot_calib.core.notes import InputNotes
 from robot_calib.core.odometry_twist import TwistOnly
@@ -44,6 +42,7 @@ from robot_calib.core.series import Thinned
 from robot_calib.core.zero_gyro import ZeroGyro
 from robot_calib.methods.gyro_line_calibration.common import (
     Correction, frozen_counts, GyroLineResult, PoseEstimate, Reference, within_hold)
+from robot_calib.methods.gyro_line_calibration.mounting import SensorMountings
 from robot_calib.methods.gyro_line_calibration.params import GyroLineParams
 
 _DEG = math.pi / 180.0
@@ -54,7 +53,7 @@ Every correction counts in :attr:`GyroLineBase.correction_total`, ``correction_a
 and ``correction_trace``, which do not grow with the run."""
 
 
-class GyroLineBase(abc.ABC):
+class GyroLineBase(SensorMountings, abc.ABC):
     """
     Streaming gyro-line heading calibration; feed samples in time order.
 
@@ -74,15 +73,6 @@ class GyroLineBase(abc.ABC):
         self.input_notes = InputNotes()
         """Standing warnings about the inputs (a frame not in the tree, twist-only odometry)."""
         self.reset()
-
-    def _param_mountings(self) -> None:
-        """Take the IMU rotation and the laser pose from the parameters."""
-        p = self.params
-        r, pi_, y = (list(p.imu_rpy) + [0.0, 0.0, 0.0])[:3]
-        self._imu_rot = quat_to_matrix(quat_from_rpy(r, pi_, y))
-        lp = (list(p.laser_pose) + [0.0, 0.0, 0.0])[:3]
-        self.laser_pose = np.array(lp, dtype=float)
-        self._laser_upside_down = False
 
     def reset(self) -> None:
         """Forget the state (pose, references, counters); keep the parameters and mountings."""
@@ -138,50 +128,6 @@ class GyroLineBase(abc.ABC):
         self._snapshot = ((None, None), ())
 
     # -- the Estimator protocol ----------------------------------------------------------
-    def set_mounting(self, transform: T.StaticTransform) -> None:
-        """
-        Take a static transform; the IMU's and the laser's mountings in base_frame follow.
-
-        Each sensor's frame (from its first sample) is looked up by the rule of
-        :func:`robot_calib.core.frames.find_mounting`; with no mounting known the
-        ``imu_rpy`` and ``laser_pose`` parameters are used, and said.
-        """
-        self._mountings.add(transform)
-        self._apply_mountings()
-
-    def _apply_mountings(self) -> None:
-        """Set the IMU rotation and the laser pose of the frames seen from the tree."""
-        self._param_mountings()
-        tree, base = self._mountings, self.params.base_frame
-        if self._imu_frame is None or self._laser_frame is None:
-            # before a sensor's own frame is known: the tree's frames named like it
-            for frame in tree.leaves():
-                name = frame.lower()
-                imu = 'imu' in name
-                if not (imu or any(k in name for k in SENSOR_WORDS['lidar'])):
-                    continue
-                mounting = tree.mounting(frame, base)
-                if mounting is None:
-                    continue
-                if imu and self._imu_frame is None:
-                    self._imu_rot = rotation_matrix(mounting)
-                elif not imu and self._laser_frame is None:
-                    self.laser_pose = np.array(planar_pose(mounting))
-                    self._laser_upside_down = upside_down(mounting)
-        if self._imu_frame is not None:
-            found = find_mounting(tree, self._imu_frame, base, 'imu', 'the imu_rpy parameter '
-                                  f'used ({list(self.params.imu_rpy)} rad)')
-            self.input_notes.say('imu', found.note)
-            if found.transform is not None:
-                self._imu_rot = rotation_matrix(found.transform)
-        if self._laser_frame is not None:
-            found = find_mounting(tree, self._laser_frame, base, 'lidar', 'the laser_pose '
-                                  f'parameter used ({list(self.params.laser_pose)} m, m, rad)')
-            self.input_notes.say('lidar', found.note)
-            if found.transform is not None:
-                self.laser_pose = np.array(planar_pose(found.transform))
-                self._laser_upside_down = upside_down(found.transform)
-
     def update(self, sample: Any) -> Union[None, PoseEstimate, tuple[Correction, ...]]:
         """
         Process one core sample (IMU, odometry, scan, phase Bool, static transform).
