@@ -517,7 +517,8 @@ def analyse_lidar(sim_scans: dict, real_scans: dict, sim_odom: Optional[tuple],
                                f'real {len(rs)})'})
             continue
         judged.append(topic)
-        beam = B.beam_findings(ss, rs, topic, notes, not_judged)
+        beam = B.beam_findings(ss, rs, topic, notes, not_judged, motion=real_odom,
+                               min_turn=prm.min_turn)
         if sim_odom is None or real_odom is None:
             not_judged.append({'channel': f'{topic}.motion', 'reason': "the scanner's motion "
                                'is compared with odometry, which a recording lacks'})
@@ -526,14 +527,14 @@ def analyse_lidar(sim_scans: dict, real_scans: dict, sim_odom: Optional[tuple],
             sides = [make_side(sc, *od, prm) for sc, od in ((ss, sim_odom), (rs, real_odom))]
             motion = motion_findings(sides[0], sides[1], topic, prm, notes, not_judged)
         # the beams see a moved or turned scanner more precisely than the motion does
-        for eff in ('lidar_mounting_yaw', 'lidar_mounting_offset'):
+        for eff in ('lidar_mounting_yaw', 'lidar_mounting_offset', 'lidar_time_offset'):
             bf = [f for f in beam if f['effect'] == eff]
             for f in [f for f in motion if f['effect'] == eff and bf]:
                 motion.remove(f)
                 notes.append(f'{topic}: the scan-to-scan motion gives {eff} {f["parameters"]}; '
                              f'the beam comparison gives {bf[0]["parameters"]} and is reported')
+        B.sweep_vs_delay(beam, motion, topic, prm, notes, not_judged)
         findings.extend(beam + motion)
-    notes.append('scan_distortion (an uncorrected sweep) is not estimated by this version')
     return {'findings': findings, 'not_judged': not_judged, 'notes': notes, 'judged': judged}
 
 
