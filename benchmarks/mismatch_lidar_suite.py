@@ -168,3 +168,45 @@ def describe(res: dict) -> str:
         vals = ', '.join(f'{k} {v:.4g}' for k, v in f['parameters'].items())
         out.append(f'{f["effect"]} {vals}')
     return '; '.join(out) or 'none'
+
+
+def section(cases: list) -> list:
+    """Return the markdown lines of the lidar suite: per-effect counts and every case."""
+    eff = [c for c in cases if c['effect']]
+    clean = [c for c in cases if not c['effect']]
+    n_ok = sum(c['score']['found'] for c in eff)
+    n_ref = sum(c['score']['refused'] for c in eff)
+    lines = ['| effect | cases | found within 25 % | not observable (refused) |',
+             '|---|---|---|---|']
+    for name in EFFECTS:
+        cs = [c for c in eff if c['effect'] == name]
+        if cs:
+            lines.append(f'| {name} | {len(cs)} | {sum(c["score"]["found"] for c in cs)} | '
+                         f'{sum(c["score"]["refused"] for c in cs)} |')
+    lines.append(f'| clean pairs (no lidar finding) | {len(clean)} | '
+                 f'{sum(c["score"]["found"] for c in clean)} | |')
+    lines += ['', f'Found within 25 %: {n_ok} of {len(eff)} '
+              f'({100 * n_ok / max(len(eff), 1):.0f} %; refused {n_ref}); clean pairs without '
+              f'a lidar finding: {sum(c["score"]["found"] for c in clean)} of {len(clean)}.', '',
+              '| seed | scenario (s) | effect | truth | named | ok | CPU s |',
+              '|---|---|---|---|---|---|---|']
+    for c in cases:
+        truth = ', '.join(f'{k} {v:.4g}' for k, v in (c.get('truth') or {}).items()) or '-'
+        ok = 'yes' if c['score']['found'] else (
+            'not observable (refused)' if c['score']['refused'] else '**no**')
+        lines.append(f'| {c["seed"]} | {c["scenario"]} ({c["duration"]:.0f}) | '
+                     f'{c["effect"] or "clean"} | {truth} | {describe(c["result"])} | {ok} | '
+                     f'{c["cpu"]:.1f} |')
+    return lines
+
+
+if __name__ == '__main__':
+    import argparse
+    ap = argparse.ArgumentParser(description=__doc__)
+    ap.add_argument('--seeds', type=int, nargs=2, default=(300, 340),
+                    help='first and one past the last seed')
+    a = ap.parse_args()
+    done = []
+    for sd in range(*a.seeds):
+        done.append(run_case(make_case(sd)))
+    print('\n'.join(section(done)))

@@ -322,19 +322,39 @@ def _noise(rs, r0, e, bk, hd, topic, window, notes) -> list:
              'every range).'}]
 
 
+def _ll(k: np.ndarray, n: np.ndarray, p: np.ndarray) -> np.ndarray:
+    """Return the Bernoulli log-likelihood of ``k`` losses in ``n`` beams at rate ``p``."""
+    p = np.clip(p, 1e-6, 1 - 1e-6)
+    return k * np.log(p) + (n - k) * np.log(1 - p)
+
+
 def _step(r: np.ndarray, y: np.ndarray, q: float, cands: np.ndarray) -> tuple:
-    """Return (rate, beyond m, log-likelihood) of the best step of extra loss beyond a range."""
-    best = (max(float(y.mean()) - q, 0.0), 0.0, -np.inf)
-    for c in np.r_[0.0, cands]:
-        k = r >= c
-        if k.sum() < 50:
-            continue
-        p1 = min(max(float(y[k].mean()), q, 1e-6), 1 - 1e-6)
-        p0 = min(max(float(y[~k].mean()) if (~k).any() else q, 1e-6), 1 - 1e-6)
-        ll = float(np.sum(np.where(k, y * np.log(p1) + (1 - y) * np.log(1 - p1),
-                                   y * np.log(p0) + (1 - y) * np.log(1 - p0))))
-        if ll > best[2] + 1e-9:
-            best = (p1 - p0 if c > 0 else p1 - q, float(c), ll)
+    """
+    Return (rate, beyond m, log-likelihood) of the best step of extra loss beyond a range.
+
+    ``beyond`` 0 is a rate at every range above the simulation's own loss ``q``;
+    otherwise the rate is the loss beyond minus the loss below (at least 50
+    beams beyond). Counts from the beams sorted by range.
+    """
+    order = np.argsort(r, kind='stable')
+    rs, cum = r[order], np.r_[0.0, np.cumsum(y[order])]
+    n, tot = float(r.size), float(cum[-1])
+    c = np.asarray(cands, float)
+    i0 = np.searchsorted(rs, c, side='left')
+    n1, k1 = n - i0, tot - cum[i0]
+    n0, k0 = i0.astype(float), cum[i0]
+    p1 = np.maximum(k1 / np.maximum(n1, 1), q)
+    p0 = np.where(n0 > 0, k0 / np.maximum(n0, 1), q)
+    ll = _ll(k1, n1, p1) + _ll(k0, n0, p0)
+    ll = np.where(n1 >= 50, ll, -np.inf)
+    best = (max(tot / max(n, 1) - q, 0.0), 0.0, -np.inf)
+    if n >= 50:
+        p = max(tot / n, q)
+        best = (p - q, 0.0, float(_ll(np.array(tot), np.array(n), np.array(p))))
+    if c.size and np.isfinite(ll).any():
+        k = int(np.argmax(ll))
+        if ll[k] > best[2] + 1e-9:
+            best = (float(p1[k] - p0[k]), float(c[k]), float(ll[k]))
     return best
 
 
@@ -345,7 +365,7 @@ def _dropout(rs, rr, blk_s, held_s, topic, window) -> list:
     rows = np.nonzero(sim_ok)[0]
     bk, hd = blk_s[rows], held_s[rows]
     q = float(np.mean(~np.isfinite(rs)[np.isfinite(rr)])) if np.isfinite(rr).any() else 0.0
-    cands = np.quantile(r, np.linspace(0.1, 0.9, 17))
+    cands = np.quantile(r, np.linspace(0.01, 0.99, 99))
     rate, beyond, _ = _step(r, y, q, cands)
     if rate < FLOORS['rate']:
         return []

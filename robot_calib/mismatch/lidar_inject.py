@@ -42,7 +42,7 @@ def _recast(s: ScanSample, origin: tuple, yaw: float) -> np.ndarray:
     rz = np.where(fin, r, 0.0)
     p = np.c_[rz * np.cos(a), rz * np.sin(a)]
     join = fin[:-1] & fin[1:]
-    join[join] &= np.abs(np.diff(r)[join]) < 0.1 + 0.05 * r[:-1][join]
+    join[join] &= np.abs(np.diff(rz)[join]) < 0.1 + 0.05 * rz[:-1][join]
     half = 0.5 * abs(float(s.angle_increment)) * 1.001
     segs = [np.hstack((p[:-1][join], p[1:][join]))]
     for side, free in ((1.0, fin & ~np.r_[join, False]), (-1.0, fin & ~np.r_[False, join])):
