@@ -206,3 +206,17 @@ def test_sweep_distortion_refused_without_turning(run):
     assert any(j['channel'] == '/scan.sweep' and 'turning' in j['reason']
                for j in out['not_judged'])
     assert not [f for f in out['findings'] if f['effect'] == 'scan_distortion']
+
+
+def test_sweep_finding_switches_the_simulated_sweep():
+    import yaml
+
+    from robot_calib.mismatch import export
+    f = {'channel': '/scan.ranges', 'effect': 'scan_distortion', 'window': None,
+         'parameters': {'sweep_time': -0.094}, 'confidence': 0.9}
+    written = yaml.safe_load(export.sim_params_text({'verdict': 'mismatch', 'findings': [f]}))
+    assert written['sim']['lidar']['motion_distortion'] is False
+    f['parameters']['sweep_time'] = -0.05  # half a sweep: neither setting; said, not written
+    text = export.sim_params_text({'verdict': 'mismatch', 'findings': [f]})
+    assert 'motion_distortion' not in (yaml.safe_load(text)['sim'] or {}).get('lidar', {})
+    assert 'scan_distortion' in text
