@@ -394,7 +394,8 @@ def motion_findings(sim: Side, real: Side, topic: str, prm: LidarMismatchParams,
                            'turning (the recordings turn too little); drive turns that start '
                            'and stop'})
     elif 'tau_std' in ds and 'tau_std' in dr:
-        f = _delay_finding(ms, mr, sim, real, ds, dr, held, topic, window, prm, notes)
+        f = _delay_finding(ms, mr, sim, real, ds, dr, held, topic, window, prm, notes,
+                           not_judged)
         if f is not None:
             out.append(f)
     hs = hand_eye(ms, sim.odom, tau_s, prm.blocks, span=span)
@@ -404,10 +405,17 @@ def motion_findings(sim: Side, real: Side, topic: str, prm: LidarMismatchParams,
     return out
 
 
-def _delay_finding(ms, mr, sim, real, ds, dr, held, topic, window, prm, notes):
+def _delay_finding(ms, mr, sim, real, ds, dr, held, topic, window, prm, notes, not_judged):
     d = dr['tau'] - ds['tau']
     se = diff_std(ds, dr, 'tau')
     z = abs(d) / max(se, 1e-6)
+    if prm.z_min * se >= prm.max_lag:  # no delay within the search could be told from none
+        gap = float(np.median(ms.t1 - ms.t0))
+        not_judged.append({'channel': f'{topic}.stamp', 'reason': 'the scan delay is not '
+                           f'observable: its standard error is {se * 1000:.0f} ms (scan pairs '
+                           f'{gap:.2f} s apart), so no delay within +-{prm.max_lag * 1000:.0f} '
+                           'ms could be told from none'})
+        return None
     if z < prm.z_min or abs(d) < prm.floor_tau:
         if abs(d) >= prm.floor_tau:
             notes.append(f'{topic}: a scan delay of {d * 1000:+.1f} ms is not significant '

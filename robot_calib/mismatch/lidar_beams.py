@@ -222,7 +222,11 @@ def beam_findings(sim: list, real: list, topic: str, notes: list, not_judged: li
                     'confidence': _conf(z), 'evidence': {'z': float(z)}, 'explanation': txt})
     e = d0 - a @ x
     out.extend(_noise(rs, r0, e, bk, hd, topic, window, notes))
-    out.extend(_dropout(rs, rr, blk_s, held_s, topic, window))
+    # lost returns are counted where the sim, turned by the yaw fitted, sees a surface on both
+    # sides of the real beam's direction: a turned beam next to an edge or a gap of the sim
+    # scan may miss it without any dropout
+    out.extend(_dropout(_turned(rs, x[2] / inc) if x[2] else rs, rr, blk_s, held_s, topic,
+                        window))
     return out
 
 
