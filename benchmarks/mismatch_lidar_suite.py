@@ -202,6 +202,7 @@ def section(cases: list) -> list:
 
 if __name__ == '__main__':
     import argparse
+    import sys
     ap = argparse.ArgumentParser(description=__doc__)
     ap.add_argument('--seeds', type=int, nargs=2, default=(300, 340),
                     help='first and one past the last seed')
@@ -209,4 +210,5 @@ if __name__ == '__main__':
     done = []
     for sd in range(*a.seeds):
         done.append(run_case(make_case(sd)))
+        print(section(done[-1:])[-1], file=sys.stderr, flush=True)
     print('\n'.join(section(done)))
