@@ -369,7 +369,12 @@ def _dropout(rs, rr, blk_s, held_s, topic, window) -> list:
     rows = np.nonzero(sim_ok)[0]
     bk, hd = blk_s[rows], held_s[rows]
     q = float(np.mean(~np.isfinite(rs)[np.isfinite(rr)])) if np.isfinite(rr).any() else 0.0
-    cands = np.quantile(r, np.linspace(0.01, 0.99, 99))
+    # candidate ranges: every percent, and finer towards both ends (down to 50 beams from
+    # either end), so a step near the shortest or the longest ranges is found where it is
+    n = r.size
+    ends = np.geomspace(50, max(n / 2, 51), 40) if n > 100 else np.array([])
+    pos = np.unique(np.r_[np.linspace(0.01, 0.99, 99) * n, ends, n - ends].astype(int))
+    cands = np.sort(r)[np.clip(pos, 0, max(n - 1, 0))] if n else np.array([])
     rate, beyond, _ = _step(r, y, q, cands)
     if rate < FLOORS['rate']:
         return []
