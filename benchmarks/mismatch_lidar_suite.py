@@ -206,9 +206,10 @@ if __name__ == '__main__':
     ap = argparse.ArgumentParser(description=__doc__)
     ap.add_argument('--seeds', type=int, nargs=2, default=(300, 340),
                     help='first and one past the last seed')
+    ap.add_argument('--clean', action='store_true', help='clean pairs only (no effect)')
     a = ap.parse_args()
     done = []
     for sd in range(*a.seeds):
-        done.append(run_case(make_case(sd)))
+        done.append(run_case(make_case(sd, 1.0 if a.clean else 0.25)))
         print(section(done[-1:])[-1], file=sys.stderr, flush=True)
     print('\n'.join(section(done)))
