@@ -86,11 +86,21 @@ def natural(items: list) -> None:
               f'{h["scale"]:.4f} |')
 
 
-def injected(items: list, quick: bool) -> tuple[int, int]:
+CHANNEL = {'lidar_mounting_yaw': 'mounting', 'lidar_mounting_offset': 'mounting',
+           'lidar_time_offset': 'stamp'}
+
+
+def _refused(res: dict, effect: str) -> bool:
+    """Return whether the analyser listed the effect's channel as not judged."""
+    chan = CHANNEL.get(effect, 'ranges')
+    return any(j['channel'].endswith(chan) or effect in j['reason'] for j in res['not_judged'])
+
+
+def injected(items: list, quick: bool) -> tuple[int, int, int]:
     print('\n## injected effects (found within 25 %)\n')
     print('| part | effect | injected | found | ok | s |')
     print('|---|---|---|---|---|---|')
-    good = total = 0
+    good = total = refused = 0
     for name, scans, odom, prm in items:
         base = inj.inject(scans, 'noise', 0.01, seed=11)
         for effect, values, keys in EFFECTS:
@@ -108,9 +118,13 @@ def injected(items: list, quick: bool) -> tuple[int, int]:
                 others = [g for g in res['findings'] if g['effect'] != effect]
                 good += ok and not others
                 total += 1
-                print(f'| {name} | {effect} | {vals} | {_row(res)} | '
-                      f'{"yes" if ok and not others else "no"} | {dt:.1f} |')
-    return good, total
+                status = 'yes' if ok and not others else 'no'
+                if not f and not others and _refused(res, effect):
+                    status = 'not observable (refused)'
+                    refused += 1
+                shown = tuple(round(x, 4) for x in vals)
+                print(f'| {name} | {effect} | {shown} | {_row(res)} | {status} | {dt:.1f} |')
+    return good, total, refused
 
 
 def nulls(items: list) -> tuple[int, int]:
@@ -147,10 +161,11 @@ def main() -> None:
         print('no shared data; nothing to do')
         return
     natural(items)
-    g, n = injected(items, a.quick)
+    g, n, r = injected(items, a.quick)
     c, m = nulls(items)
     dt = timing()
-    print(f'\nsummary: injected found {g}/{n} ({100 * g / max(n, 1):.0f} %), '
+    print(f'\nsummary: injected found {g}/{n} ({100 * g / max(n, 1):.0f} %; not observable, '
+          f'refused: {r}; missed otherwise: {n - g - r}), '
           f'null pairs clean {c}/{m}, 10-minute pair {dt:.1f} s')
 
 

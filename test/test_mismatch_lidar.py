@@ -154,5 +154,69 @@ def test_lidar_findings_reach_the_simulator_parameters():
         import yaml
         written = yaml.safe_load(text)
         assert written['sim']['lidar']['range_scale'] == pytest.approx(0.012)
+        # the scan delay reaches the simulator as its lidar time offset
+        if 'lidar.time_offset' in flat:
+            assert written['sim']['lidar']['time_offset'] == pytest.approx(0.04)
+        else:
+            assert written['sim']['latency']['scan'] == pytest.approx(0.04)
     else:
         assert 'range_scale on /scan.ranges' in text
+
+
+def test_recast_keeps_isolated_returns_and_edges():
+    # every other beam returns (as far, sparse surfaces do): a turned or moved scanner
+    # must not lose them at the gaps of the polyline (it would read as a dropout)
+    ang = -math.pi / 2 + np.arange(181) * math.radians(1.0)
+    r = np.where(np.arange(181) % 2 == 0, 6.0, np.inf)
+    r[60:90] = 2.0 + 0.01 * np.arange(30)  # a near surface with depth edges
+    s = T.ScanSample(t=0.0, angle_min=float(ang[0]), angle_increment=math.radians(1.0),
+                     ranges=r, range_min=0.05, range_max=30.0)
+    for effect, value in (('lidar_mounting_yaw', math.radians(1.0)),
+                          ('lidar_mounting_yaw', math.radians(0.5)),
+                          ('lidar_mounting_offset', (0.03, 0.0))):
+        out = inj.inject([s], effect, value)[0].ranges
+        assert np.isfinite(out).sum() >= np.isfinite(r).sum() - 2, (effect, value)
+
+
+def _sim_pair(real_sets, sim_sets=(), duration=60.0, scenario='drive'):
+    from robot_calib.sim import engine
+    from robot_calib.sim.scenario import BuildContext
+
+    def one(sensor_seed, sets):
+        sc = engine.get_scenario(scenario)
+        p = engine.make_params(sc, list(sets))
+        setup = sc.build(BuildContext(p, duration, 7, engine.rng_for(7, 'scenario')))
+        res = engine.run_setup(setup, p, duration, sensor_seed, sc)
+        s, t0 = res.sensors, p.start_time
+        return res.topic('/scan'), (s['odom_t'] + t0, s['odom_vx'], s['odom_wz'])
+    (ss, so), (rs, ro) = one(7, sim_sets), one(8, real_sets)
+    return L.analyse_lidar({'/scan': ss}, {'/scan': rs}, so, ro)
+
+
+def test_sweep_distortion_found_against_a_deskewed_simulation():
+    out = _sim_pair(['lidar.motion_distortion=true'], ['lidar.motion_distortion=false'])
+    found = [f for f in out['findings'] if f['effect'] == 'scan_distortion']
+    assert found and abs(found[0]['parameters']['sweep_time'] - 0.1) <= 0.025, out['findings']
+    assert {f['effect'] for f in out['findings']} == {'scan_distortion'}, out['findings']
+
+
+def test_sweep_distortion_refused_without_turning(run):
+    still = (run['odom'][0], run['odom'][1], 0.0 * run['odom'][2])
+    out = _analyse(run, odom=still)
+    assert any(j['channel'] == '/scan.sweep' and 'turning' in j['reason']
+               for j in out['not_judged'])
+    assert not [f for f in out['findings'] if f['effect'] == 'scan_distortion']
+
+
+def test_sweep_finding_switches_the_simulated_sweep():
+    import yaml
+
+    from robot_calib.mismatch import export
+    f = {'channel': '/scan.ranges', 'effect': 'scan_distortion', 'window': None,
+         'parameters': {'sweep_time': -0.094}, 'confidence': 0.9}
+    written = yaml.safe_load(export.sim_params_text({'verdict': 'mismatch', 'findings': [f]}))
+    assert written['sim']['lidar']['motion_distortion'] is False
+    f['parameters']['sweep_time'] = -0.05  # half a sweep: neither setting; said, not written
+    text = export.sim_params_text({'verdict': 'mismatch', 'findings': [f]})
+    assert 'motion_distortion' not in (yaml.safe_load(text)['sim'] or {}).get('lidar', {})
+    assert 'scan_distortion' in text

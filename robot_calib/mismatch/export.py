@@ -207,6 +207,8 @@ class _Mapper:
             self.add('wheels.steering_offset', par['offset'], why)
         elif e in LIDAR_KEYS:
             self._lidar(f, e, par, why)
+        elif e == 'scan_distortion':
+            self._sweep(f, par, why)
         else:
             self.cannot(f, _NO_COUNTERPART.get(e, 'no simulator parameter models it'))
 
@@ -235,6 +237,21 @@ class _Mapper:
             return
         for key, name in keys:
             self.add(key, par[name], why)
+
+    def _sweep(self, f: dict, par: dict, why: str) -> None:
+        """Turn the simulator's sweep distortion on or off (it sweeps in 0 s or 1 / rate)."""
+        if 'lidar.motion_distortion' not in self.v or 'lidar.rate' not in self.v:
+            self.cannot(f, 'this simulator has no lidar.motion_distortion')
+            return
+        period = 1.0 / float(self.v['lidar.rate'])
+        new = (period if self.v['lidar.motion_distortion'] else 0.0) + float(par['sweep_time'])
+        on = new > 0.5 * period
+        if abs(new - (period if on else 0.0)) > 0.25 * period:
+            self.cannot(f, f'the simulator sweeps in 0 s (deskewed) or one scan period '
+                           f'({period * 1000:.0f} ms); a sweep of {new * 1000:.0f} ms is neither')
+            return
+        self.v['lidar.motion_distortion'] = bool(on)
+        self.note('lidar.motion_distortion', why)
 
     def _scale(self, f: dict, e: str, par: dict, field: str, why: str) -> None:
         k = float(par['scale'])

@@ -394,7 +394,8 @@ def motion_findings(sim: Side, real: Side, topic: str, prm: LidarMismatchParams,
                            'turning (the recordings turn too little); drive turns that start '
                            'and stop'})
     elif 'tau_std' in ds and 'tau_std' in dr:
-        f = _delay_finding(ms, mr, sim, real, ds, dr, held, topic, window, prm, notes)
+        f = _delay_finding(ms, mr, sim, real, ds, dr, held, topic, window, prm, notes,
+                           not_judged)
         if f is not None:
             out.append(f)
     hs = hand_eye(ms, sim.odom, tau_s, prm.blocks, span=span)
@@ -404,10 +405,17 @@ def motion_findings(sim: Side, real: Side, topic: str, prm: LidarMismatchParams,
     return out
 
 
-def _delay_finding(ms, mr, sim, real, ds, dr, held, topic, window, prm, notes):
+def _delay_finding(ms, mr, sim, real, ds, dr, held, topic, window, prm, notes, not_judged):
     d = dr['tau'] - ds['tau']
     se = diff_std(ds, dr, 'tau')
     z = abs(d) / max(se, 1e-6)
+    if prm.z_min * se >= prm.max_lag:  # no delay within the search could be told from none
+        gap = float(np.median(ms.t1 - ms.t0))
+        not_judged.append({'channel': f'{topic}.stamp', 'reason': 'the scan delay is not '
+                           f'observable: its standard error is {se * 1000:.0f} ms (scan pairs '
+                           f'{gap:.2f} s apart), so no delay within +-{prm.max_lag * 1000:.0f} '
+                           'ms could be told from none'})
+        return None
     if z < prm.z_min or abs(d) < prm.floor_tau:
         if abs(d) >= prm.floor_tau:
             notes.append(f'{topic}: a scan delay of {d * 1000:+.1f} ms is not significant '
@@ -517,7 +525,8 @@ def analyse_lidar(sim_scans: dict, real_scans: dict, sim_odom: Optional[tuple],
                                f'real {len(rs)})'})
             continue
         judged.append(topic)
-        beam = B.beam_findings(ss, rs, topic, notes, not_judged)
+        beam = B.beam_findings(ss, rs, topic, notes, not_judged, motion=real_odom,
+                               min_turn=prm.min_turn)
         if sim_odom is None or real_odom is None:
             not_judged.append({'channel': f'{topic}.motion', 'reason': "the scanner's motion "
                                'is compared with odometry, which a recording lacks'})
@@ -526,14 +535,14 @@ def analyse_lidar(sim_scans: dict, real_scans: dict, sim_odom: Optional[tuple],
             sides = [make_side(sc, *od, prm) for sc, od in ((ss, sim_odom), (rs, real_odom))]
             motion = motion_findings(sides[0], sides[1], topic, prm, notes, not_judged)
         # the beams see a moved or turned scanner more precisely than the motion does
-        for eff in ('lidar_mounting_yaw', 'lidar_mounting_offset'):
+        for eff in ('lidar_mounting_yaw', 'lidar_mounting_offset', 'lidar_time_offset'):
             bf = [f for f in beam if f['effect'] == eff]
             for f in [f for f in motion if f['effect'] == eff and bf]:
                 motion.remove(f)
                 notes.append(f'{topic}: the scan-to-scan motion gives {eff} {f["parameters"]}; '
                              f'the beam comparison gives {bf[0]["parameters"]} and is reported')
+        B.sweep_vs_delay(beam, motion, topic, prm, notes, not_judged)
         findings.extend(beam + motion)
-    notes.append('scan_distortion (an uncorrected sweep) is not estimated by this version')
     return {'findings': findings, 'not_judged': not_judged, 'notes': notes, 'judged': judged}
 
 

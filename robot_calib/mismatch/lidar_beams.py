@@ -24,6 +24,13 @@ Beams the simulation returns and the real scanner does not are dropouts,
 modelled as a rate that steps up beyond a range (``dropout_rate``), against
 the simulation's own loss rate.
 
+An uncorrected sweep (``scan_distortion``): beam ``i`` of ``n`` is measured
+``i / n`` of the sweep time after the stamp, so while the real robot turns at
+``w`` and drives at ``v`` (its odometry at the stamp) a sweep ``dT`` longer
+than the simulated one adds the column ``(i / n) dT (w g + v a_x)`` (``a_x``:
+the offset column of x above); ``dT`` is the finding (s). Without turning it
+is not judged (the listed reason names the turning seen).
+
 Whether both see the same geometry is tested first (the share of beams that
 agree within 0.1 m + 5 %); otherwise nothing here is judged and the reason is
 listed. Standard errors by a block jackknife over time blocks; each effect
@@ -33,21 +40,31 @@ must improve the held-out chunks (every third of ``heldout_chunks``).
 from __future__ import annotations
 
 import math
+from typing import Optional, TYPE_CHECKING
 
 import numpy as np
 
-__all__ = ['beam_findings', 'pair_scans']
+if TYPE_CHECKING:  # pragma: no cover
+    from robot_calib.mismatch.lidar import LidarMismatchParams
+
+__all__ = ['beam_findings', 'pair_scans', 'sweep_vs_delay']
 
 BLOCKS = 6
 CHUNKS = 12
 Z_MIN = 5.0
-FLOORS = {'bias': 0.005, 'scale': 0.002, 'yaw': 0.0035, 'x': 0.015, 's1': 0.0015, 'rate': 0.02}
+FLOORS = {'bias': 0.005, 'scale': 0.002, 'yaw': 0.0035, 'x': 0.015, 's1': 0.0015, 'rate': 0.02,
+          'sweep_time': 0.005, 'tau': 0.008}
 
 
 def pair_scans(sim: list, real: list, tol: float = 0.02) -> tuple:
-    """Return (sim ranges, real ranges, angles, times) of scans with equal beams and stamps."""
+    """
+    Return (sim ranges, real ranges, angles, times, stamp differences) of paired scans.
+
+    Scans are paired when their beams are equal and their stamps within ``tol``
+    (s); the stamp difference is the real minus the simulated stamp (s).
+    """
     ts = np.array([s.t for s in sim])
-    rs, rr, tt = [], [], []
+    rs, rr, tt, dp = [], [], [], []
     ang = None
     for r in real:
         i = int(np.clip(np.searchsorted(ts, r.t), 1, ts.size - 1))
@@ -64,9 +81,10 @@ def pair_scans(sim: list, real: list, tol: float = 0.02) -> tuple:
         rr.append(np.where((r.ranges >= r.range_min) & (r.ranges < r.range_max), r.ranges,
                            np.nan))
         tt.append(r.t)
+        dp.append(r.t - s.t)
     if not rs:
         return None
-    return np.array(rs), np.array(rr), ang, np.array(tt)
+    return np.array(rs), np.array(rr), ang, np.array(tt), np.array(dp)
 
 
 def _huber(a: np.ndarray, y: np.ndarray) -> np.ndarray:
@@ -91,8 +109,15 @@ def _conf(z: float) -> float:
     return float(1.0 - 0.5 ** ((max(z, 0.0) / Z_MIN) ** 2.1))
 
 
-def beam_findings(sim: list, real: list, topic: str, notes: list, not_judged: list) -> list:
-    """Return the beam findings of one scan topic (empty with a reason when not judged)."""
+def beam_findings(sim: list, real: list, topic: str, notes: list, not_judged: list,
+                  motion: Optional[tuple] = None, min_turn: float = 0.5) -> list:
+    """
+    Return the beam findings of one scan topic (empty with a reason when not judged).
+
+    ``motion``: the real recording's odometry ``(t, vx, wz)`` (s, m/s, rad/s) for the
+    sweep distortion; ``min_turn`` (rad): the summed turning over the compared scans
+    below which the distortion is not judged.
+    """
     p = pair_scans(sim, real)
     if p is None or p[0].shape[0] < 20:
         not_judged.append({'channel': f'{topic}.ranges', 'reason': 'the beams are compared '
@@ -100,7 +125,7 @@ def beam_findings(sim: list, real: list, topic: str, notes: list, not_judged: li
                            'scan at the true pose, or a simulation replayed along the real '
                            'path); these recordings have none in common'})
         return []
-    rs, rr, ang, tt = p
+    rs, rr, ang, tt, dp = p
     inc = float(ang[1] - ang[0]) if ang.size > 1 else 1.0
     both = np.isfinite(rs) & np.isfinite(rr)
     agree = both & (np.abs(rr - rs) < 0.1 + 0.05 * np.nan_to_num(rs))
@@ -115,6 +140,7 @@ def beam_findings(sim: list, real: list, topic: str, notes: list, not_judged: li
     held_s = ((np.minimum((np.arange(ns) * CHUNKS) // ns, CHUNKS - 1)) % 3) == 2
     window = [float(tt[0]), float(tt[-1])]
     out = []
+    sweep = _sweep_rows(motion, tt, nbm, min_turn, topic, not_judged)
     turn = 0.0
     for _ in range(4):  # Gauss-Newton on the angle: re-sample the sim beams, fit again
         rsh = _turned(rs, turn / inc)
@@ -130,6 +156,13 @@ def beam_findings(sim: list, real: list, topic: str, notes: list, not_judged: li
         cb, sb = np.cos(b), np.sin(b)
         # a scanner moved by (dx, dy): dr = -d.u + g (d.n) / r, u = (cos, sin), n = (-sin, cos)
         a = np.c_[np.ones(r0.size), r0, g0, -cb - g0 * sb / r0, -sb + g0 * cb / r0]
+        if sweep is not None:
+            # the real scanner's view moved by the motion over a time: c = w g + v a_x;
+            # beam i seen i/n of the sweep late (f c dT); the scan seen tau before the
+            # simulated one beyond their stamps' difference (-c tau, the difference known)
+            c = sweep[0][ii[0]] * g0 + sweep[1][ii[0]] * a[:, 3]
+            a = np.c_[a, c * (ii[1] / nbm), -c]
+            d0 = d0 - dp[ii[0]] * c
         if r0.size < 200:
             not_judged.append({'channel': f'{topic}.ranges', 'reason': 'too few beams on '
                                'smooth surfaces in both recordings'})
@@ -146,6 +179,9 @@ def beam_findings(sim: list, real: list, topic: str, notes: list, not_judged: li
     xf[2] += turn
     names = [('range_bias', ('bias',), (0,)), ('range_scale', ('scale',), (1,)),
              ('lidar_mounting_yaw', ('yaw',), (2,)), ('lidar_mounting_offset', ('x', 'y'), (3, 4))]
+    if sweep is not None:
+        names += [('scan_distortion', ('sweep_time',), (5,)),
+                  ('lidar_time_offset', ('tau',), (6,))]
     for effect, keys, js in names:
         z = math.sqrt(sum((x[j] / max(sd[j], 1e-12)) ** 2 for j in js))
         size = math.sqrt(sum(x[j] ** 2 for j in js))
@@ -168,8 +204,17 @@ def beam_findings(sim: list, real: list, topic: str, notes: list, not_judged: li
                'mounts it.',
                'lidar_mounting_offset': 'Real beams look as if the scanner sat '
                f'({x[3] * 100:+.1f}, {x[4] * 100:+.1f}) cm from where the simulation '
-               'mounts it.'}[effect]
-        out.append({'channel': f'{topic}.ranges', 'effect': effect,
+               'mounts it.',
+               'lidar_time_offset': f'Real scans show the scene {abs(val) * 1000:.0f} ms '
+               f'{"before" if val > 0 else "after"} their stamp, relative to the simulated '
+               "ones (beam by beam, with the odometry's motion): their stamps are late by "
+               'that much.',
+               'scan_distortion': 'Real scans are bent by the sweep while the robot turns as '
+               f'if each sweep took {val * 1000:+.0f} ms longer than the simulated one (beam '
+               'i seen i/n of the sweep after the stamp; a deskewed simulation sweeps in 0 '
+               'ms).'}[effect]
+        chan = f'{topic}.stamp' if effect == 'lidar_time_offset' else f'{topic}.ranges'
+        out.append({'channel': chan, 'effect': effect,
                     'parameters': {k: float(x[j]) for k, j in zip(keys, js)},
                     'std': {k: float(sd[j]) for k, j in zip(keys, js)}, 'window': None,
                     'fit': {'rmse_before': res[0], 'rmse_after': res[2],
@@ -177,8 +222,31 @@ def beam_findings(sim: list, real: list, topic: str, notes: list, not_judged: li
                     'confidence': _conf(z), 'evidence': {'z': float(z)}, 'explanation': txt})
     e = d0 - a @ x
     out.extend(_noise(rs, r0, e, bk, hd, topic, window, notes))
-    out.extend(_dropout(rs, rr, blk_s, held_s, topic, window))
+    # lost returns are counted where the sim, turned by the yaw fitted, sees a surface on both
+    # sides of the real beam's direction: a turned beam next to an edge or a gap of the sim
+    # scan may miss it without any dropout
+    out.extend(_dropout(_turned(rs, x[2] / inc) if x[2] else rs, rr, blk_s, held_s, topic,
+                        window))
     return out
+
+
+def _sweep_rows(motion, tt, nbm, min_turn, topic, not_judged) -> Optional[tuple]:
+    """Return the real yaw rate and speed (rad/s, m/s) at each compared scan, or None."""
+    why = None
+    if motion is None:
+        why = 'the sweep distortion is measured against the odometry, which a recording lacks'
+    else:
+        w = np.interp(tt, motion[0], motion[2])
+        v = np.interp(tt, motion[0], motion[1])
+        dt = float(np.median(np.diff(tt))) if tt.size > 1 else 0.0
+        turned = float(np.abs(w).sum() * dt)
+        if turned < min_turn or nbm < 20:
+            why = (f'the sweep distortion needs turning; the compared scans turn '
+                   f'{math.degrees(turned):.0f} deg in all')
+    if why is not None:
+        not_judged.append({'channel': f'{topic}.sweep', 'reason': why})
+        return None
+    return w, v
 
 
 def _turned(rs: np.ndarray, k: float) -> np.ndarray:
@@ -258,19 +326,39 @@ def _noise(rs, r0, e, bk, hd, topic, window, notes) -> list:
              'every range).'}]
 
 
+def _ll(k: np.ndarray, n: np.ndarray, p: np.ndarray) -> np.ndarray:
+    """Return the Bernoulli log-likelihood of ``k`` losses in ``n`` beams at rate ``p``."""
+    p = np.clip(p, 1e-6, 1 - 1e-6)
+    return k * np.log(p) + (n - k) * np.log(1 - p)
+
+
 def _step(r: np.ndarray, y: np.ndarray, q: float, cands: np.ndarray) -> tuple:
-    """Return (rate, beyond m, log-likelihood) of the best step of extra loss beyond a range."""
-    best = (max(float(y.mean()) - q, 0.0), 0.0, -np.inf)
-    for c in np.r_[0.0, cands]:
-        k = r >= c
-        if k.sum() < 50:
-            continue
-        p1 = min(max(float(y[k].mean()), q, 1e-6), 1 - 1e-6)
-        p0 = min(max(float(y[~k].mean()) if (~k).any() else q, 1e-6), 1 - 1e-6)
-        ll = float(np.sum(np.where(k, y * np.log(p1) + (1 - y) * np.log(1 - p1),
-                                   y * np.log(p0) + (1 - y) * np.log(1 - p0))))
-        if ll > best[2] + 1e-9:
-            best = (p1 - p0 if c > 0 else p1 - q, float(c), ll)
+    """
+    Return (rate, beyond m, log-likelihood) of the best step of extra loss beyond a range.
+
+    ``beyond`` 0 is a rate at every range above the simulation's own loss ``q``;
+    otherwise the rate is the loss beyond minus the loss below (at least 50
+    beams beyond). Counts from the beams sorted by range.
+    """
+    order = np.argsort(r, kind='stable')
+    rs, cum = r[order], np.r_[0.0, np.cumsum(y[order])]
+    n, tot = float(r.size), float(cum[-1])
+    c = np.asarray(cands, float)
+    i0 = np.searchsorted(rs, c, side='left')
+    n1, k1 = n - i0, tot - cum[i0]
+    n0, k0 = i0.astype(float), cum[i0]
+    p1 = np.maximum(k1 / np.maximum(n1, 1), q)
+    p0 = np.where(n0 > 0, k0 / np.maximum(n0, 1), q)
+    ll = _ll(k1, n1, p1) + _ll(k0, n0, p0)
+    ll = np.where(n1 >= 50, ll, -np.inf)
+    best = (max(tot / max(n, 1) - q, 0.0), 0.0, -np.inf)
+    if n >= 50:
+        p = max(tot / n, q)
+        best = (p - q, 0.0, float(_ll(np.array(tot), np.array(n), np.array(p))))
+    if c.size and np.isfinite(ll).any():
+        k = int(np.argmax(ll))
+        if ll[k] > best[2] + 1e-9:
+            best = (float(p1[k] - p0[k]), float(c[k]), float(ll[k]))
     return best
 
 
@@ -281,7 +369,12 @@ def _dropout(rs, rr, blk_s, held_s, topic, window) -> list:
     rows = np.nonzero(sim_ok)[0]
     bk, hd = blk_s[rows], held_s[rows]
     q = float(np.mean(~np.isfinite(rs)[np.isfinite(rr)])) if np.isfinite(rr).any() else 0.0
-    cands = np.quantile(r, np.linspace(0.1, 0.9, 17))
+    # candidate ranges: every percent, and finer towards both ends (down to 50 beams from
+    # either end), so a step near the shortest or the longest ranges is found where it is
+    n = r.size
+    ends = np.geomspace(50, max(n / 2, 51), 40) if n > 100 else np.array([])
+    pos = np.unique(np.r_[np.linspace(0.01, 0.99, 99) * n, ends, n - ends].astype(int))
+    cands = np.sort(r)[np.clip(pos, 0, max(n - 1, 0))] if n else np.array([])
     rate, beyond, _ = _step(r, y, q, cands)
     if rate < FLOORS['rate']:
         return []
@@ -305,3 +398,39 @@ def _dropout(rs, rr, blk_s, held_s, topic, window) -> list:
              'confidence': _conf(z), 'evidence': {'z': float(z), 'sim_loss': q},
              'explanation': f'{rate:.0%} more real beams return nothing {where} where the '
              'simulation sees a surface.'}]
+
+
+def sweep_vs_delay(beam: list, motion: list, topic: str, prm: 'LidarMismatchParams',
+                   notes: list, not_judged: list) -> None:
+    """
+    Take the sweep's share out of a scan delay measured by the scan-to-scan motion.
+
+    A scan swept over ``dT`` and not deskewed registers as the motion at about
+    its middle, so the motion's delay holds ``-dT / 2`` of the sweep found beam
+    by beam. The delay is kept only when what is left is still significant,
+    its standard error widened by ``dT / 8`` (where in the sweep an undeskewed
+    scan's motion sits is known to about a quarter of it).
+    """
+    sw = [f for f in beam if f['effect'] == 'scan_distortion']
+    dl = [f for f in motion if f['effect'] == 'lidar_time_offset']
+    if not sw or not dl:
+        return
+    d_t, f = sw[0]['parameters']['sweep_time'], dl[0]
+    tau = f['parameters']['tau'] + 0.5 * d_t
+    se = math.sqrt(f['std']['tau'] ** 2 + (0.5 * sw[0]['std']['sweep_time']) ** 2 +
+                   (d_t / 8) ** 2)
+    z = abs(tau) / max(se, 1e-9)
+    motion.remove(f)
+    if z < prm.z_min or abs(tau) < prm.floor_tau:
+        not_judged.append({'channel': f'{topic}.stamp', 'reason': 'the scan delay seen by the '
+                           f'scan-to-scan motion ({f["parameters"]["tau"] * 1000:+.0f} ms) is '
+                           f'half the sweep distortion found ({d_t * 1000:+.0f} ms); beyond it '
+                           f'{tau * 1000:+.0f} +- {se * 1000:.0f} ms is not significant'})
+        return
+    notes.append(f'{topic}: the scan delay {f["parameters"]["tau"] * 1000:+.1f} ms less half '
+                 f'the sweep distortion found ({d_t * 1000:+.0f} ms)')
+    f['parameters']['tau'] = float(tau)
+    f['std']['tau'] = float(se)
+    f['evidence']['z'] = float(z)
+    f['confidence'] = _conf(z * Z_MIN / prm.z_min)
+    motion.append(f)

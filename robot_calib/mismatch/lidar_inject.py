@@ -27,17 +27,31 @@ def _recast(s: ScanSample, origin: tuple, yaw: float) -> np.ndarray:
     Return the scan seen from ``origin`` (m) turned by ``yaw`` (rad) in its own frame.
 
     The returns become a polyline (neighbours joined unless a depth edge,
-    more than 0.1 m + 5 % apart); each beam is cast against it. A surface the
-    original scan did not see stays unseen (inf).
+    more than 0.1 m + 5 % apart); each beam is cast against it. A return
+    whose neighbour on one side is not joined (a depth edge, a lost or an
+    isolated return) covers half the angle to that neighbour at its own range
+    (the beam's share of the angle: nearest-neighbour in angle), so a turned
+    or moved beam between two unjoined returns meets the nearer one in angle
+    instead of passing through a gap the original scan never showed. A
+    surface the original scan did not see stays unseen (inf).
     """
     from robot_calib.sim.world import World
     r = np.array(s.ranges, float)
     a = s.angles()
-    p = np.c_[r * np.cos(a), r * np.sin(a)]
     fin = np.isfinite(r)
+    rz = np.where(fin, r, 0.0)
+    p = np.c_[rz * np.cos(a), rz * np.sin(a)]
     join = fin[:-1] & fin[1:]
-    join[join] &= np.abs(np.diff(r)[join]) < 0.1 + 0.05 * r[:-1][join]
-    w = World(segments=np.hstack((p[:-1][join], p[1:][join])))
+    join[join] &= np.abs(np.diff(rz)[join]) < 0.1 + 0.05 * rz[:-1][join]
+    half = 0.5 * abs(float(s.angle_increment)) * 1.001
+    segs = [np.hstack((p[:-1][join], p[1:][join]))]
+    for side, free in ((1.0, fin & ~np.r_[join, False]), (-1.0, fin & ~np.r_[False, join])):
+        e = a[free] + side * half
+        q = np.c_[rz[free] * np.cos(e), rz[free] * np.sin(e)]
+        segs.append(np.hstack((p[free], q)))
+    seg = np.vstack(segs)
+    d = 1e-3 * (seg[:, 2:] - seg[:, :2])  # a ray through a shared end point meets one of them
+    w = World(segments=np.hstack((seg[:, :2] - d, seg[:, 2:] + d)))
     out = w.raycast(float(origin[0]), float(origin[1]), a + yaw)
     out[~np.isfinite(out)] = np.inf
     return out
