@@ -153,6 +153,19 @@ def natural(pairs: list) -> tuple[list, list, dict]:
         named += has
         agree += has and abs(loss - fw['k']) <= TOL * fw['k'] and \
             abs(lag_a - lag_f) <= TOL * lag_f
+    fits = [r['fit'] for r in rows]
+
+    def span(vals):
+        return f'{min(vals):.2f}-{max(vals):.2f}'
+    lines += ['', "The issue's expectation of an independent fit: forward lag 0.3-0.6 s, turn "
+              '0.23-0.3 s, straight gain within 3 %, k 1.1-1.2 s/rad. This fit: forward d + tau '
+              + span([f['forward']['dead_time'] + f['forward']['tau'] for f in fits]) +
+              ' s, turn d + tau ' + span([f['turn']['dead_time'] + f['turn']['tau']
+                                         for f in fits]) +
+              ' s, steady straight ratio ' + span([f['steady']['straight'] for f in fits]) +
+              ' (fitted gain ' + span([f['forward']['gain'] for f in fits]) + '), k ' +
+              span([f['forward']['k'] for f in fits]) + ' s/rad, steady turn ratio ' +
+              span([f['steady']['turn'] for f in fits]) + '.']
     lines += ['', f'Lag and turn-coupled speed loss both named: {named}/{len(pairs)}; '
               f'agreeing with the fit (k and forward d + tau within 25 %): {agree}/{len(pairs)}.',
               '']
