@@ -48,6 +48,7 @@ from typing import Optional
 
 import numpy as np
 
+from robot_calib.mismatch import drive as D
 from robot_calib.mismatch import effects as E
 from robot_calib.mismatch import latency as L
 from robot_calib.mismatch import residual as U
@@ -364,6 +365,20 @@ def _heldout_worse(weighted: dict) -> set:
 
 
 # -- findings -------------------------------------------------------------------------------
+def _without(pt: PairedTopic, fields: dict) -> PairedTopic:
+    """Return ``pt`` without ``fields`` (judged by the drive model, not the time stage)."""
+    keep = {k: v for k, v in pt.sim.items() if k not in fields}
+    return replace(pt, sim=keep, real={k: v for k, v in pt.real.items() if k in keep},
+                   sim_reg={k: v for k, v in pt.sim_reg.items() if k in keep},
+                   sim_noisy={k: v for k, v in pt.sim_noisy.items() if k in keep})
+
+
+def _drive_tau(drive: Optional[D.DriveResult]) -> float:
+    """Return the forward axis' dead time plus lag (s) of a drive model, 0 without one."""
+    m = drive.models.get(D.V) if drive is not None else None
+    return float(m.d + m.tau) if m is not None else 0.0
+
+
 def _analyse_topic(pt: PairedTopic, sim: Recording, real: Recording, t0: float,
                    prm: MismatchParams, notes: list, not_judged: list,
                    channel_info: dict) -> tuple[list, Optional[S.Problem], list, dict]:
@@ -372,8 +387,16 @@ def _analyse_topic(pt: PairedTopic, sim: Recording, real: Recording, t0: float,
         return [], None, [], {}
     edges = R.block_edges(prob0.n, pt.dt, prm.blocks, prm.min_block_s)
     acmd = _aux(sim, real, pt, t0, []).get('acmd') if pt.msgtype == ODOM_TYPE else None
-    timing = T.time_stage(pt, prob0, prm, edges, acmd)
-    findings = T.time_findings(pt, prob0, timing, prm, edges, acmd)
+    drive = D.analyse_drive(pt, prm)
+    ptt, probt = pt, prob0
+    if drive is not None:  # the time stage judges the fields the drive model leaves
+        ptt = _without(pt, drive.sim)
+        probt = make_problem(ptt, prm.noise_smooth, None) if ptt.sim else None
+    timing = T.time_stage(ptt, probt, prm, edges, acmd) if probt is not None else []
+    findings = T.time_findings(ptt, probt, timing, prm, edges, acmd) if timing else []
+    if drive is not None:
+        findings = drive.findings + findings
+        channel_info.setdefault('_drive', {})[pt.name] = drive.text
     taus = {}
     for kind, te, _ in timing:
         if kind in ('time_offset', 'timing_drift'):
@@ -386,14 +409,17 @@ def _analyse_topic(pt: PairedTopic, sim: Recording, real: Recording, t0: float,
         for te, info in lags:
             sim_l.update({f: T.lagged(pt, f, info['lag_tau']) for f in te.fields})
         pta = replace(pta, sim=sim_l, sim_reg={}, sim_noisy={})
-    prob = make_problem(pta, prm.noise_smooth, None) if (taus or lags) else prob0
+    if drive is not None:  # the drive's dynamics replace the simulated speed and turn rate
+        pta = replace(pta, sim={**pta.sim, **drive.sim}, sim_reg={}, sim_noisy={})
+    prob = make_problem(pta, prm.noise_smooth, None) if (taus or lags or drive) else prob0
     if prob is None:
         return findings, None, [], {}
     # the delay of the channel each regressor from another topic serves: the odometry speed
     # (wheel slip), the accelerometer's lateral axis (centripetal acceleration)
     aux = _aux(sim, real, pta, t0, notes,
                taus.get(T.SLIP_FIELD, taus.get('linear_acceleration.y', 0.0)),
-               next((info['lag_tau'] for te, info in lags if T.SLIP_FIELD in te.fields), 0.0))
+               next((info['lag_tau'] for te, info in lags if T.SLIP_FIELD in te.fields),
+                    _drive_tau(drive)))
     cands, cannot = E.candidates(pta, prob.sigma, aux)
     notes.extend(c for c in cannot if c not in notes)
     sel, prob, implausible = _select(prob, cands, prm, edges, notes, not_judged)
@@ -459,6 +485,7 @@ def analyse_recordings(sim: Recording, real: Recording,
         if 'detail' in info:
             details.append(info['detail'])
     findings = reconcile(findings, notes)
+    drive_text = channel_info.pop('_drive', {})
     if not channel_info:
         raise ChannelError('no channel can be compared (' + '; '.join(
             f'{d["channel"]}: {d["reason"]}' for d in not_judged) + ')')
@@ -494,6 +521,7 @@ def analyse_recordings(sim: Recording, real: Recording,
     out = {'verdict': 'mismatch' if findings else 'consistent',
            'findings': findings, 'minor_findings': minor, 'weak_findings': weak,
            'time_alignment': {'clock': clock.as_dict(), **timing},
+           'drive': drive_text,
            'channels': channel_info,
            'not_judged': not_judged, 'notes': notes, 'bag_start': t0}
     return out, details

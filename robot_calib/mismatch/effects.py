@@ -125,6 +125,20 @@ SPECS = {s.name: s for s in (
                'the delay between the recordings changes along the run', 0.001),
     EffectSpec('drive_lag', ('tau',), ('s',), (1.0,), False,
                'the real drive follows its command with a first-order lag', 0.005),
+    # the drive chain (robot_calib.mismatch.drive), fitted together on speed and turn rate
+    EffectSpec('drive_gain', ('gain',), ('',), (0.5,), False,
+               'the real speed or turn rate settles at (1 + g) times the command', 0.005),
+    EffectSpec('drive_dead_time', ('tau',), ('s',), (1.0,), False,
+               'the real drive starts to follow its command late (transport delay)', 0.005),
+    # a limit is no size: whether it binds is judged on the held-out fit
+    EffectSpec('drive_rate_limit', ('limit',), ('m/s^2 or rad/s^2',), (np.inf,), False,
+               'the real speed or turn rate changes no faster than a limit', 0.0),
+    EffectSpec('drive_deadband', ('band',), ('m/s or rad/s',), (0.5,), False,
+               'commands smaller than a band move nothing', 0.002),
+    # at 0.5 rad/s, 0.05 s/rad is 2.5 % of the speed
+    EffectSpec('turn_speed_loss', ('coefficient',), ('s/rad',), (1.5,), False,
+               'the real robot slows down while it turns: speed = command (1 - k |omega|)',
+               0.05),
     EffectSpec('steering_offset', ('offset',), ('rad',), (0.2,), True,
                'the steering encoder reads with a zero offset', 0.002),
     # beyond the contract table, named freely
@@ -182,6 +196,18 @@ SEPARATE = {
     frozenset(('time_offset', 'wheel_slip')): 'accelerating from several cruising speeds, and '
     'turning while accelerating (a clock delays the turn rate too), separate a delay of the '
     'odometry from slip, which grows with speed times acceleration',
+    frozenset(('drive_dead_time', 'drive_lag')): 'sharp steps of the command separate a '
+    'dead time (the response keeps its shape) from a lag (the response is rounded)',
+    frozenset(('drive_deadband', 'drive_gain')): 'slow commands near zero (creeping, gentle '
+    'turns) beside fast ones separate a deadband from a gain',
+    frozenset(('turn_speed_loss', 'drive_gain')): 'driving straight at the same speeds as in '
+    'the turns separates a turn-coupled speed loss from a speed gain',
+    frozenset(('drive_rate_limit', 'drive_gain')): 'large steps of the command beside small '
+    'ones separate an acceleration limit (binds on large steps only) from a lag or gain',
+    frozenset(('drive_lag', 'drive_gain')): 'commands held for several time constants '
+    'separate the settled gain from the lag',
+    frozenset(('drive_dead_time', 'drive_gain')): 'sharp steps of the command separate a '
+    'dead time from a gain',
     frozenset(('time_offset', 'drive_lag')): 'sharp steps of the command separate a pure '
     'delay (the response keeps its shape) from a lag (the response is rounded)',
     frozenset(('imu_mounting_rotation', 'gyro_cross_axis')): 'strong specific force on '

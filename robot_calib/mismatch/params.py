@@ -55,3 +55,11 @@ class MismatchParams:
                                'smallest size worth naming); smaller effects are listed as '
                                'minor_findings; 0 reports every significant effect',
                                minimum=0.0)
+    drive_model: bool = param(True, '', 'fit the drive chain (dead time, lag, deadband, rate '
+                              'limit, turn-coupled speed loss) on odometry speed and turn rate '
+                              'before the amplitude effects')
+    drive_alpha: float = param(1e-3, '', 'false-alarm probability of the held-out chunk test '
+                               'a part of the drive model must pass', minimum=1e-15,
+                               maximum=0.5)
+    drive_max_dead_time: float = param(0.5, 's', 'largest drive dead time searched',
+                                       minimum=0.0)
