@@ -52,9 +52,7 @@ CASES = [
     ('drive_lag', D.W, D.AxisModel(tau=0.35), D.AxisModel(tau=0.25), 0.25),
     ('turn_speed_loss', D.V, D.AxisModel(tau=0.3, k=1.1), D.AxisModel(tau=0.25), 1.1),
     ('drive_dead_time', D.W, D.AxisModel(tau=0.3), D.AxisModel(d=0.15, tau=0.2), 0.15),
-    pytest.param('drive_deadband', D.W, D.AxisModel(tau=0.3), D.AxisModel(tau=0.2, band=0.15),
-                 0.15, marks=pytest.mark.xfail(reason='known limit: the band is fitted (0.166) '
-                                               'but the chunk test (z 2.8-3.1) does not name it')),
+    ('drive_deadband', D.W, D.AxisModel(tau=0.3), D.AxisModel(tau=0.2, band=0.15), 0.15),
     ('drive_rate_limit', D.V, D.AxisModel(tau=0.1, limit=0.25), D.AxisModel(tau=0.2), 0.25),
 ]
 

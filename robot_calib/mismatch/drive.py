@@ -34,8 +34,9 @@ import numpy as np
 
 from robot_calib.mismatch import effects as E
 from robot_calib.mismatch import latency as L
+from robot_calib.mismatch import timing
 from robot_calib.mismatch.channels import ODOM_TYPE, PairedTopic
-from robot_calib.mismatch.findings import confidence, evidence
+from robot_calib.mismatch.findings import confidence, evidence, motion_ratio
 from robot_calib.mismatch.problem import held_mask, rmse
 from scipy.signal import lfilter
 
@@ -319,11 +320,14 @@ def analyse_drive(pt: PairedTopic, prm,
     n = pt.t.size // q
     held = held_mask(n, prm.heldout_chunks)
     chunk = max(1, n // prm.heldout_chunks)
+    # the test's units: each held-out chunk cut into pieces of at least min_block_s
+    piece = max(1, chunk // max(1, int(chunk * dt / prm.min_block_s)))
     sim_d = {f: _blocks(pt.sim[f], q, n) for f in fields}
     real_d = {f: _blocks(pt.real[f], q, n) for f in fields}
     wabs = np.abs(_filled(sim_d[W])) if W in sim_d else None
     acd = np.nan_to_num(_blocks(acmd, q, n)) if acmd is not None and V in fields else None
     out_models, found, sims = {}, [], {}
+    period = max(pt.dt_sim, pt.dt_real, pt.dt)
     for f in fields:
         u, y = _filled(sim_d[f]), real_d[f]
         ok = np.isfinite(sim_d[f]) & np.isfinite(y)
@@ -332,12 +336,15 @@ def analyse_drive(pt: PairedTopic, prm,
         yf = np.nan_to_num(y)
         wa = wabs if f == V else None
         parts = _axis_parts(f, u, wa, ok)
-        nchunks = int(np.count_nonzero(np.bincount(np.flatnonzero(held & ok) // chunk)))
-        thr = L.t_quantile(prm.drive_alpha, max(nchunks - 1, 1))
         ac = acd if f == V else None
-        named, stats = _eliminate(u, wa, yf, ok, held, chunk, dt, prm, parts, thr, ac)
+        named, stats = _eliminate(u, wa, yf, ok, held, piece, dt, prm, parts, ac)
         model = fit_axis(u, wa, yf, ok, dt, prm.drive_max_dead_time, named, refine=True,
                          acmd=ac)
+        small = _unresolved(model, period)
+        if small:
+            named = named - small
+            model = fit_axis(u, wa, yf, ok, dt, prm.drive_max_dead_time, named, refine=True,
+                             acmd=ac)
         out_models[f] = (model, stats, ok)
     dyn = {p for m, _, _ in out_models.values() for p in m.parts} - {'drive_dead_time'}
     if not dyn:
@@ -355,32 +362,116 @@ def analyse_drive(pt: PairedTopic, prm,
     return DriveResult({f: m for f, (m, _, _) in out_models.items()}, found, sims, text)
 
 
-def _eliminate(u, wa, yf, ok, held, chunk, dt, prm, parts: set, thr: float,
-               acmd=None) -> tuple:
+def _unresolved(m: AxisModel, period: float) -> set:
+    """
+    Return the named dead time or lag shorter than one sample ``period`` (s) of the coarser side.
+
+    Read at the other side's stamps, a series sampled every T is interpolated;
+    at the midpoints that filters as cos(pi f T) ~ 1 - (pi f T)^2 / 2, the
+    magnitude of a first-order lag of T / 2, and a speed differenced over one
+    period trails its stamp by T / 2: sampling alone makes a lag or a delay of
+    up to half a period, so only one longer than a whole period is the drive's.
+    """
+    return {p for p, v in (('drive_lag', m.tau), ('drive_dead_time', m.d))
+            if p in m.parts and v < period}
+
+
+def clock_taus(taus: dict) -> dict:
+    """Return the delays (s) of ``taus`` that no drive can make: any but a late speed or turn."""
+    return {f: t for f, t in taus.items() if not (f in (V, W) and t > 0)}
+
+
+def over_delays(prm, taus: dict):
+    """Return ``prm`` with the dead time searched past the time stage's delays of speed, turn."""
+    late = [t for f, t in taus.items() if f in (V, W) and t > 0]
+    if not late or max(late) + 0.1 <= prm.drive_max_dead_time:
+        return prm
+    return replace(prm, drive_max_dead_time=max(late) + 0.1)
+
+
+def taken(drive: DriveResult) -> set:
+    """Return the fields whose drive model names a part (their sim is the chain's output)."""
+    return {f for f, m in drive.models.items() if m.parts}
+
+
+def drop_delays(name: str, drive: DriveResult, delays: list, findings: list,
+                taus: dict) -> tuple:
+    """
+    Return (delays, findings, taus) without the late speed or turn rate the drive explains.
+
+    A speed or turn rate that is late on a drive is its response (a dead time
+    and a lag) unless the drive chain names nothing but a delay; then the time
+    stage's clock delay stands. A delay shared with fields the drive does not
+    model stays.
+    """
+    mine = taken(drive)
+    drive.sim = {f: x for f, x in drive.sim.items() if f in mine}
+    gone = [(k, te, i) for k, te, i in delays if te.delay.tau > 0 and set(te.fields) <= mine]
+    chans = {f'{name}.{f}' for _, te, _ in gone for f in te.fields}
+    keep = [f for f in findings if not (f['effect'] in ('time_offset', 'timing_drift',
+                                                        'drive_lag') and
+                                        chans & set(f.get('channels', [f['channel']])))]
+    left = {f: t for f, t in taus.items() if f not in mine or f in clock_taus(taus)}
+    return [d for d in delays if d not in gone], keep, left
+
+
+def drive_stage(pt: PairedTopic, prm, taus: dict, delays: list, findings: list,
+                acmd_at) -> tuple:
+    """
+    Return (drive or None, delays, findings, taus) of an odometry topic after its time stage.
+
+    The chain is fitted on the clock delays (``taus`` no drive makes): a late
+    speed or turn rate is the drive's response, so when the chain names
+    dynamics the time stage's delays of the fields it models go (their dead
+    time is the drive's). When it names nothing beyond a delay, the time
+    stage's delays stand and the chain is tried once more behind them.
+    ``acmd_at(topic, tau)``: the commanded acceleration on the topic's grid.
+    """
+    clock = clock_taus(taus)
+    pre = timing.aligned(pt, clock)
+    drive = analyse_drive(pre, over_delays(prm, taus), acmd_at(pre, clock.get(V, 0.0)))
+    if drive is not None and clock != taus:
+        delays, findings, taus = drop_delays(pt.name, drive, delays, findings, taus)
+    elif drive is None and clock != taus:
+        post = timing.aligned(pt, taus)
+        drive = analyse_drive(post, prm, acmd_at(post, taus.get(V, 0.0)))
+    return drive, delays, findings, taus
+
+
+def _eliminate(u, wa, yf, ok, held, chunk, dt, prm, parts: set, acmd=None) -> tuple:
     """
     Backward elimination of the drive's parts by the held-out chunk test; return (named, stats).
 
     Parts that stand in for each other (a dead time, a lag and a rate limit all
     delay a step) each look dispensable while the others are there; dropping
     the weakest one at a time and testing again keeps the ones the data need.
+    Each part is judged on the held-out samples where leaving it out changes
+    the prediction by over 1 % of the command's scale (a deadband acts on slow
+    commands only), in chunks with at least 5 such samples.
     """
     fitw = ok & ~held
     cur = set(parts)
+    scale = float(np.percentile(np.abs(u[ok]), 95)) if ok.any() else 0.0
     while True:
         full = fit_axis(u, wa, yf, fitw, dt, prm.drive_max_dead_time, cur, acmd=acmd)
         r_full = yf - predict(u, wa, dt, full, acmd=acmd)
-        s_full = _chunk_sse(r_full, held, ok, chunk)
-        has = np.bincount(np.flatnonzero(held & ok) // chunk, minlength=s_full.size) > 0
         stats = {}
         for p in sorted(cur):
             red = fit_axis(u, wa, yf, fitw, dt, prm.drive_max_dead_time, cur - {p}, acmd=acmd)
             r_red = yf - predict(u, wa, dt, red, acmd=acmd)
+            # judged where the part changes the prediction (a deadband acts on slow commands
+            # only): chosen by the fitted models, not by the held-out data
+            acts = ok & (np.abs(r_red - r_full) > 0.01 * scale)
+            s_full = _chunk_sse(r_full, held, acts, chunk)
             # log ratio per chunk: scale-free, so a few chunks of fast motion do not make the
             # spread that hides a part every other chunk needs
-            s_red = _chunk_sse(r_red, held, ok, chunk)
+            s_red = _chunk_sse(r_red, held, acts, chunk)
+            has = np.bincount(np.flatnonzero(held & acts) // chunk,
+                              minlength=s_full.size) >= 5
             dlt = np.log((s_red[has] + 1e-300) / (s_full[has] + 1e-300))
-            se = float(np.std(dlt, ddof=1) / math.sqrt(dlt.size)) if dlt.size > 1 else math.inf
-            z = float(np.mean(dlt) / se) if se > 0 else 0.0
+            se = float(np.std(dlt, ddof=1) / math.sqrt(dlt.size)) if dlt.size > 2 else math.inf
+            z = float(np.mean(dlt) / se) if dlt.size > 2 and se > 0 else 0.0
+            thr = L.t_quantile(prm.drive_alpha, max(dlt.size - 1, 1))
             hb, ha = rmse(r_red, ok & held), rmse(r_full, ok & held)
             good = z > thr and hb is not None and ha is not None and \
                 ha < (1.0 - prm.min_improvement) * hb
@@ -415,6 +506,7 @@ def _findings(pt: PairedTopic, f: str, m: AxisModel, stats: dict, ok: np.ndarray
     for p in sorted(m.parts):
         z, thr, nb, red, hb, ha, _ = stats[p]
         r_red = y - predict(u, wa, dt, red, acmd=acmd)
+        motion = motion_ratio(r_red - r_full, ok & ~held, ok & held)
         fitd = {'rmse_before': rmse(r_red, ok & ~held), 'rmse_after': rmse(r_full, ok & ~held),
                 'heldout_rmse_before': hb, 'heldout_rmse_after': ha}
         key, unit, get = _VALUE[p]
@@ -437,7 +529,7 @@ def _findings(pt: PairedTopic, f: str, m: AxisModel, stats: dict, ok: np.ndarray
                   if hb is not None and ha is not None else ''),
               'evidence': {'z': z, 'z_threshold': thr, 'blocks': nb, 'test': 'held-out chunks '
                            'of the drive model with and without it'},
-              'evidence_strength': evidence(strength, fitd),
+              'evidence_strength': evidence(strength, fitd, motion),
               'separating_motion': alts_sep}
         fd['confidence'] = confidence(fd['evidence_strength'], alts)
         out.append(fd)
