@@ -258,8 +258,30 @@ def fit_axis(u: np.ndarray, wabs: Optional[np.ndarray], y: np.ndarray, w: np.nda
         m, _ = _grid(u, wabs, y, w, dt, m, coupled, max_d, free, acmd)
     if refine and free:
         m = _refine(u, wabs, y, w, dt, m, coupled, max_d, acmd)
+    if refine and (m.band > 0 or math.isfinite(m.limit)):
+        m = _refine_nonlinear(u, wabs, y, w, dt, m, coupled, acmd)
     m.parts = set(parts)
     return m
+
+
+def _refine_nonlinear(u, wabs, y, w, dt, m: AxisModel, coupled: bool, acmd=None) -> AxisModel:
+    """Return ``m`` with its band and rate limit refined between grid points (log scale)."""
+    from scipy.optimize import minimize_scalar
+
+    def sse(mm: AxisModel) -> float:
+        return _solve(regressors(u, wabs, dt, mm, coupled, acmd), y, w)[1]
+
+    for key in ('band', 'limit'):
+        v = getattr(m, key)
+        if not (v > 0 and math.isfinite(v)):
+            continue
+        r = minimize_scalar(lambda x: sse(replace(m, **{key: math.exp(x)})),
+                            bounds=(math.log(v / 1.6), math.log(v * 1.6)), method='bounded',
+                            options={'xatol': 1e-3})
+        if r.fun < sse(m):
+            m = replace(m, **{key: float(math.exp(r.x))})
+    c, _ = _solve(regressors(u, wabs, dt, m, coupled, acmd), y, w)
+    return _linear(m, c, coupled, acmd is not None)
 
 
 def _chunk_sse(r: np.ndarray, held: np.ndarray, ok: np.ndarray, chunk: int) -> np.ndarray:
