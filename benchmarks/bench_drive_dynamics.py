@@ -81,6 +81,11 @@ def _delay(fs: list, field: str) -> float:
         _value(fs, ('time_offset',), 'tau', field)
 
 
+def _response(fs: list, field: str) -> float:
+    """Return the named dead time plus lag (s) of ``field``: its response time."""
+    return _delay(fs, field) + _value(fs, ('drive_lag',), 'tau', field)
+
+
 def _names(fs: list) -> str:
     return ', '.join(f'{f["effect"]} ({f["channel"].rsplit(".", 1)[-1]}: ' + ', '.join(
         f'{k} {v:.3g}' for k, v in f['parameters'].items() if isinstance(v, float)) + ')'
@@ -102,8 +107,14 @@ def score(e: dict, mod: list, base: list) -> tuple[bool, str]:
         d = ds[int(np.argmin([abs(x - p['tau']) for x in ds]))]
         want = p['tau']
     elif name == 'time_constant':
-        d = _value(mod, ('drive_lag',), 'tau', k) - _value(base, ('drive_lag',), 'tau', k)
+        # a lag added to a drive with its own dead time and lag is, to a first-order plus
+        # dead-time model, shared between the two (Skogestad's half rule); cascaded lags add
+        # their response times (d + tau, the mean delay) exactly: scored on that
+        d = _response(mod, k) - _response(base, k)
         want = p['tau']
+        ok = abs(d - want) <= TOL * abs(want)
+        lag = _value(mod, ('drive_lag',), 'tau', k) - _value(base, ('drive_lag',), 'tau', k)
+        return bool(ok), f'd + tau {d:+.4g}, tau {lag:+.4g} (added {want:+.4g})'
     elif name == 'deadband':
         d = _value(mod, ('drive_deadband',), 'band', k) - \
             _value(base, ('drive_deadband',), 'band', k)
@@ -192,7 +203,9 @@ def injected(rows: list, per: int, seed: int) -> tuple[list, dict]:
              'Scored against the untouched pair (what is found beyond it): within 25 % of the '
              'added size. Effects accepted: scales as drive_gain, wheel_radius_scale or '
              'track_width_scale; the delay as drive_dead_time or time_offset; the time constant '
-             'as drive_lag; deadband as drive_deadband; the limit as drive_rate_limit.', '',
+             'as the change of the response time d + tau (drive_dead_time + drive_lag; the '
+             'change of drive_lag alone shown beside it); deadband as drive_deadband; the limit '
+             'as drive_rate_limit.', '',
              '| effect | found within 25 % | cases (found beyond the untouched pair) |',
              '|---|---|---|']
     for name in DA.NAMES:

@@ -248,11 +248,15 @@ def fit_axis(u: np.ndarray, wabs: Optional[np.ndarray], y: np.ndarray, w: np.nda
         step = float(np.percentile(jumps[jumps > 1e-3 * scale], 90)) \
             if (jumps > 1e-3 * scale).sum() > 5 else scale
         best = (math.inf, m)
-        for ramp in (0.0, 0.05, 0.1, 0.2, 0.3, 0.45, 0.65, 0.9, 1.3, 2.0):
+        for ramp in (0.0, 0.05, 0.1, 0.2, 0.3, 0.45, 0.65, 0.9, 1.3, 2.0, 3.0):
             mm = replace(m, limit=step / ramp if ramp > 0 else math.inf)
-            c, s = _solve(regressors(u, wabs, dt, mm, coupled, acmd), y, w)
+            # with the dead time and lag searched again: a limit makes its own delay, which a
+            # lag fitted without it has taken already
+            mm, s = _grid(u, wabs, y, w, dt, mm, coupled, max_d, free, acmd) if free else \
+                (mm, _solve(regressors(u, wabs, dt, mm, coupled, acmd), y, w)[1])
             if s < best[0]:
-                best = (s, _linear(mm, c, coupled, slip))
+                best = (s, mm if free else _linear(mm, _solve(regressors(
+                    u, wabs, dt, mm, coupled, acmd), y, w)[0], coupled, slip))
         m = best[1]
     if free and (m.band > 0 or math.isfinite(m.limit)):
         m, _ = _grid(u, wabs, y, w, dt, m, coupled, max_d, free, acmd)
@@ -494,10 +498,10 @@ def _eliminate(u, wa, yf, ok, held, chunk, dt, prm, parts: set, acmd=None) -> tu
             se = float(np.std(dlt, ddof=1) / math.sqrt(dlt.size)) if dlt.size > 2 else math.inf
             z = float(np.mean(dlt) / se) if dlt.size > 2 and se > 0 else 0.0
             thr = L.t_quantile(prm.drive_alpha, max(dlt.size - 1, 1))
-            hb, ha = rmse(r_red, ok & held), rmse(r_full, ok & held)
+            hb, ha = rmse(r_red, acts & held), rmse(r_full, acts & held)
             good = z > thr and hb is not None and ha is not None and \
                 ha < (1.0 - prm.min_improvement) * hb
-            stats[p] = (z, thr, int(dlt.size), red, hb, ha, good)
+            stats[p] = (z, thr, int(dlt.size), red, hb, ha, good, full)
         bad = [p for p in cur if not stats[p][6]]
         if not bad:
             return cur, stats
@@ -524,12 +528,17 @@ def _findings(pt: PairedTopic, f: str, m: AxisModel, stats: dict, ok: np.ndarray
     """Return one finding per named part of the axis (contract keys, held-out fit)."""
     out = []
     y = np.nan_to_num(yr)
-    r_full = y - predict(u, wa, dt, m, acmd=acmd)
+    scale = float(np.percentile(np.abs(u[ok]), 95)) if ok.any() else 0.0
     for p in sorted(m.parts):
-        z, thr, nb, red, hb, ha, _ = stats[p]
+        z, thr, nb, red, hb, ha, _, full = stats[p]
+        # the models of the test (fitted on the fitted part), on the samples where the part
+        # changes the prediction, as it was tested
         r_red = y - predict(u, wa, dt, red, acmd=acmd)
-        motion = motion_ratio(r_red - r_full, ok & ~held, ok & held)
-        fitd = {'rmse_before': rmse(r_red, ok & ~held), 'rmse_after': rmse(r_full, ok & ~held),
+        r_fit = y - predict(u, wa, dt, full, acmd=acmd)
+        acts = ok & (np.abs(r_red - r_fit) > 0.01 * scale)
+        motion = motion_ratio(r_red - r_fit, acts & ~held, acts & held)
+        fitd = {'rmse_before': rmse(r_red, acts & ~held),
+                'rmse_after': rmse(r_fit, acts & ~held),
                 'heldout_rmse_before': hb, 'heldout_rmse_after': ha}
         key, unit, get = _VALUE[p]
         unit = unit or (UNIT[f] if p == 'drive_deadband' else UNIT[f] + '/s')
@@ -547,7 +556,8 @@ def _findings(pt: PairedTopic, f: str, m: AxisModel, stats: dict, ok: np.ndarray
               'window': None, 'fit': fitd, 'units': {key: unit},
               'std': {key: float('nan')}, 'channels': [f'{pt.name}.{f}'],
               'explanation': _sentence(p, f, val) + (
-                  f' Modelling it cuts the held-out residual from {hb:.3g} to {ha:.3g}.'
+                  f' Modelling it cuts the held-out residual where it acts from {hb:.3g} to '
+                  f'{ha:.3g}.'
                   if hb is not None and ha is not None else ''),
               'evidence': {'z': z, 'z_threshold': thr, 'blocks': nb, 'test': 'held-out chunks '
                            'of the drive model with and without it'},
