@@ -75,10 +75,22 @@ def deadband(u: np.ndarray, band: float) -> np.ndarray:
     return np.where(np.abs(u) > band, u, 0.0) if band > 0 else u
 
 
+_LIMITED: dict = {}
+
+
 def rate_limit(u: np.ndarray, dt: float, limit: float) -> np.ndarray:
     """Return ``u`` changing by at most ``limit`` per second (units of u per s)."""
     if not math.isfinite(limit) or limit <= 0:
         return u
+    key = (hash(u.tobytes()), u.shape, float(dt), float(limit))  # the grids ask again
+    if key not in _LIMITED:
+        if len(_LIMITED) > 512:
+            _LIMITED.clear()
+        _LIMITED[key] = _rate_limit(u, dt, limit)
+    return _LIMITED[key].copy()
+
+
+def _rate_limit(u: np.ndarray, dt: float, limit: float) -> np.ndarray:
     step = limit * dt
     out = np.empty(u.size)
     y = float(u[0])
@@ -105,10 +117,13 @@ def shift(x: np.ndarray, d: float, dt: float) -> np.ndarray:
     s = d / dt
     i = int(math.floor(s))
     f = s - i
-    idx = np.arange(x.shape[0])
-    a = x[np.clip(idx - i, 0, None)]
-    b = x[np.clip(idx - i - 1, 0, None)]
-    return (1.0 - f) * a + f * b
+
+    def late(k: int) -> np.ndarray:
+        if k <= 0:
+            return x
+        k = min(k, x.shape[0])
+        return np.concatenate((np.repeat(x[:1], k, axis=0), x[:x.shape[0] - k]), axis=0)
+    return late(i) if f == 0.0 else (1.0 - f) * late(i) + f * late(i + 1)
 
 
 def _filled(x: np.ndarray) -> np.ndarray:
@@ -348,7 +363,10 @@ def analyse_drive(pt: PairedTopic, prm,
     chunk = max(1, n // prm.heldout_chunks)
     # the test's units: each held-out chunk cut into pieces of at least min_block_s
     piece = max(1, chunk // max(1, int(chunk * dt / prm.min_block_s)))
-    sim_d = {f: _blocks(pt.sim[f], q, n) for f in fields}
+    # a noisy simulation (another recording) enters as its leave-one-out average, as in the
+    # amplitude stage: its own noise, absent from the real side, would pass for a lag
+    src = {f: pt.sim_reg[f] if pt.sim_noisy.get(f) else pt.sim[f] for f in pt.sim}
+    sim_d = {f: _blocks(src[f], q, n) for f in fields}
     real_d = {f: _blocks(pt.real[f], q, n) for f in fields}
     wabs = np.abs(_filled(sim_d[W])) if W in sim_d else None
     acd = np.nan_to_num(_blocks(acmd, q, n)) if acmd is not None and V in fields else None
@@ -375,11 +393,11 @@ def analyse_drive(pt: PairedTopic, prm,
     dyn = {p for m, _, _ in out_models.values() for p in m.parts} - {'drive_dead_time'}
     if not dyn:
         return None
-    wfull = np.abs(_filled(pt.sim[W])) if W in pt.sim else None
+    wfull = np.abs(_filled(src[W])) if W in src else None
     for f, (model, stats, ok) in out_models.items():
-        u = _filled(pt.sim[f])
-        sims[f] = np.where(np.isfinite(pt.sim[f]), predict(u, wfull if f == V else None, pt.dt,
-                                                           model, gain=False), np.nan)
+        u = _filled(src[f])
+        sims[f] = np.where(np.isfinite(src[f]), predict(u, wfull if f == V else None, pt.dt,
+                                                        model, gain=False), np.nan)
         found.extend(_findings(pt, f, model, stats, ok, held, _filled(sim_d[f]), real_d[f],
                                wabs if f == V else None, dt, acd if f == V else None))
     text = describe({f: m for f, (m, _, _) in out_models.items()})
