@@ -340,8 +340,8 @@ class DriveResult:
     text: str
 
 
-def analyse_drive(pt: PairedTopic, prm,
-                  acmd: Optional[np.ndarray] = None) -> Optional[DriveResult]:
+def analyse_drive(pt: PairedTopic, prm, acmd: Optional[np.ndarray] = None,
+                  late: frozenset = frozenset()) -> Optional[DriveResult]:
     """
     Fit the drive chain to an odometry topic; return it when any dynamic part is named.
 
@@ -349,6 +349,9 @@ def analyse_drive(pt: PairedTopic, prm,
     pure delay (which the time stage judges) is named, or when the drive
     model is off (``prm.drive_model``). ``acmd``: the commanded acceleration
     on the topic's grid (m/s^2), for the slip fitted beside the forward axis.
+    ``late``: the fields the time stage found late (at full rate, a delay
+    rather than a lag): their dead time is kept, the chain judges what the
+    dynamics add to it.
     """
     if not getattr(prm, 'drive_model', True) or pt.msgtype != ODOM_TYPE or prm.mode == 'seed':
         return None
@@ -381,7 +384,8 @@ def analyse_drive(pt: PairedTopic, prm,
         wa = wabs if f == V else None
         parts = _axis_parts(f, u, wa, ok)
         ac = acd if f == V else None
-        named, stats = _eliminate(u, wa, yf, ok, held, piece, dt, prm, parts, ac)
+        named, stats = _eliminate(u, wa, yf, ok, held, piece, dt, prm, parts, ac,
+                                  frozenset({'drive_dead_time'} if f in late else ()))
         model = fit_axis(u, wa, yf, ok, dt, prm.drive_max_dead_time, named, refine=True,
                          acmd=ac)
         small = _unresolved(model, period)
@@ -473,7 +477,8 @@ def drive_stage(pt: PairedTopic, prm, taus: dict, delays: list, findings: list,
     """
     clock = clock_taus(taus)
     pre = timing.aligned(pt, clock)
-    drive = analyse_drive(pre, over_delays(prm, taus), acmd_at(pre, clock.get(V, 0.0)))
+    drive = analyse_drive(pre, over_delays(prm, taus), acmd_at(pre, clock.get(V, 0.0)),
+                          frozenset(f for f in taus if f not in clock))
     if drive is not None and clock != taus:
         delays, findings, taus = drop_delays(pt.name, drive, delays, findings, taus)
     elif drive is None and clock != taus:
@@ -482,7 +487,8 @@ def drive_stage(pt: PairedTopic, prm, taus: dict, delays: list, findings: list,
     return drive, delays, findings, taus
 
 
-def _eliminate(u, wa, yf, ok, held, chunk, dt, prm, parts: set, acmd=None) -> tuple:
+def _eliminate(u, wa, yf, ok, held, chunk, dt, prm, parts: set, acmd=None,
+               keep: frozenset = frozenset()) -> tuple:
     """
     Backward elimination of the drive's parts by the held-out chunk test; return (named, stats).
 
@@ -491,36 +497,46 @@ def _eliminate(u, wa, yf, ok, held, chunk, dt, prm, parts: set, acmd=None) -> tu
     the weakest one at a time and testing again keeps the ones the data need.
     Each part is judged on the held-out samples where leaving it out changes
     the prediction by over 1 % of the command's scale (a deadband acts on slow
-    commands only), in chunks with at least 5 such samples.
+    commands only), in chunks with at least 5 such samples. Parts in ``keep``
+    are not dropped (a dead time the time stage has shown).
     """
     fitw = ok & ~held
     cur = set(parts)
     scale = float(np.percentile(np.abs(u[ok]), 95)) if ok.any() else 0.0
+
+    def test(drop: set, full: AxisModel, r_full: np.ndarray) -> tuple:
+        red = fit_axis(u, wa, yf, fitw, dt, prm.drive_max_dead_time, cur - drop, acmd=acmd)
+        r_red = yf - predict(u, wa, dt, red, acmd=acmd)
+        # judged where the part changes the prediction (a deadband acts on slow commands
+        # only): chosen by the fitted models, not by the held-out data
+        acts = ok & (np.abs(r_red - r_full) > 0.01 * scale)
+        s_full = _chunk_sse(r_full, held, acts, chunk)
+        # log ratio per chunk: scale-free, so a few chunks of fast motion do not make the
+        # spread that hides a part every other chunk needs
+        s_red = _chunk_sse(r_red, held, acts, chunk)
+        has = np.bincount(np.flatnonzero(held & acts) // chunk, minlength=s_full.size) >= 5
+        dlt = np.log((s_red[has] + 1e-300) / (s_full[has] + 1e-300))
+        se = float(np.std(dlt, ddof=1) / math.sqrt(dlt.size)) if dlt.size > 2 else math.inf
+        z = float(np.mean(dlt) / se) if dlt.size > 2 and se > 0 else 0.0
+        thr = L.t_quantile(prm.drive_alpha, max(dlt.size - 1, 1))
+        hb, ha = rmse(r_red, acts & held), rmse(r_full, acts & held)
+        good = z > thr and hb is not None and ha is not None and \
+            ha < (1.0 - prm.min_improvement) * hb
+        return (z, thr, int(dlt.size), red, hb, ha, good, full, len(drop) > 1)
+
     while True:
         full = fit_axis(u, wa, yf, fitw, dt, prm.drive_max_dead_time, cur, acmd=acmd)
         r_full = yf - predict(u, wa, dt, full, acmd=acmd)
-        stats = {}
-        for p in sorted(cur):
-            red = fit_axis(u, wa, yf, fitw, dt, prm.drive_max_dead_time, cur - {p}, acmd=acmd)
-            r_red = yf - predict(u, wa, dt, red, acmd=acmd)
-            # judged where the part changes the prediction (a deadband acts on slow commands
-            # only): chosen by the fitted models, not by the held-out data
-            acts = ok & (np.abs(r_red - r_full) > 0.01 * scale)
-            s_full = _chunk_sse(r_full, held, acts, chunk)
-            # log ratio per chunk: scale-free, so a few chunks of fast motion do not make the
-            # spread that hides a part every other chunk needs
-            s_red = _chunk_sse(r_red, held, acts, chunk)
-            has = np.bincount(np.flatnonzero(held & acts) // chunk,
-                              minlength=s_full.size) >= 5
-            dlt = np.log((s_red[has] + 1e-300) / (s_full[has] + 1e-300))
-            se = float(np.std(dlt, ddof=1) / math.sqrt(dlt.size)) if dlt.size > 2 else math.inf
-            z = float(np.mean(dlt) / se) if dlt.size > 2 and se > 0 else 0.0
-            thr = L.t_quantile(prm.drive_alpha, max(dlt.size - 1, 1))
-            hb, ha = rmse(r_red, acts & held), rmse(r_full, acts & held)
-            good = z > thr and hb is not None and ha is not None and \
-                ha < (1.0 - prm.min_improvement) * hb
-            stats[p] = (z, thr, int(dlt.size), red, hb, ha, good, full)
-        bad = [p for p in cur if not stats[p][6]]
+        stats = {p: test({p}, full, r_full) for p in sorted(cur)}
+        # a dead time and a lag that each stand in for the other: kept together when the
+        # response needs them together (their sum is resolved, the split is not)
+        pair = {'drive_dead_time', 'drive_lag'}
+        if pair <= cur and not any(stats[p][6] for p in pair) and full.d > 0 and \
+                full.tau > 0 and not pair & keep:
+            joint = test(pair, full, r_full)
+            if joint[6]:
+                stats.update({p: joint for p in pair})
+        bad = [p for p in cur if not stats[p][6] and p not in keep]
         if not bad:
             return cur, stats
         cur.discard(min(bad, key=lambda p: stats[p][0]))
@@ -548,7 +564,7 @@ def _findings(pt: PairedTopic, f: str, m: AxisModel, stats: dict, ok: np.ndarray
     y = np.nan_to_num(yr)
     scale = float(np.percentile(np.abs(u[ok]), 95)) if ok.any() else 0.0
     for p in sorted(m.parts):
-        z, thr, nb, red, hb, ha, _, full = stats[p]
+        z, thr, nb, red, hb, ha, _, full, together = stats[p]
         # the models of the test (fitted on the fitted part), on the samples where the part
         # changes the prediction, as it was tested
         r_red = y - predict(u, wa, dt, red, acmd=acmd)
@@ -563,7 +579,7 @@ def _findings(pt: PairedTopic, f: str, m: AxisModel, stats: dict, ok: np.ndarray
         val = float(get(m))
         # the part passed the test at drive_alpha; its strength grows from the 5 % bar
         strength = 1.0 - (L.t_quantile(0.05, max(nb - 1, 1)) / max(z, 1e-12)) ** 2
-        alts = []
+        alts = [0.0] if together else []  # the other split fits as well
         if p in ('drive_lag', 'drive_dead_time'):
             other = 'drive_dead_time' if p == 'drive_lag' else 'drive_lag'
             alts_sep = E.separating_motion(p, other)
@@ -575,7 +591,9 @@ def _findings(pt: PairedTopic, f: str, m: AxisModel, stats: dict, ok: np.ndarray
               'std': {key: float('nan')}, 'channels': [f'{pt.name}.{f}'],
               'explanation': _sentence(p, f, val) + (
                   f' Modelling it cuts the held-out residual where it acts from {hb:.3g} to '
-                  f'{ha:.3g}.'
+                  f'{ha:.3g}.' + (f' The dead time and the lag are resolved together (d + tau '
+                                  f'= {m.d + m.tau:.3g} s), not apart: either alone fits about '
+                                  'as well.' if together else '')
                   if hb is not None and ha is not None else ''),
               'evidence': {'z': z, 'z_threshold': thr, 'blocks': nb, 'test': 'held-out chunks '
                            'of the drive model with and without it'},
