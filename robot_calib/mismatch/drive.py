@@ -34,7 +34,6 @@ import numpy as np
 
 from robot_calib.mismatch import effects as E
 from robot_calib.mismatch import latency as L
-from robot_calib.mismatch import timing
 from robot_calib.mismatch.channels import ODOM_TYPE, PairedTopic
 from robot_calib.mismatch.findings import confidence, evidence, motion_ratio
 from robot_calib.mismatch.problem import held_mask, rmse
@@ -366,11 +365,13 @@ def analyse_drive(pt: PairedTopic, prm, acmd: Optional[np.ndarray] = None,
     chunk = max(1, n // prm.heldout_chunks)
     # the test's units: each held-out chunk cut into pieces of at least min_block_s
     piece = max(1, chunk // max(1, int(chunk * dt / prm.min_block_s)))
-    # a noisy simulation (another recording) enters as its leave-one-out average, as in the
-    # amplitude stage: its own noise, absent from the real side, would pass for a lag
-    src = {f: pt.sim_reg[f] if pt.sim_noisy.get(f) else pt.sim[f] for f in pt.sim}
+    # a noisy simulation (another recording): both sides through one moving average of 5
+    # samples, which the dynamics commute with; the sim's own noise, absent from the real
+    # side, would pass for a lag that filters it
+    noisy = any(pt.sim_noisy.get(f) for f in fields)
+    src = {f: _smooth(pt.sim[f]) if noisy else pt.sim[f] for f in pt.sim}
     sim_d = {f: _blocks(src[f], q, n) for f in fields}
-    real_d = {f: _blocks(pt.real[f], q, n) for f in fields}
+    real_d = {f: _blocks(_smooth(pt.real[f]) if noisy else pt.real[f], q, n) for f in fields}
     wabs = np.abs(_filled(sim_d[W])) if W in sim_d else None
     acd = np.nan_to_num(_blocks(acmd, q, n)) if acmd is not None and V in fields else None
     out_models, found, sims = {}, [], {}
@@ -397,11 +398,11 @@ def analyse_drive(pt: PairedTopic, prm, acmd: Optional[np.ndarray] = None,
     dyn = {p for m, _, _ in out_models.values() for p in m.parts} - {'drive_dead_time'}
     if not dyn:
         return None
-    wfull = np.abs(_filled(src[W])) if W in src else None
+    wfull = np.abs(_filled(pt.sim[W])) if W in pt.sim else None
     for f, (model, stats, ok) in out_models.items():
-        u = _filled(src[f])
-        sims[f] = np.where(np.isfinite(src[f]), predict(u, wfull if f == V else None, pt.dt,
-                                                        model, gain=False), np.nan)
+        u = _filled(pt.sim[f])
+        sims[f] = np.where(np.isfinite(pt.sim[f]), predict(u, wfull if f == V else None, pt.dt,
+                                                           model, gain=False), np.nan)
         found.extend(_findings(pt, f, model, stats, ok, held, _filled(sim_d[f]), real_d[f],
                                wabs if f == V else None, dt, acd if f == V else None))
     text = describe({f: m for f, (m, _, _) in out_models.items()})
@@ -422,69 +423,6 @@ def _unresolved(m: AxisModel, period: float) -> set:
     """
     return {p for p, v in (('drive_lag', m.tau), ('drive_dead_time', m.d))
             if p in m.parts and v < period}
-
-
-def clock_taus(taus: dict) -> dict:
-    """Return the delays (s) of ``taus`` that no drive can make: any but a late speed or turn."""
-    return {f: t for f, t in taus.items() if not (f in (V, W) and t > 0)}
-
-
-def over_delays(prm, taus: dict):
-    """Return ``prm`` with the dead time searched past the time stage's delays of speed, turn."""
-    late = [t for f, t in taus.items() if f in (V, W) and t > 0]
-    if not late or max(late) + 0.1 <= prm.drive_max_dead_time:
-        return prm
-    return replace(prm, drive_max_dead_time=max(late) + 0.1)
-
-
-def taken(drive: DriveResult) -> set:
-    """Return the fields whose drive model names a part (their sim is the chain's output)."""
-    return {f for f, m in drive.models.items() if m.parts}
-
-
-def drop_delays(name: str, drive: DriveResult, delays: list, findings: list,
-                taus: dict) -> tuple:
-    """
-    Return (delays, findings, taus) without the late speed or turn rate the drive explains.
-
-    A speed or turn rate that is late on a drive is its response (a dead time
-    and a lag) unless the drive chain names nothing but a delay; then the time
-    stage's clock delay stands. A delay shared with fields the drive does not
-    model stays.
-    """
-    mine = taken(drive)
-    drive.sim = {f: x for f, x in drive.sim.items() if f in mine}
-    gone = [(k, te, i) for k, te, i in delays if te.delay.tau > 0 and set(te.fields) <= mine]
-    chans = {f'{name}.{f}' for _, te, _ in gone for f in te.fields}
-    keep = [f for f in findings if not (f['effect'] in ('time_offset', 'timing_drift',
-                                                        'drive_lag') and
-                                        chans & set(f.get('channels', [f['channel']])))]
-    left = {f: t for f, t in taus.items() if f not in mine or f in clock_taus(taus)}
-    return [d for d in delays if d not in gone], keep, left
-
-
-def drive_stage(pt: PairedTopic, prm, taus: dict, delays: list, findings: list,
-                acmd_at) -> tuple:
-    """
-    Return (drive or None, delays, findings, taus) of an odometry topic after its time stage.
-
-    The chain is fitted on the clock delays (``taus`` no drive makes): a late
-    speed or turn rate is the drive's response, so when the chain names
-    dynamics the time stage's delays of the fields it models go (their dead
-    time is the drive's). When it names nothing beyond a delay, the time
-    stage's delays stand and the chain is tried once more behind them.
-    ``acmd_at(topic, tau)``: the commanded acceleration on the topic's grid.
-    """
-    clock = clock_taus(taus)
-    pre = timing.aligned(pt, clock)
-    drive = analyse_drive(pre, over_delays(prm, taus), acmd_at(pre, clock.get(V, 0.0)),
-                          frozenset(f for f in taus if f not in clock))
-    if drive is not None and clock != taus:
-        delays, findings, taus = drop_delays(pt.name, drive, delays, findings, taus)
-    elif drive is None and clock != taus:
-        post = timing.aligned(pt, taus)
-        drive = analyse_drive(post, prm, acmd_at(post, taus.get(V, 0.0)))
-    return drive, delays, findings, taus
 
 
 def _eliminate(u, wa, yf, ok, held, chunk, dt, prm, parts: set, acmd=None,
@@ -549,6 +487,15 @@ _VALUE = {'drive_dead_time': ('tau', 's', lambda m: m.d),
           'drive_deadband': ('band', None, lambda m: m.band),
           'drive_rate_limit': ('limit', None, lambda m: m.limit),
           'turn_speed_loss': ('coefficient', 's/rad', lambda m: m.k)}
+
+
+def _smooth(x: np.ndarray, width: int = 5) -> np.ndarray:
+    """Return the centred moving average of ``width`` samples (NaN kept, ignored in means)."""
+    ok = np.isfinite(x)
+    k = np.ones(width)
+    num = np.convolve(np.where(ok, x, 0.0), k, mode='same')
+    den = np.convolve(ok.astype(float), k, mode='same')
+    return np.where(ok & (den > 0), num / np.maximum(den, 1.0), np.nan)
 
 
 def _blocks(x: np.ndarray, q: int, n: int) -> np.ndarray:
