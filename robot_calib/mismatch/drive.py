@@ -18,8 +18,10 @@ fitted together (grids over the nonlinear parameters, linear least squares
 for g and k), so a lag is not mistaken for a delay, a turn-coupled speed loss
 for a gain, or a deadband for a gain. Each part is named only when leaving it
 out (the others re-fitted) makes held-out time worse: the model is fitted on
-two thirds of the chunks and the loss of each reduced model is compared chunk
-by chunk on the held-out third, by Student's t over the chunks. The gain is
+two thirds of the chunks and the loss of each reduced model is compared on
+pieces (>= ``min_block_s``) of the held-out third, where the part changes the
+prediction, by Student's t over the pieces (:func:`_eliminate`). A dead time
+or lag under one sample period is not named (:func:`_unresolved`). The gain is
 not named here: the amplitude stage judges scales, offsets and slip on what
 the named dynamics leave (:mod:`robot_calib.mismatch.analysis`).
 """
