@@ -62,6 +62,7 @@ from robot_calib.mismatch import timing
 from robot_calib.mismatch.align import pair_topics
 from robot_calib.mismatch.channels import (ChannelError, IMU_TYPE, ODOM_TYPE, PairedTopic,
                                            Recording, TWIST_TYPES)
+from robot_calib.mismatch.drive_stage import drive_stage
 from robot_calib.mismatch.findings import (heldout_support, motion_ratio, term_finding,
                                            unsupported)
 from robot_calib.mismatch.locate import active_windows, local_weights, moving_average
@@ -439,12 +440,12 @@ def _align_time(pt: PairedTopic, prob0: Problem, sim: Recording, real: Recording
         if kind in ('time_offset', 'timing_drift'):
             # a drifting delay too: its run-wide value is the best single alignment
             taus.update(timing.field_taus(te, list(pt.sim)))
+    drive = None
+    if pt.msgtype == ODOM_TYPE:  # the drive chain; a late speed or turn is first its response
+        drive, delays, findings, taus = drive_stage(
+            pt, prm, taus, delays, findings, lambda p, tau: _aux(sim, real, p, t0, [], tau)
+            .get('acmd'))
     aligned = timing.aligned(pt, taus)
-    # the drive chain, on the clock delays; when it names dynamics it replaces the time
-    # stage's lag on the speed and turn rate
-    drive = D.analyse_drive(aligned, prm, _aux(sim, real, aligned, t0, [],
-                                               taus.get(timing.SLIP_FIELD, 0.0)).get('acmd')
-                            if pt.msgtype == ODOM_TYPE else None)
     lags = [(te, info) for kind, te, info in delays if kind == 'drive_lag']
     if drive is not None:
         mine = {f'{pt.name}.{f}' for f in drive.sim}

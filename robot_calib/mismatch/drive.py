@@ -18,8 +18,10 @@ fitted together (grids over the nonlinear parameters, linear least squares
 for g and k), so a lag is not mistaken for a delay, a turn-coupled speed loss
 for a gain, or a deadband for a gain. Each part is named only when leaving it
 out (the others re-fitted) makes held-out time worse: the model is fitted on
-two thirds of the chunks and the loss of each reduced model is compared chunk
-by chunk on the held-out third, by Student's t over the chunks. The gain is
+two thirds of the chunks and the loss of each reduced model is compared on
+pieces (>= ``min_block_s``) of the held-out third, where the part changes the
+prediction, by Student's t over the pieces (:func:`_eliminate`). A dead time
+or lag under one sample period is not named (:func:`_unresolved`). The gain is
 not named here: the amplitude stage judges scales, offsets and slip on what
 the named dynamics leave (:mod:`robot_calib.mismatch.analysis`).
 """
@@ -35,7 +37,7 @@ import numpy as np
 from robot_calib.mismatch import effects as E
 from robot_calib.mismatch import latency as L
 from robot_calib.mismatch.channels import ODOM_TYPE, PairedTopic
-from robot_calib.mismatch.findings import confidence, evidence
+from robot_calib.mismatch.findings import confidence, evidence, motion_ratio
 from robot_calib.mismatch.problem import held_mask, rmse
 from scipy.signal import lfilter
 
@@ -74,10 +76,22 @@ def deadband(u: np.ndarray, band: float) -> np.ndarray:
     return np.where(np.abs(u) > band, u, 0.0) if band > 0 else u
 
 
+_LIMITED: dict = {}
+
+
 def rate_limit(u: np.ndarray, dt: float, limit: float) -> np.ndarray:
     """Return ``u`` changing by at most ``limit`` per second (units of u per s)."""
     if not math.isfinite(limit) or limit <= 0:
         return u
+    key = (hash(u.tobytes()), u.shape, float(dt), float(limit))  # the grids ask again
+    if key not in _LIMITED:
+        if len(_LIMITED) > 512:
+            _LIMITED.clear()
+        _LIMITED[key] = _rate_limit(u, dt, limit)
+    return _LIMITED[key].copy()
+
+
+def _rate_limit(u: np.ndarray, dt: float, limit: float) -> np.ndarray:
     step = limit * dt
     out = np.empty(u.size)
     y = float(u[0])
@@ -104,10 +118,13 @@ def shift(x: np.ndarray, d: float, dt: float) -> np.ndarray:
     s = d / dt
     i = int(math.floor(s))
     f = s - i
-    idx = np.arange(x.shape[0])
-    a = x[np.clip(idx - i, 0, None)]
-    b = x[np.clip(idx - i - 1, 0, None)]
-    return (1.0 - f) * a + f * b
+
+    def late(k: int) -> np.ndarray:
+        if k <= 0:
+            return x
+        k = min(k, x.shape[0])
+        return np.concatenate((np.repeat(x[:1], k, axis=0), x[:x.shape[0] - k]), axis=0)
+    return late(i) if f == 0.0 else (1.0 - f) * late(i) + f * late(i + 1)
 
 
 def _filled(x: np.ndarray) -> np.ndarray:
@@ -247,18 +264,44 @@ def fit_axis(u: np.ndarray, wabs: Optional[np.ndarray], y: np.ndarray, w: np.nda
         step = float(np.percentile(jumps[jumps > 1e-3 * scale], 90)) \
             if (jumps > 1e-3 * scale).sum() > 5 else scale
         best = (math.inf, m)
-        for ramp in (0.0, 0.05, 0.1, 0.2, 0.3, 0.45, 0.65, 0.9, 1.3, 2.0):
+        for ramp in (0.0, 0.05, 0.1, 0.2, 0.3, 0.45, 0.65, 0.9, 1.3, 2.0, 3.0):
             mm = replace(m, limit=step / ramp if ramp > 0 else math.inf)
-            c, s = _solve(regressors(u, wabs, dt, mm, coupled, acmd), y, w)
+            # with the dead time and lag searched again: a limit makes its own delay, which a
+            # lag fitted without it has taken already
+            mm, s = _grid(u, wabs, y, w, dt, mm, coupled, max_d, free, acmd) if free else \
+                (mm, _solve(regressors(u, wabs, dt, mm, coupled, acmd), y, w)[1])
             if s < best[0]:
-                best = (s, _linear(mm, c, coupled, slip))
+                best = (s, mm if free else _linear(mm, _solve(regressors(
+                    u, wabs, dt, mm, coupled, acmd), y, w)[0], coupled, slip))
         m = best[1]
     if free and (m.band > 0 or math.isfinite(m.limit)):
         m, _ = _grid(u, wabs, y, w, dt, m, coupled, max_d, free, acmd)
     if refine and free:
         m = _refine(u, wabs, y, w, dt, m, coupled, max_d, acmd)
+    if refine and (m.band > 0 or math.isfinite(m.limit)):
+        m = _refine_nonlinear(u, wabs, y, w, dt, m, coupled, acmd)
     m.parts = set(parts)
     return m
+
+
+def _refine_nonlinear(u, wabs, y, w, dt, m: AxisModel, coupled: bool, acmd=None) -> AxisModel:
+    """Return ``m`` with its band and rate limit refined between grid points (log scale)."""
+    from scipy.optimize import minimize_scalar
+
+    def sse(mm: AxisModel) -> float:
+        return _solve(regressors(u, wabs, dt, mm, coupled, acmd), y, w)[1]
+
+    for key in ('band', 'limit'):
+        v = getattr(m, key)
+        if not (v > 0 and math.isfinite(v)):
+            continue
+        r = minimize_scalar(lambda x: sse(replace(m, **{key: math.exp(x)})),
+                            bounds=(math.log(v / 1.6), math.log(v * 1.6)), method='bounded',
+                            options={'xatol': 1e-3})
+        if r.fun < sse(m):
+            m = replace(m, **{key: float(math.exp(r.x))})
+    c, _ = _solve(regressors(u, wabs, dt, m, coupled, acmd), y, w)
+    return _linear(m, c, coupled, acmd is not None)
 
 
 def _chunk_sse(r: np.ndarray, held: np.ndarray, ok: np.ndarray, chunk: int) -> np.ndarray:
@@ -298,8 +341,8 @@ class DriveResult:
     text: str
 
 
-def analyse_drive(pt: PairedTopic, prm,
-                  acmd: Optional[np.ndarray] = None) -> Optional[DriveResult]:
+def analyse_drive(pt: PairedTopic, prm, acmd: Optional[np.ndarray] = None,
+                  late: frozenset = frozenset()) -> Optional[DriveResult]:
     """
     Fit the drive chain to an odometry topic; return it when any dynamic part is named.
 
@@ -307,6 +350,9 @@ def analyse_drive(pt: PairedTopic, prm,
     pure delay (which the time stage judges) is named, or when the drive
     model is off (``prm.drive_model``). ``acmd``: the commanded acceleration
     on the topic's grid (m/s^2), for the slip fitted beside the forward axis.
+    ``late``: the fields the time stage found late (at full rate, a delay
+    rather than a lag): their dead time is kept, the chain judges what the
+    dynamics add to it.
     """
     if not getattr(prm, 'drive_model', True) or pt.msgtype != ODOM_TYPE or prm.mode == 'seed':
         return None
@@ -319,11 +365,19 @@ def analyse_drive(pt: PairedTopic, prm,
     n = pt.t.size // q
     held = held_mask(n, prm.heldout_chunks)
     chunk = max(1, n // prm.heldout_chunks)
-    sim_d = {f: _blocks(pt.sim[f], q, n) for f in fields}
-    real_d = {f: _blocks(pt.real[f], q, n) for f in fields}
+    # the test's units: each held-out chunk cut into pieces of at least min_block_s
+    piece = max(1, chunk // max(1, int(chunk * dt / prm.min_block_s)))
+    # a noisy simulation (another recording): both sides through one moving average of 5
+    # samples, which the dynamics commute with; the sim's own noise, absent from the real
+    # side, would pass for a lag that filters it
+    noisy = any(pt.sim_noisy.get(f) for f in fields)
+    src = {f: _smooth(pt.sim[f]) if noisy else pt.sim[f] for f in pt.sim}
+    sim_d = {f: _blocks(src[f], q, n) for f in fields}
+    real_d = {f: _blocks(_smooth(pt.real[f]) if noisy else pt.real[f], q, n) for f in fields}
     wabs = np.abs(_filled(sim_d[W])) if W in sim_d else None
     acd = np.nan_to_num(_blocks(acmd, q, n)) if acmd is not None and V in fields else None
     out_models, found, sims = {}, [], {}
+    period = max(pt.dt_sim, pt.dt_real, pt.dt)
     for f in fields:
         u, y = _filled(sim_d[f]), real_d[f]
         ok = np.isfinite(sim_d[f]) & np.isfinite(y)
@@ -332,12 +386,16 @@ def analyse_drive(pt: PairedTopic, prm,
         yf = np.nan_to_num(y)
         wa = wabs if f == V else None
         parts = _axis_parts(f, u, wa, ok)
-        nchunks = int(np.count_nonzero(np.bincount(np.flatnonzero(held & ok) // chunk)))
-        thr = L.t_quantile(prm.drive_alpha, max(nchunks - 1, 1))
         ac = acd if f == V else None
-        named, stats = _eliminate(u, wa, yf, ok, held, chunk, dt, prm, parts, thr, ac)
+        named, stats = _eliminate(u, wa, yf, ok, held, piece, dt, prm, parts, ac,
+                                  frozenset({'drive_dead_time'} if f in late else ()))
         model = fit_axis(u, wa, yf, ok, dt, prm.drive_max_dead_time, named, refine=True,
                          acmd=ac)
+        small = _unresolved(model, period)
+        if small:
+            named = named - small
+            model = fit_axis(u, wa, yf, ok, dt, prm.drive_max_dead_time, named, refine=True,
+                             acmd=ac)
         out_models[f] = (model, stats, ok)
     dyn = {p for m, _, _ in out_models.values() for p in m.parts} - {'drive_dead_time'}
     if not dyn:
@@ -355,37 +413,70 @@ def analyse_drive(pt: PairedTopic, prm,
     return DriveResult({f: m for f, (m, _, _) in out_models.items()}, found, sims, text)
 
 
-def _eliminate(u, wa, yf, ok, held, chunk, dt, prm, parts: set, thr: float,
-               acmd=None) -> tuple:
+def _unresolved(m: AxisModel, period: float) -> set:
+    """
+    Return the named dead time or lag shorter than one sample ``period`` (s) of the coarser side.
+
+    Read at the other side's stamps, a series sampled every T is interpolated;
+    at the midpoints that filters as cos(pi f T) ~ 1 - (pi f T)^2 / 2, the
+    magnitude of a first-order lag of T / 2, and a speed differenced over one
+    period trails its stamp by T / 2: sampling alone makes a lag or a delay of
+    up to half a period, so only one longer than a whole period is the drive's.
+    """
+    return {p for p, v in (('drive_lag', m.tau), ('drive_dead_time', m.d))
+            if p in m.parts and v < period}
+
+
+def _eliminate(u, wa, yf, ok, held, chunk, dt, prm, parts: set, acmd=None,
+               keep: frozenset = frozenset()) -> tuple:
     """
     Backward elimination of the drive's parts by the held-out chunk test; return (named, stats).
 
     Parts that stand in for each other (a dead time, a lag and a rate limit all
     delay a step) each look dispensable while the others are there; dropping
     the weakest one at a time and testing again keeps the ones the data need.
+    Each part is judged on the held-out samples where leaving it out changes
+    the prediction by over 1 % of the command's scale (a deadband acts on slow
+    commands only), in chunks with at least 5 such samples. Parts in ``keep``
+    are not dropped (a dead time the time stage has shown).
     """
     fitw = ok & ~held
     cur = set(parts)
+    scale = float(np.percentile(np.abs(u[ok]), 95)) if ok.any() else 0.0
+
+    def test(drop: set, full: AxisModel, r_full: np.ndarray) -> tuple:
+        red = fit_axis(u, wa, yf, fitw, dt, prm.drive_max_dead_time, cur - drop, acmd=acmd)
+        r_red = yf - predict(u, wa, dt, red, acmd=acmd)
+        # judged where the part changes the prediction (a deadband acts on slow commands
+        # only): chosen by the fitted models, not by the held-out data
+        acts = ok & (np.abs(r_red - r_full) > 0.01 * scale)
+        s_full = _chunk_sse(r_full, held, acts, chunk)
+        # log ratio per chunk: scale-free, so a few chunks of fast motion do not make the
+        # spread that hides a part every other chunk needs
+        s_red = _chunk_sse(r_red, held, acts, chunk)
+        has = np.bincount(np.flatnonzero(held & acts) // chunk, minlength=s_full.size) >= 5
+        dlt = np.log((s_red[has] + 1e-300) / (s_full[has] + 1e-300))
+        se = float(np.std(dlt, ddof=1) / math.sqrt(dlt.size)) if dlt.size > 2 else math.inf
+        z = float(np.mean(dlt) / se) if dlt.size > 2 and se > 0 else 0.0
+        thr = L.t_quantile(prm.drive_alpha, max(dlt.size - 1, 1))
+        hb, ha = rmse(r_red, acts & held), rmse(r_full, acts & held)
+        good = z > thr and hb is not None and ha is not None and \
+            ha < (1.0 - prm.min_improvement) * hb
+        return (z, thr, int(dlt.size), red, hb, ha, good, full, len(drop) > 1)
+
     while True:
         full = fit_axis(u, wa, yf, fitw, dt, prm.drive_max_dead_time, cur, acmd=acmd)
         r_full = yf - predict(u, wa, dt, full, acmd=acmd)
-        s_full = _chunk_sse(r_full, held, ok, chunk)
-        has = np.bincount(np.flatnonzero(held & ok) // chunk, minlength=s_full.size) > 0
-        stats = {}
-        for p in sorted(cur):
-            red = fit_axis(u, wa, yf, fitw, dt, prm.drive_max_dead_time, cur - {p}, acmd=acmd)
-            r_red = yf - predict(u, wa, dt, red, acmd=acmd)
-            # log ratio per chunk: scale-free, so a few chunks of fast motion do not make the
-            # spread that hides a part every other chunk needs
-            s_red = _chunk_sse(r_red, held, ok, chunk)
-            dlt = np.log((s_red[has] + 1e-300) / (s_full[has] + 1e-300))
-            se = float(np.std(dlt, ddof=1) / math.sqrt(dlt.size)) if dlt.size > 1 else math.inf
-            z = float(np.mean(dlt) / se) if se > 0 else 0.0
-            hb, ha = rmse(r_red, ok & held), rmse(r_full, ok & held)
-            good = z > thr and hb is not None and ha is not None and \
-                ha < (1.0 - prm.min_improvement) * hb
-            stats[p] = (z, thr, int(dlt.size), red, hb, ha, good)
-        bad = [p for p in cur if not stats[p][6]]
+        stats = {p: test({p}, full, r_full) for p in sorted(cur)}
+        # a dead time and a lag that each stand in for the other: kept together when the
+        # response needs them together (their sum is resolved, the split is not)
+        pair = {'drive_dead_time', 'drive_lag'}
+        if pair <= cur and not any(stats[p][6] for p in pair) and full.d > 0 and \
+                full.tau > 0 and not pair & keep:
+            joint = test(pair, full, r_full)
+            if joint[6]:
+                stats.update({p: joint for p in pair})
+        bad = [p for p in cur if not stats[p][6] and p not in keep]
         if not bad:
             return cur, stats
         cur.discard(min(bad, key=lambda p: stats[p][0]))
@@ -400,6 +491,15 @@ _VALUE = {'drive_dead_time': ('tau', 's', lambda m: m.d),
           'turn_speed_loss': ('coefficient', 's/rad', lambda m: m.k)}
 
 
+def _smooth(x: np.ndarray, width: int = 5) -> np.ndarray:
+    """Return the centred moving average of ``width`` samples (NaN kept, ignored in means)."""
+    ok = np.isfinite(x)
+    k = np.ones(width)
+    num = np.convolve(np.where(ok, x, 0.0), k, mode='same')
+    den = np.convolve(ok.astype(float), k, mode='same')
+    return np.where(ok & (den > 0), num / np.maximum(den, 1.0), np.nan)
+
+
 def _blocks(x: np.ndarray, q: int, n: int) -> np.ndarray:
     """Return the means of ``q`` consecutive samples (NaN where one is missing)."""
     return x[:n * q].reshape(n, q).mean(axis=1) if q > 1 else x[:n].copy()
@@ -411,18 +511,24 @@ def _findings(pt: PairedTopic, f: str, m: AxisModel, stats: dict, ok: np.ndarray
     """Return one finding per named part of the axis (contract keys, held-out fit)."""
     out = []
     y = np.nan_to_num(yr)
-    r_full = y - predict(u, wa, dt, m, acmd=acmd)
+    scale = float(np.percentile(np.abs(u[ok]), 95)) if ok.any() else 0.0
     for p in sorted(m.parts):
-        z, thr, nb, red, hb, ha, _ = stats[p]
+        z, thr, nb, red, hb, ha, _, full, together = stats[p]
+        # the models of the test (fitted on the fitted part), on the samples where the part
+        # changes the prediction, as it was tested
         r_red = y - predict(u, wa, dt, red, acmd=acmd)
-        fitd = {'rmse_before': rmse(r_red, ok & ~held), 'rmse_after': rmse(r_full, ok & ~held),
+        r_fit = y - predict(u, wa, dt, full, acmd=acmd)
+        acts = ok & (np.abs(r_red - r_fit) > 0.01 * scale)
+        motion = motion_ratio(r_red - r_fit, acts & ~held, acts & held)
+        fitd = {'rmse_before': rmse(r_red, acts & ~held),
+                'rmse_after': rmse(r_fit, acts & ~held),
                 'heldout_rmse_before': hb, 'heldout_rmse_after': ha}
         key, unit, get = _VALUE[p]
         unit = unit or (UNIT[f] if p == 'drive_deadband' else UNIT[f] + '/s')
         val = float(get(m))
         # the part passed the test at drive_alpha; its strength grows from the 5 % bar
         strength = 1.0 - (L.t_quantile(0.05, max(nb - 1, 1)) / max(z, 1e-12)) ** 2
-        alts = []
+        alts = [0.0] if together else []  # the other split fits as well
         if p in ('drive_lag', 'drive_dead_time'):
             other = 'drive_dead_time' if p == 'drive_lag' else 'drive_lag'
             alts_sep = E.separating_motion(p, other)
@@ -433,11 +539,14 @@ def _findings(pt: PairedTopic, f: str, m: AxisModel, stats: dict, ok: np.ndarray
               'window': None, 'fit': fitd, 'units': {key: unit},
               'std': {key: float('nan')}, 'channels': [f'{pt.name}.{f}'],
               'explanation': _sentence(p, f, val) + (
-                  f' Modelling it cuts the held-out residual from {hb:.3g} to {ha:.3g}.'
+                  f' Modelling it cuts the held-out residual where it acts from {hb:.3g} to '
+                  f'{ha:.3g}.' + (f' The dead time and the lag are resolved together (d + tau '
+                                  f'= {m.d + m.tau:.3g} s), not apart: either alone fits about '
+                                  'as well.' if together else '')
                   if hb is not None and ha is not None else ''),
               'evidence': {'z': z, 'z_threshold': thr, 'blocks': nb, 'test': 'held-out chunks '
                            'of the drive model with and without it'},
-              'evidence_strength': evidence(strength, fitd),
+              'evidence_strength': evidence(strength, fitd, motion),
               'separating_motion': alts_sep}
         fd['confidence'] = confidence(fd['evidence_strength'], alts)
         out.append(fd)
