@@ -37,10 +37,10 @@ sys.path.insert(0, str(REPO))
 import mismatch_suite as M  # noqa: E402,I100
 
 from robot_calib.mismatch import analyse, analyse_recordings  # noqa: E402
-from robot_calib.mismatch import analysis as A  # noqa: E402
 from robot_calib.mismatch import effects as E  # noqa: E402
 from robot_calib.mismatch.align import pair_topics  # noqa: E402
 from robot_calib.mismatch.problem import make_problem  # noqa: E402
+from robot_calib.mismatch.regressors import motion_regressors  # noqa: E402
 
 NOISE_KEY = {'angular_velocity': 'gyro', 'linear_acceleration': 'accel',
              'linear.x': 'speed', 'angular.z': 'yaw_rate'}
@@ -241,7 +241,7 @@ def baseline(rows: list, thr_rel: float = 0.05) -> dict:
             prob = make_problem(pt, 2.0, [])
             if prob is None:
                 continue
-            aux = A._aux(sim, real, pt, t0, [])
+            aux = motion_regressors(sim, real, pt, t0, [])
             cands, _ = E.candidates(pt, prob.sigma, aux)
             for f in prob.fields:
                 # the analyser judges delays apart; the baseline gets them as a column: a

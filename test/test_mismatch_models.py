@@ -16,10 +16,10 @@ from robot_calib.core.constants import GRAVITY
 from robot_calib.mismatch import analyse_recordings
 from robot_calib.mismatch import latency as L
 from robot_calib.mismatch import robust as R
-from robot_calib.mismatch.analysis import _command_slope
 from robot_calib.mismatch.channels import IMU_FIELDS, IMU_TYPE, ODOM_FIELDS, ODOM_TYPE, Topic
 from robot_calib.mismatch.effects import rotate
 from robot_calib.mismatch.findings import evidence, heldout_support, motion_ratio
+from robot_calib.mismatch.regressors import command_slope
 from robot_calib.mismatch.timing import field_taus
 
 GYRO, ACC = IMU_FIELDS[:3], IMU_FIELDS[3:]
@@ -358,9 +358,9 @@ def test_commanded_acceleration_is_the_slope_of_each_command_interval():
     def gain(x):   # the slip fitted on regressor v x, relative to the true one (on v a)
         return float(np.sum(v * a * v * x) / np.sum((v * x) ** 2))
 
-    assert gain(_command_slope(tc, vc, t)) == pytest.approx(1.0, abs=0.02)
+    assert gain(command_slope(tc, vc, t)) == pytest.approx(1.0, abs=0.02)
     assert gain(np.interp(t, tc, np.gradient(vc, tc))) > 1.05
-    far = _command_slope(tc, vc, np.array([-1.0, 250.0]))
+    far = command_slope(tc, vc, np.array([-1.0, 250.0]))
     assert np.isnan(far).all()
 
 
@@ -376,7 +376,7 @@ def _ramped_drive(rng, slip=0.0, tau=0.0, lag=0.0):
     sim = {'/odom': Topic('/odom', ODOM_TYPE, t, dict(zip(ODOM_FIELDS, (v, w)))),
            '/cmd_vel': cmd}
     # slip as the analyser models it: with the commanded acceleration
-    rv, rw = v * (1.0 + slip * _command_slope(tc, cmd.fields['linear.x'], t)), w
+    rv, rw = v * (1.0 + slip * command_slope(tc, cmd.fields['linear.x'], t)), w
     if lag:  # the drive's own filter, on the slipping speed
         rv, rw = L.lag_response(rv, dt, lag), L.lag_response(rw, dt, lag)
     rv, rw = np.interp(t - tau, t, rv), np.interp(t - tau, t, rw)

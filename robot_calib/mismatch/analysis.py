@@ -54,22 +54,21 @@ import numpy as np
 
 from robot_calib.mismatch import drive as D
 from robot_calib.mismatch import effects as E
-from robot_calib.mismatch import latency as L
 from robot_calib.mismatch import residual as U
 from robot_calib.mismatch import robust as R
 from robot_calib.mismatch import select as S
 from robot_calib.mismatch import timing
 from robot_calib.mismatch.align import pair_topics
-from robot_calib.mismatch.channels import (ChannelError, IMU_TYPE, ODOM_TYPE, PairedTopic,
-                                           Recording, TWIST_TYPES)
+from robot_calib.mismatch.channels import ChannelError, ODOM_TYPE, PairedTopic, Recording
 from robot_calib.mismatch.drive_stage import drive_stage
 from robot_calib.mismatch.findings import (heldout_support, motion_ratio, term_finding,
                                            unsupported)
-from robot_calib.mismatch.locate import active_windows, local_weights, moving_average
+from robot_calib.mismatch.locate import active_windows, local_weights
 from robot_calib.mismatch.locate import noise_level
 from robot_calib.mismatch.params import MismatchParams
 from robot_calib.mismatch.problem import held_mask, make_problem, noise_floor, Problem, rmse
 from robot_calib.mismatch.reconcile import reconcile
+from robot_calib.mismatch.regressors import motion_regressors
 
 __all__ = ['MismatchParams', 'TopicDetail', 'analyse_recordings']
 
@@ -94,74 +93,6 @@ class TopicDetail:
     time_findings: list
     unexplained: Optional[dict]
     held: np.ndarray
-
-
-def _t_abs_interp(t_src: np.ndarray, x: np.ndarray, t_dst: np.ndarray) -> np.ndarray:
-    ok = np.isfinite(x)
-    if ok.sum() < 2:
-        return np.full(t_dst.size, np.nan)
-    y = np.interp(t_dst, t_src[ok], x[ok])
-    y[(t_dst < t_src[ok][0] - 0.5) | (t_dst > t_src[ok][-1] + 0.5)] = np.nan
-    return y
-
-
-def _command_slope(t_cmd: np.ndarray, v_cmd: np.ndarray, t_dst: np.ndarray) -> np.ndarray:
-    """
-    Return the commanded acceleration (m/s^2) at ``t_dst``: the slope of the command's interval.
-
-    The derivative of the linear interpolant of the commanded speed, as the
-    speeds themselves are read: central differences interpolated again would
-    spread each acceleration over two command periods, and a slip fitted to
-    that smoothed regressor comes out too large (errors in the regressor).
-    NaN outside the commands (beyond half a second).
-    """
-    ok = np.isfinite(v_cmd)
-    t, v = t_cmd[ok], v_cmd[ok]
-    if t.size < 2:
-        return np.full(t_dst.size, np.nan)
-    dt = np.diff(t)
-    slope = np.where(dt > 0, np.diff(v) / np.where(dt > 0, dt, 1.0), 0.0)
-    out = slope[np.clip(np.searchsorted(t, t_dst, side='right') - 1, 0, slope.size - 1)]
-    out[(t_dst < t[0] - 0.5) | (t_dst > t[-1] + 0.5)] = np.nan
-    return out
-
-
-def _aux(sim: Recording, real: Recording, pt: PairedTopic, t0: float, notes: list,
-         tau: float = 0.0, lag: float = 0.0) -> dict:
-    """
-    Return sim regressors on the topic's times: v (m/s), omega (rad/s), acmd (m/s^2).
-
-    ``tau``: the topic's delay (s); the regressors taken from other topics are
-    read that much earlier, as the topic's own simulated channels are once
-    aligned (a late clock stamps the slip under acceleration late too).
-    ``lag``: the drive's first-order lag (s), applied to them alike.
-    """
-
-    def late(x: np.ndarray) -> np.ndarray:
-        return L.lag_response(timing.filled(x), pt.dt, lag) if lag > 0 else x
-
-    aux: dict = {}
-    ta = pt.t + t0 - tau
-    odoms = [tp for tp in sim.values() if tp.msgtype == ODOM_TYPE and len(tp) > 2]
-    odoms.sort(key=lambda tp: ('truth' not in tp.name, tp.name))
-    if odoms:
-        o = odoms[0]
-        for key, f in (('v', 'twist.twist.linear.x'), ('omega', 'twist.twist.angular.z')):
-            if f in o.fields:
-                aux[key] = late(_t_abs_interp(o.t, o.fields[f], ta))
-    if pt.msgtype == IMU_TYPE and 'angular_velocity.z' in pt.sim:
-        aux['omega'] = np.nan_to_num(pt.sim_reg['angular_velocity.z'])
-    cmds = [tp for rec in (sim, real) for tp in rec.values()
-            if tp.msgtype in TWIST_TYPES and len(tp) > 2]
-    if cmds:
-        aux['acmd'] = late(_command_slope(cmds[0].t, cmds[0].fields['linear.x'], ta))
-    elif pt.msgtype == ODOM_TYPE and 'twist.twist.linear.x' in pt.sim:
-        v = np.nan_to_num(pt.sim['twist.twist.linear.x'])
-        w = max(1, int(round(0.2 / max(pt.dt, 1e-9))))
-        aux['acmd'] = np.gradient(moving_average(v, w), pt.t)
-        notes.append(f'{pt.name}: no velocity-command topic; the commanded acceleration for '
-                     'wheel slip is taken from the simulated speed')
-    return {k: np.nan_to_num(v) for k, v in aux.items()}
 
 
 # -- stage 2: amplitude effects -------------------------------------------------------------
@@ -432,7 +363,8 @@ def _drive_tau(drive: Optional[D.DriveResult]) -> float:
 def _align_time(pt: PairedTopic, prob0: Problem, sim: Recording, real: Recording, t0: float,
                 prm: MismatchParams, edges: np.ndarray) -> TimeStage:
     """Step 1: judge delays and the drive's dynamics; return the topic with the sim delayed."""
-    acmd = _aux(sim, real, pt, t0, []).get('acmd') if pt.msgtype == ODOM_TYPE else None
+    acmd = (motion_regressors(sim, real, pt, t0, []).get('acmd')
+            if pt.msgtype == ODOM_TYPE else None)
     delays = timing.time_stage(pt, prob0, prm, edges, acmd)
     findings = timing.time_findings(pt, prob0, delays, prm, edges, acmd)
     taus = {}
@@ -443,8 +375,8 @@ def _align_time(pt: PairedTopic, prob0: Problem, sim: Recording, real: Recording
     drive = None
     if pt.msgtype == ODOM_TYPE:  # the drive chain; a late speed or turn is first its response
         drive, delays, findings, taus = drive_stage(
-            pt, prm, taus, delays, findings, lambda p, tau: _aux(sim, real, p, t0, [], tau)
-            .get('acmd'))
+            pt, prm, taus, delays, findings,
+            lambda p, tau: motion_regressors(sim, real, p, t0, [], tau).get('acmd'))
     aligned = timing.aligned(pt, taus)
     lags = [(te, info) for kind, te, info in delays if kind == 'drive_lag']
     if drive is not None:
@@ -475,9 +407,9 @@ def _build_candidates(stage: TimeStage, sim: Recording, real: Recording, t0: flo
     (centripetal acceleration).
     """
     taus = stage.taus
-    aux = _aux(sim, real, stage.aligned, t0, notes,
-               taus.get(timing.SLIP_FIELD, taus.get('linear_acceleration.y', 0.0)),
-               stage.lag_tau)
+    aux = motion_regressors(sim, real, stage.aligned, t0, notes,
+                            taus.get(timing.SLIP_FIELD, taus.get('linear_acceleration.y', 0.0)),
+                            stage.lag_tau)
     cands, cannot = E.candidates(stage.aligned, stage.problem.sigma, aux)
     notes.extend(c for c in cannot if c not in notes)
     return cands, aux
