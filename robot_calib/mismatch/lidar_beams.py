@@ -229,7 +229,8 @@ def beam_findings(sim: list, real: list, topic: str, notes: list, not_judged: li
     # sides of the real beam's direction: a turned beam next to an edge or a gap of the sim
     # scan may miss it without any dropout
     out.extend(dropout_findings(_turned(rs, x[2] / inc) if x[2] else rs, rr, ang, blk_s,
-                                held_s, topic, lambda f, b: _jack(f, b, BLOCKS), notes))
+                                held_s, topic, lambda f, b: _jack(f, b, BLOCKS), notes,
+                                _sim_noise(rs) or 0.01))
     return out
 
 

@@ -11,7 +11,11 @@ A beam the simulated scan returns and the real one does not is a loss
 
 where ``inc_sim`` is the incidence of the simulated beam, the surface's
 direction taken from the neighbouring beams' hit points of the simulated scan
-(the simulator's own rule, :func:`robot_calib.sim.sensors.incidence`). Each
+(the simulator's own rule, :func:`robot_calib.sim.sensors.incidence`, on the
+side it picks, but as the chord to the ``SPAN``-th beam when the beams between
+lie within 3 noise sigma of it: one beam's chord turned by the range noise
+makes grazing beams look less grazing, |cos| folded at 0, and the step found
+low and weak; a chord k beams long turns k times less). Each
 step is fitted by maximum likelihood (Bernoulli) over candidate thresholds
 and judged alone: a rate above a floor, z = rate / its block-jackknife
 standard error >= Z_MIN, and a lower Brier score on the held-out chunks.
@@ -31,6 +35,8 @@ from typing import Callable
 import numpy as np
 
 from robot_calib.sim.sensors import incidence
+
+SPAN = 5
 
 __all__ = ['dropout_findings']
 
@@ -130,13 +136,16 @@ def _conf_z(z: float) -> float:
 
 
 def dropout_findings(rs: np.ndarray, rr: np.ndarray, ang: np.ndarray, blk_s: np.ndarray,
-                     held_s: np.ndarray, topic: str, jack: Callable, notes: list) -> list:
+                     held_s: np.ndarray, topic: str, jack: Callable, notes: list,
+                     sim_noise: float = 0.01) -> list:
     """
     Return the ``dropout_rate`` finding of paired scans (a list of at most one).
 
     ``rs``, ``rr``: simulated and real ranges (S, B) (m, NaN: no return);
     ``ang``: beam angles (rad); ``blk_s``, ``held_s``: each scan's jackknife block
-    and whether it is held out; ``jack(fun, blocks)``: the block jackknife.
+    and whether it is held out; ``jack(fun, blocks)``: the block jackknife;
+    ``sim_noise``: the simulated scan's range noise (m), 3 of which keep a chord
+    of the incidence on one surface.
     """
     sim_ok = np.isfinite(rs)
     y = (~np.isfinite(rr))[sim_ok].astype(float)
@@ -144,7 +153,8 @@ def dropout_findings(rs: np.ndarray, rr: np.ndarray, ang: np.ndarray, blk_s: np.
     bk, hd = blk_s[rows], held_s[rows]
     q = float(np.mean(~np.isfinite(rs)[np.isfinite(rr)])) if np.isfinite(rr).any() else 0.0
     # the simulator's rule on the simulated scan: no return is +inf there
-    inc = incidence(np.where(sim_ok, rs, np.inf), np.broadcast_to(ang, rs.shape))[sim_ok]
+    inc = incidence(np.where(sim_ok, rs, np.inf), np.broadcast_to(ang, rs.shape), SPAN,
+                    max(3.0 * sim_noise, 0.01))[sim_ok]
     fits = {'beyond': _judge(rs[sim_ok], y, q, bk, hd, jack),
             'incidence': _judge(inc, y, q, bk, hd, jack)}
     if fits['incidence'] is not None and fits['incidence']['thr'] <= 0.0:
