@@ -248,12 +248,12 @@ def incidence(ranges: np.ndarray, angles: np.ndarray, span: int = 1,
     length L by about sigma / L: k times less) and the beams between lie within
     ``tol`` (m) of it (one surface), else to the neighbour.
     """
-    px, py = ranges * np.cos(angles), ranges * np.sin(angles)
-    inf = np.full(ranges.shape[:-1] + (1,), np.inf)
-    dr_prev = np.abs(np.concatenate((inf, np.diff(ranges, axis=-1)), axis=-1))
-    dr_next = np.abs(np.concatenate((np.diff(ranges, axis=-1), inf), axis=-1))
-    use_next = ~(dr_prev <= dr_next)
-    with np.errstate(invalid='ignore'):
+    with np.errstate(invalid='ignore'):  # inf - inf, inf * 0: no neighbour, caught below
+        px, py = ranges * np.cos(angles), ranges * np.sin(angles)
+        inf = np.full(ranges.shape[:-1] + (1,), np.inf)
+        dr_prev = np.abs(np.concatenate((inf, np.diff(ranges, axis=-1)), axis=-1))
+        dr_next = np.abs(np.concatenate((np.diff(ranges, axis=-1), inf), axis=-1))
+        use_next = ~(dr_prev <= dr_next)
         tx = np.where(use_next, np.roll(px, -1, axis=-1) - px, px - np.roll(px, 1, axis=-1))
         ty = np.where(use_next, np.roll(py, -1, axis=-1) - py, py - np.roll(py, 1, axis=-1))
         ok_n = ok_p = np.isfinite(ranges)
