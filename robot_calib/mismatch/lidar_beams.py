@@ -55,7 +55,7 @@ __all__ = ['beam_findings', 'pair_scans', 'sweep_vs_delay']
 BLOCKS = 6
 CHUNKS = 12
 Z_MIN = 5.0
-FLOORS = {'bias': 0.005, 'scale': 0.002, 'yaw': 0.0035, 'x': 0.015, 's1': 0.0015, 'rate': 0.02,
+FLOORS = {'bias': 0.005, 'scale': 0.002, 'yaw': 0.0035, 'x': 0.015, 's1': 0.0015,
           'sweep_time': 0.005, 'tau': 0.008}
 
 

@@ -41,7 +41,7 @@ SPAN = 5
 __all__ = ['dropout_findings']
 
 TELL = 10.0
-FLOOR_RATE = 0.02
+FLOOR_RATE = 0.02  # as the other beam effects: a floor and z >= 5 (lidar_beams)
 
 
 def _ll(k: np.ndarray, n: np.ndarray, p: np.ndarray) -> np.ndarray:
