@@ -280,3 +280,32 @@ def test_chord_incidence_is_less_biased_by_range_noise():
     err5 = (incidence(noisy, a, 5, 0.03) - ref)[:, grazing]
     assert np.abs(np.mean(err5)) < 0.5 * np.abs(np.mean(err1)), (err1.mean(), err5.mean())
     assert np.std(err5) < 0.5 * np.std(err1)
+
+
+def test_range_and_incidence_told_apart_or_listed_as_alternative():
+    from robot_calib.mismatch.lidar_beams import _jack
+    from robot_calib.mismatch.lidar_dropout import dropout_findings
+    # one straight wall 2 m away: range and incidence rise together (r = 2 / cos(inc)), so
+    # a loss beyond 4 m is a loss beyond 60 deg: the other model must be listed
+    ang = np.radians(np.arange(0.0, 80.0, 0.5))
+    rs = np.tile(2.0 / np.cos(ang), (600, 1))
+    rng = np.random.default_rng(3)
+    rr = np.where((rs > 4.0) & (rng.random(rs.shape) < 0.2), np.nan, rs)
+    blk = np.minimum(np.arange(600) * 6 // 600, 5)
+    held = (np.minimum(np.arange(600) * 12 // 600, 11) % 3) == 2
+    out = dropout_findings(rs, rr, ang, blk, held, '/scan', lambda f, b: _jack(f, b, 6), [],
+                           0.0)
+    assert len(out) == 1 and out[0]['alternatives'], out
+    par, alt = out[0]['parameters'], out[0]['alternatives'][0]['parameters']
+    assert {'beyond', 'incidence'} == (set(par) | set(alt)) - {'rate'}, (par, alt)
+    thr = par.get('beyond', alt.get('beyond'))
+    assert abs(thr - 4.0) < 0.1 and abs(par['rate'] - 0.2) < 0.03
+    # a second wall head-on at 5 m (range far, incidence 0) without losses: range is wrong
+    rs2 = np.c_[rs, np.full((600, 40), 5.0)]
+    rr2 = np.c_[rr, np.full((600, 40), 5.0)]
+    ang2 = np.r_[ang, np.radians(np.arange(100.0, 120.0, 0.5))]
+    notes = []
+    out = dropout_findings(rs2, rr2, ang2, blk, held, '/scan', lambda f, b: _jack(f, b, 6),
+                           notes, 0.0)
+    assert len(out) == 1 and 'incidence' in out[0]['parameters'], out
+    assert not out[0].get('alternatives') and notes, (out, notes)
