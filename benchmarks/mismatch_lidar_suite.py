@@ -9,7 +9,8 @@ scenario built from the same seed): the "sim" run with the defaults, the
 and, unless the case is a clean pair, one concealed lidar effect set through
 the simulator's parameters (``lidar.yaw_error``, ``x_error``/``y_error``,
 ``time_offset``, ``range_scale``, ``range_bias``, ``noise_growth``,
-``dropout_beyond`` with ``dropout_beyond_rate``) at a random size from the
+``dropout_beyond`` with ``dropout_beyond_rate``; with ``--incidence`` only
+``dropout_incidence`` 0.8-1.3 rad with ``dropout_incidence_rate`` 5-20 %) at a random size from the
 ranges of issue 40 (mounting yaw 0.5-2 deg, offset 3-10 cm, latency 20-80
 ms, range scale 0.5-2 %, bias 1-5 cm, dropouts of 5-20 % beyond a range;
 noise growth 0.2-1 % of the range; an uncorrected 0.1 s sweep, ``motion_distortion``,
@@ -69,21 +70,31 @@ def draw_effect(rng: np.random.Generator, name: str) -> tuple[list, dict]:
         rate, beyond = _mag(rng, 0.05, 0.2, signed=False), _mag(rng, 2.0, 5.0, signed=False)
         return ([f'lidar.dropout_beyond={beyond}', f'lidar.dropout_beyond_rate={rate}'],
                 {'rate': rate, 'beyond': beyond})
+    if name == 'dropout_incidence':  # the analyser names it dropout_rate (by incidence)
+        rate, inc = _mag(rng, 0.05, 0.2, signed=False), _mag(rng, 0.8, 1.3, signed=False)
+        return ([f'lidar.dropout_incidence={inc}', f'lidar.dropout_incidence_rate={rate}'],
+                {'rate': rate, 'incidence': inc})
     if name == 'scan_distortion':
         # the simulation deskews (as Gazebo's ray sensor); the real scanner does not
         return ['lidar.motion_distortion=true'], {'sweep_time': 0.1}
     raise ValueError(f'unknown lidar effect {name}')
 
 
-def make_case(seed: int, clean_share: float = 0.25) -> dict:
-    """Return one case: scenario, duration, seeds, effect (or None), overrides, truth."""
+def make_case(seed: int, clean_share: float = 0.25, effects: tuple = EFFECTS) -> dict:
+    """
+    Return one case: scenario, duration, seeds, effect (or None), overrides, truth.
+
+    ``effects``: the effects drawn from (``EFFECTS``, or ``('dropout_incidence',)``:
+    grazing dropouts, named ``dropout_rate`` with ``drawn`` kept).
+    """
     rng = np.random.default_rng(seed)
     scenario = str(rng.choice(SCENARIOS))
     duration = float(rng.uniform(120.0, 180.0))
-    effect = None if rng.random() < clean_share else str(rng.choice(EFFECTS))
-    sets, want = draw_effect(rng, effect) if effect else ([], {})
+    drawn = None if rng.random() < clean_share else str(rng.choice(effects))
+    sets, want = draw_effect(rng, drawn) if drawn else ([], {})
+    effect = 'dropout_rate' if drawn == 'dropout_incidence' else drawn
     return {'seed': seed, 'scenario': scenario, 'duration': duration, 'effect': effect,
-            'sets': sets, 'expected': want, 'sim_seed': 2 * seed + 1000,
+            'drawn': drawn, 'sets': sets, 'expected': want, 'sim_seed': 2 * seed + 1000,
             'real_seed': 2 * seed + 1001}
 
 
@@ -105,6 +116,8 @@ def _scans_odom(res: engine.SimResult) -> tuple[list, tuple]:
 def truth_difference(sim: engine.SimResult, real: engine.SimResult, effect: str) -> dict:
     """Return the real-minus-sim truth of ``effect`` from the simulator's ``lidar_effects``."""
     a, b = sim.truth['lidar_effects'], real.truth['lidar_effects']
+    if effect == 'dropout_rate' and b[effect]['incidence'] > 0:
+        return {'rate': b[effect]['incidence_rate'], 'incidence': b[effect]['incidence']}
     if effect == 'dropout_rate':
         return {'rate': b[effect]['beyond_rate'], 'beyond': b[effect]['beyond']}
     if effect == 'scan_distortion':
@@ -207,9 +220,12 @@ if __name__ == '__main__':
     ap.add_argument('--seeds', type=int, nargs=2, default=(300, 340),
                     help='first and one past the last seed')
     ap.add_argument('--clean', action='store_true', help='clean pairs only (no effect)')
+    ap.add_argument('--incidence', action='store_true',
+                    help='grazing dropouts (dropout_incidence) as the only drawn effect')
     a = ap.parse_args()
     done = []
     for sd in range(*a.seeds):
-        done.append(run_case(make_case(sd, 1.0 if a.clean else 0.25)))
+        done.append(run_case(make_case(sd, 1.0 if a.clean else 0.25,
+                                       ('dropout_incidence',) if a.incidence else EFFECTS)))
         print(section(done[-1:])[-1], file=sys.stderr, flush=True)
     print('\n'.join(section(done)))

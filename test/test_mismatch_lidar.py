@@ -220,3 +220,92 @@ def test_sweep_finding_switches_the_simulated_sweep():
     text = export.sim_params_text({'verdict': 'mismatch', 'findings': [f]})
     assert 'motion_distortion' not in (yaml.safe_load(text)['sim'] or {}).get('lidar', {})
     assert 'scan_distortion' in text
+
+
+def test_grazing_dropouts_found_by_incidence():
+    # the real scanner loses a quarter of the beams meeting a surface beyond 1 rad from its
+    # normal (the simulator's grazing dropouts): found by incidence, not by range
+    out = _sim_pair(['lidar.dropout_incidence=1.0', 'lidar.dropout_incidence_rate=0.25'])
+    found = [f for f in out['findings'] if f['effect'] == 'dropout_rate']
+    assert len(found) == 1, out['findings']
+    par = found[0]['parameters']
+    assert 'incidence' in par and 'beyond' not in par, par
+    assert abs(par['incidence'] - 1.0) <= 0.25 and abs(par['rate'] - 0.25) <= 0.0625, par
+    assert found[0]['fit']['heldout_rmse_after'] < found[0]['fit']['heldout_rmse_before']
+    assert {f['effect'] for f in out['findings']} == {'dropout_rate'}, out['findings']
+
+
+def test_range_dropouts_still_found_by_range():
+    out = _sim_pair(['lidar.dropout_beyond=3.5', 'lidar.dropout_beyond_rate=0.12'])
+    found = [f for f in out['findings'] if f['effect'] == 'dropout_rate']
+    assert len(found) == 1, out['findings']
+    par = found[0]['parameters']
+    assert 'beyond' in par and 'incidence' not in par, par
+    assert abs(par['beyond'] - 3.5) <= 0.875 and abs(par['rate'] - 0.12) <= 0.03, par
+    assert not found[0].get('alternatives'), found[0]
+
+
+def test_clean_simulated_pair_names_no_dropout():
+    assert _sim_pair([])['findings'] == []
+
+
+def test_incidence_dropout_reaches_the_simulator_parameters():
+    import yaml
+
+    from robot_calib.mismatch import export
+    f = {'channel': '/scan.ranges', 'effect': 'dropout_rate', 'window': None,
+         'parameters': {'rate': 0.2, 'incidence': 1.1}, 'confidence': 0.9}
+    lid = yaml.safe_load(export.sim_params_text({'verdict': 'mismatch',
+                                                 'findings': [f]}))['sim']['lidar']
+    assert lid['dropout_incidence'] == pytest.approx(1.1)
+    assert lid['dropout_incidence_rate'] == pytest.approx(0.2)
+    assert 'dropout_beyond' not in lid
+    f['parameters'] = {'rate': 0.1, 'beyond': 4.0}
+    lid = yaml.safe_load(export.sim_params_text({'verdict': 'mismatch',
+                                                 'findings': [f]}))['sim']['lidar']
+    assert lid['dropout_beyond'] == pytest.approx(4.0) and 'dropout_incidence' not in lid
+
+
+def test_chord_incidence_is_less_biased_by_range_noise():
+    from robot_calib.sim.sensors import incidence
+    # a straight wall 2 m from the scanner seen over 0-85 deg of incidence, 1 cm noise
+    ang = np.radians(np.arange(0.0, 85.0, 1.0))
+    true = 2.0 / np.cos(ang)
+    rng = np.random.default_rng(0)
+    noisy = true[None, :] + rng.normal(0.0, 0.01, (200, ang.size))
+    a = np.broadcast_to(ang, noisy.shape)
+    ref = incidence(true[None, :], ang[None, :])[0]
+    grazing = (ref > 1.0) & (ref < 1.4)
+    err1 = (incidence(noisy, a) - ref)[:, grazing]
+    err5 = (incidence(noisy, a, 5, 0.03) - ref)[:, grazing]
+    assert np.abs(np.mean(err5)) < 0.5 * np.abs(np.mean(err1)), (err1.mean(), err5.mean())
+    assert np.std(err5) < 0.5 * np.std(err1)
+
+
+def test_range_and_incidence_told_apart_or_listed_as_alternative():
+    from robot_calib.mismatch.lidar_beams import _jack
+    from robot_calib.mismatch.lidar_dropout import dropout_findings
+    # one straight wall 2 m away: range and incidence rise together (r = 2 / cos(inc)), so
+    # a loss beyond 4 m is a loss beyond 60 deg: the other model must be listed
+    ang = np.radians(np.arange(0.0, 80.0, 0.5))
+    rs = np.tile(2.0 / np.cos(ang), (600, 1))
+    rng = np.random.default_rng(3)
+    rr = np.where((rs > 4.0) & (rng.random(rs.shape) < 0.2), np.nan, rs)
+    blk = np.minimum(np.arange(600) * 6 // 600, 5)
+    held = (np.minimum(np.arange(600) * 12 // 600, 11) % 3) == 2
+    out = dropout_findings(rs, rr, ang, blk, held, '/scan', lambda f, b: _jack(f, b, 6), [],
+                           0.0)
+    assert len(out) == 1 and out[0]['alternatives'], out
+    par, alt = out[0]['parameters'], out[0]['alternatives'][0]['parameters']
+    assert {'beyond', 'incidence'} == (set(par) | set(alt)) - {'rate'}, (par, alt)
+    thr = par.get('beyond', alt.get('beyond'))
+    assert abs(thr - 4.0) < 0.1 and abs(par['rate'] - 0.2) < 0.03
+    # a second wall head-on at 5 m (range far, incidence 0) without losses: range is wrong
+    rs2 = np.c_[rs, np.full((600, 40), 5.0)]
+    rr2 = np.c_[rr, np.full((600, 40), 5.0)]
+    ang2 = np.r_[ang, np.radians(np.arange(100.0, 120.0, 0.5))]
+    notes = []
+    out = dropout_findings(rs2, rr2, ang2, blk, held, '/scan', lambda f, b: _jack(f, b, 6),
+                           notes, 0.0)
+    assert len(out) == 1 and 'incidence' in out[0]['parameters'], out
+    assert not out[0].get('alternatives') and notes, (out, notes)

@@ -222,12 +222,19 @@ class _Mapper:
                 self.cannot(f, 'the simulator delays its scans by 0 to 1 s only')
             return
         keys = LIDAR_KEYS[e]
+        if e == 'dropout_rate' and 'incidence' in par:
+            keys = DROPOUT_INCIDENCE_KEYS
         missing = [k for k, _ in keys if k not in self.v]
         if missing:
             self.cannot(f, f'this simulator has no {", ".join(missing)} (its lidar effects)')
             return
         if e == 'dropout_rate':
-            if float(par.get('beyond', 0.0)) > 0:
+            if 'incidence' in par:  # lost at grazing incidence (rad from the normal)
+                self.v['lidar.dropout_incidence'] = float(par['incidence'])
+                self.v['lidar.dropout_incidence_rate'] = float(par['rate'])
+                self.note('lidar.dropout_incidence', why)
+                self.note('lidar.dropout_incidence_rate', why)
+            elif float(par.get('beyond', 0.0)) > 0:
                 self.v['lidar.dropout_beyond'] = float(par['beyond'])
                 self.v['lidar.dropout_beyond_rate'] = float(par['rate'])
                 self.note('lidar.dropout_beyond', why)
@@ -315,6 +322,9 @@ LIDAR_KEYS = {'lidar_mounting_yaw': [('lidar.yaw_error', 'yaw')],
               'dropout_rate': [('lidar.dropout_beyond', 'beyond'),
                                ('lidar.dropout_beyond_rate', 'rate')]}
 """Simulator parameters (the lidar effects of ``sim.params.LidarParams``) per lidar finding."""
+DROPOUT_INCIDENCE_KEYS = [('lidar.dropout_incidence', 'incidence'),
+                          ('lidar.dropout_incidence_rate', 'rate')]
+"""The simulator parameters of a ``dropout_rate`` finding by incidence (rad, probability)."""
 
 
 def one_per_slot(findings: list, topic_map: dict) -> tuple[list, list]:

@@ -21,8 +21,9 @@ range: ``sigma_real(r)^2 = sigma_d(r)^2 - sigma_sim^2`` (the simulation's own
 noise from its adjacent-beam second differences, ``var = 1.5 sigma^2``), and
 ``sigma_real = s0 + s1 r`` fitted to the bins (``range_noise_growth``).
 Beams the simulation returns and the real scanner does not are dropouts,
-modelled as a rate that steps up beyond a range (``dropout_rate``), against
-the simulation's own loss rate.
+modelled as a rate that steps up beyond a range or beyond an incidence angle
+(``dropout_rate``), against the simulation's own loss rate
+(:mod:`robot_calib.mismatch.lidar_dropout`).
 
 An uncorrected sweep (``scan_distortion``): beam ``i`` of ``n`` is measured
 ``i / n`` of the sweep time after the stamp, so while the real robot turns at
@@ -44,6 +45,8 @@ from typing import Optional, TYPE_CHECKING
 
 import numpy as np
 
+from robot_calib.mismatch.lidar_dropout import dropout_findings
+
 if TYPE_CHECKING:  # pragma: no cover
     from robot_calib.mismatch.lidar import LidarMismatchParams
 
@@ -52,7 +55,7 @@ __all__ = ['beam_findings', 'pair_scans', 'sweep_vs_delay']
 BLOCKS = 6
 CHUNKS = 12
 Z_MIN = 5.0
-FLOORS = {'bias': 0.005, 'scale': 0.002, 'yaw': 0.0035, 'x': 0.015, 's1': 0.0015, 'rate': 0.02,
+FLOORS = {'bias': 0.005, 'scale': 0.002, 'yaw': 0.0035, 'x': 0.015, 's1': 0.0015,
           'sweep_time': 0.005, 'tau': 0.008}
 
 
@@ -225,8 +228,9 @@ def beam_findings(sim: list, real: list, topic: str, notes: list, not_judged: li
     # lost returns are counted where the sim, turned by the yaw fitted, sees a surface on both
     # sides of the real beam's direction: a turned beam next to an edge or a gap of the sim
     # scan may miss it without any dropout
-    out.extend(_dropout(_turned(rs, x[2] / inc) if x[2] else rs, rr, blk_s, held_s, topic,
-                        window))
+    out.extend(dropout_findings(_turned(rs, x[2] / inc) if x[2] else rs, rr, ang, blk_s,
+                                held_s, topic, lambda f, b: _jack(f, b, BLOCKS), notes,
+                                _sim_noise(rs) or 0.01))
     return out
 
 
@@ -324,80 +328,6 @@ def _noise(rs, r0, e, bk, hd, topic, window, notes) -> list:
              'explanation': f'Real range noise grows with range: sigma = {c[0] * 100:.1f} cm + '
              f'{c[1] * 100:.2f} cm per m (in the simulation {s_sim * 100:.1f} cm at '
              'every range).'}]
-
-
-def _ll(k: np.ndarray, n: np.ndarray, p: np.ndarray) -> np.ndarray:
-    """Return the Bernoulli log-likelihood of ``k`` losses in ``n`` beams at rate ``p``."""
-    p = np.clip(p, 1e-6, 1 - 1e-6)
-    return k * np.log(p) + (n - k) * np.log(1 - p)
-
-
-def _step(r: np.ndarray, y: np.ndarray, q: float, cands: np.ndarray) -> tuple:
-    """
-    Return (rate, beyond m, log-likelihood) of the best step of extra loss beyond a range.
-
-    ``beyond`` 0 is a rate at every range above the simulation's own loss ``q``;
-    otherwise the rate is the loss beyond minus the loss below (at least 50
-    beams beyond). Counts from the beams sorted by range.
-    """
-    order = np.argsort(r, kind='stable')
-    rs, cum = r[order], np.r_[0.0, np.cumsum(y[order])]
-    n, tot = float(r.size), float(cum[-1])
-    c = np.asarray(cands, float)
-    i0 = np.searchsorted(rs, c, side='left')
-    n1, k1 = n - i0, tot - cum[i0]
-    n0, k0 = i0.astype(float), cum[i0]
-    p1 = np.maximum(k1 / np.maximum(n1, 1), q)
-    p0 = np.where(n0 > 0, k0 / np.maximum(n0, 1), q)
-    ll = _ll(k1, n1, p1) + _ll(k0, n0, p0)
-    ll = np.where(n1 >= 50, ll, -np.inf)
-    best = (max(tot / max(n, 1) - q, 0.0), 0.0, -np.inf)
-    if n >= 50:
-        p = max(tot / n, q)
-        best = (p - q, 0.0, float(_ll(np.array(tot), np.array(n), np.array(p))))
-    if c.size and np.isfinite(ll).any():
-        k = int(np.argmax(ll))
-        if ll[k] > best[2] + 1e-9:
-            best = (float(p1[k] - p0[k]), float(c[k]), float(ll[k]))
-    return best
-
-
-def _dropout(rs, rr, blk_s, held_s, topic, window) -> list:
-    sim_ok = np.isfinite(rs)
-    y = (~np.isfinite(rr))[sim_ok].astype(float)
-    r = rs[sim_ok]
-    rows = np.nonzero(sim_ok)[0]
-    bk, hd = blk_s[rows], held_s[rows]
-    q = float(np.mean(~np.isfinite(rs)[np.isfinite(rr)])) if np.isfinite(rr).any() else 0.0
-    # candidate ranges: every percent, and finer towards both ends (down to 50 beams from
-    # either end), so a step near the shortest or the longest ranges is found where it is
-    n = r.size
-    ends = np.geomspace(50, max(n / 2, 51), 40) if n > 100 else np.array([])
-    pos = np.unique(np.r_[np.linspace(0.01, 0.99, 99) * n, ends, n - ends].astype(int))
-    cands = np.sort(r)[np.clip(pos, 0, max(n - 1, 0))] if n else np.array([])
-    rate, beyond, _ = _step(r, y, q, cands)
-    if rate < FLOORS['rate']:
-        return []
-    sd = _jack(lambda m: np.array(_step(r[m], y[m], q, np.array([beyond]))[:1]), bk, BLOCKS)
-    z = rate / max(float(sd[0]), 1e-9)
-    if z < Z_MIN:
-        return []
-    rf, bf, _ = _step(r[~hd], y[~hd], q, cands)
-    base = float(y[~hd][r[~hd] < bf].mean()) if bf > 0 and (r[~hd] < bf).any() else q
-    pred = np.where(r >= bf, base + rf, base)
-    res = [float(np.mean((y[m] - (p if np.ndim(p) == 0 else p[m])) ** 2))
-           for p in (q, pred) for m in (~hd, hd)]
-    if not res[3] < res[1]:
-        return []
-    where = f'beyond {beyond:.1f} m' if beyond > 0 else 'at every range'
-    return [{'channel': f'{topic}.ranges', 'effect': 'dropout_rate',
-             'parameters': {'rate': float(rate), 'beyond': float(beyond)},
-             'std': {'rate': float(sd[0])}, 'window': None,
-             'fit': {'rmse_before': res[0], 'rmse_after': res[2], 'heldout_rmse_before': res[1],
-                     'heldout_rmse_after': res[3], 'measure': 'Brier score of a lost beam'},
-             'confidence': _conf(z), 'evidence': {'z': float(z), 'sim_loss': q},
-             'explanation': f'{rate:.0%} more real beams return nothing {where} where the '
-             'simulation sees a surface.'}]
 
 
 def sweep_vs_delay(beam: list, motion: list, topic: str, prm: 'LidarMismatchParams',
