@@ -41,7 +41,7 @@ from robot_calib.core.raycast import (grid_from_points, grid_from_segments,  # n
 from robot_calib.sim import run_scenario, SCENARIOS  # noqa: E402
 from robot_calib.sim.engine import BuildContext, make_params, rng_for  # noqa: E402
 
-CARMEN = Path('/work/shared/data/carmen/intel-corrected.log.gz')
+CARMEN = REPO.parent / 'shared' / 'data' / 'carmen' / 'intel-corrected.log.gz'
 
 
 def laser_poses(res) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

@@ -27,7 +27,7 @@ from robot_calib.io.datasets import carmen
 from robot_calib.mismatch import lidar as L
 from robot_calib.mismatch import lidar_inject as inj
 
-DATA = Path('/work/shared/data/carmen')
+DATA = Path(__file__).resolve().parents[1].parent / 'shared' / 'data' / 'carmen'
 EFFECTS = [('lidar_mounting_yaw', (math.radians(0.5), math.radians(2.0)), ('yaw',)),
            ('lidar_mounting_offset', ((0.03, 0.0), (0.0, -0.10)), ('x', 'y')),
            ('lidar_time_offset', (0.02, 0.08), ('tau',)),

@@ -12,9 +12,7 @@ from robot_calib.mismatch import analyse_recordings
 from robot_calib.mismatch import drive as D
 from robot_calib.mismatch.channels import ODOM_TYPE, Topic
 
-DATA = Path(__file__).resolve().parents[1] / '..' / 'shared' / 'data' / 'mrclam'
-if not DATA.is_dir():
-    DATA = Path('/work/shared/data/mrclam')
+DATA = Path(__file__).resolve().parents[1].parent / 'shared' / 'data' / 'mrclam'
 
 
 def _commands(seed: int, duration: float = 240.0, rate: float = 50.0):

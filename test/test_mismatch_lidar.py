@@ -22,7 +22,7 @@ from robot_calib.mismatch import analyse
 from robot_calib.mismatch import lidar as L
 from robot_calib.mismatch import lidar_inject as inj
 
-DATA = Path('/work/shared/data/carmen')
+DATA = Path(__file__).resolve().parents[1].parent / 'shared' / 'data' / 'carmen'
 
 
 @pytest.fixture(scope='module')
