@@ -13,6 +13,7 @@ from robot_calib.core.raycast import (grid_from_points, grid_from_segments, Occu
                                       raycast)
 from robot_calib.io.occupancy_map import load_map, MapError, read_pgm, write_map
 from robot_calib.mismatch.ideal_scan import read_scans
+from scan_helpers import box_ranges
 
 RES = 0.05
 
@@ -23,15 +24,6 @@ def box_grid(width=80, height=60, x0=-1.0, y0=-2.0, yaw=0.0):
     occ[0, :] = occ[-1, :] = True
     occ[:, 0] = occ[:, -1] = True
     return OccupancyGrid(occ, RES, x0, y0, yaw)
-
-
-def box_ranges(ox, oy, angles, x0, y0, x1, y1):
-    """Return exact ranges (m) inside the box [x0, x1] x [y0, y1]."""
-    c, s = np.cos(angles), np.sin(angles)
-    with np.errstate(divide='ignore'):
-        tx = np.where(c > 0, (x1 - ox) / c, (x0 - ox) / c)
-        ty = np.where(s > 0, (y1 - oy) / s, (y0 - oy) / s)
-    return np.minimum(np.where(c == 0, np.inf, tx), np.where(s == 0, np.inf, ty))
 
 
 def wall_centres(grid):

@@ -12,6 +12,7 @@ from robot_calib.sim.engine import make_params
 from robot_calib.sim.motion import Plan
 from robot_calib.sim.sensors import incidence
 from robot_calib.sim.world import World
+from scan_helpers import box_ranges
 
 QUIET = {'lidar.noise': 0.0, 'lidar.motion_distortion': 'false'}
 """A noiseless, deskewed scanner: the ranges are the geometry alone."""
@@ -25,17 +26,6 @@ def run_plan(plan, overrides=None, world=None, start=(1.0, 1.2, 0.4), duration=N
     params = make_params(None, overrides)
     return run_setup(Setup(world=world, plan=plan, start=start), params,
                      duration if duration is not None else plan.duration)
-
-
-def box_ranges(ox, oy, angles, x0, y0, x1, y1):
-    """Return the exact ranges (m) from (ox, oy) along ``angles`` (rad) inside a box."""
-    c, s = np.cos(angles), np.sin(angles)
-    with np.errstate(divide='ignore'):
-        tx = np.where(c > 0, (x1 - ox) / c, (x0 - ox) / c)
-        ty = np.where(s > 0, (y1 - oy) / s, (y0 - oy) / s)
-    tx[c == 0] = np.inf
-    ty[s == 0] = np.inf
-    return np.minimum(tx, ty)
 
 
 @pytest.mark.parametrize('scenario, over, total, finite, nan', [

@@ -16,6 +16,7 @@ from robot_calib.sim.engine import encoded_streams, make_params, truth_path
 from robot_calib.sim.motion import Plan
 from robot_calib.sim.robot import rotation_matrix
 from robot_calib.sim.world import Ramp, World
+from scan_helpers import box_ranges
 
 IDEAL_IMU = {'imu.gyro_bias': [0.0, 0.0, 0.0], 'imu.gyro_noise': 0.0,
              'imu.gyro_random_walk': 0.0, 'imu.gyro_scale': [0.0, 0.0, 0.0],
@@ -102,16 +103,6 @@ def test_centripetal_acceleration_on_off():
     assert a[:, 1].mean() == pytest.approx(0.0, abs=1e-3)
 
 
-def _box_ranges(ox, oy, angles, x0, y0, x1, y1):
-    c, s = np.cos(angles), np.sin(angles)
-    with np.errstate(divide='ignore'):
-        tx = np.where(c > 0, (x1 - ox) / c, (x0 - ox) / c)
-        ty = np.where(s > 0, (y1 - oy) / s, (y0 - oy) / s)
-    tx[c == 0] = np.inf
-    ty[s == 0] = np.inf
-    return np.minimum(tx, ty)
-
-
 def test_lidar_ranges_match_exact_geometry_in_a_box():
     world = World().add_room(4.0, 2.5)
     over = {'lidar.noise': 0.0, 'lidar.x': 0.2, 'lidar.y': -0.1, 'lidar.yaw': 0.3,
@@ -121,7 +112,7 @@ def test_lidar_ranges_match_exact_geometry_in_a_box():
     yaw = 0.4
     ox = 1.0 + 0.2 * math.cos(yaw) + 0.1 * math.sin(yaw)
     oy = 1.2 + 0.2 * math.sin(yaw) - 0.1 * math.cos(yaw)
-    expected = _box_ranges(ox, oy, yaw + 0.3 + scan.angles(), 0.0, 0.0, 4.0, 2.5)
+    expected = box_ranges(ox, oy, yaw + 0.3 + scan.angles(), 0.0, 0.0, 4.0, 2.5)
     assert scan.ranges.size == 360
     assert scan.angle_min == pytest.approx(-math.pi)
     assert np.max(np.abs(scan.ranges - expected)) < 1e-4
@@ -133,7 +124,7 @@ def test_lidar_invalid_beams_like_real_drivers():
     base = {'lidar.noise': 0.0, 'lidar.x': 0.0, 'lidar.motion_distortion': 'false'}
     r = run_plan(Plan().stop(0.5), dict(base, **{'lidar.range_max': 2.0}), world)
     ranges = r.sensors['ranges'][0]
-    exact = _box_ranges(1.0, 1.0, r.topic('/scan')[0].angles(), 0.0, 0.0, 4.0, 2.5)
+    exact = box_ranges(1.0, 1.0, r.topic('/scan')[0].angles(), 0.0, 0.0, 4.0, 2.5)
     assert np.all(np.isposinf(ranges[exact > 2.001]))
     assert np.all(np.isfinite(ranges[exact < 1.999]))
     over = dict(base, **{'lidar.range_max': 2.0, 'lidar.no_return': 'nan'})
