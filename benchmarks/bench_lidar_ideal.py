@@ -13,7 +13,7 @@ Prints markdown tables (docs/bench/18-lidar.md, "Simulator and ideal scans").
    ray-cast in a map of the simulator's own walls (2 cm cells) and in a map
    built from the scans themselves (5 cm): median absolute and signed range
    difference and median range ratio (beams finite in both).
-3. Intel Research Lab (``/work/shared/data/carmen``, corrected log): a map from
+3. Intel Research Lab (``../shared/data/carmen``, corrected log): a map from
    the scans at the corrected poses, ideal against real ranges (map from all
    scans; map from the even scans, compared on the odd ones); and a known
    range scale of 2 % added to the scans, seen through a map built from those
@@ -160,7 +160,7 @@ def simulator(duration: float) -> None:
 def intel(max_scans: int | None) -> None:
     """Print the Intel log's real scans against ideal scans from maps of its scans."""
     if not CARMEN.exists():
-        print('\n### Intel Research Lab: skipped (no /work/shared/data/carmen)')
+        print('\n### Intel Research Lab: skipped (no ../shared/data/carmen)')
         return
     from robot_calib.io.datasets.carmen import read_log
     log = read_log(CARMEN, max_scans=max_scans)
