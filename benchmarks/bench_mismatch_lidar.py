@@ -3,7 +3,7 @@
 """
 Lidar mismatch on real scans (issue 40 item 4): natural findings, injected effects, nulls, time.
 
-Real logs (``/work/shared/data/carmen``): MIT CSAIL (raw odometry and scans,
+Real logs (``../shared/data/carmen``): MIT CSAIL (raw odometry and scans,
 cut into parts) and the Intel log (scans with corrected poses; its odometry
 is the corrected pose, scans about 3 s apart). For each part: what the
 scanner shows against its own odometry (delay, mounting: independent
@@ -22,6 +22,7 @@ import math
 from pathlib import Path
 import time
 
+from mismatch_lidar_suite import describe  # benchmarks/: the same one-line findings
 import numpy as np
 from robot_calib.io.datasets import carmen
 from robot_calib.mismatch import lidar as L
@@ -61,14 +62,6 @@ def parts() -> list:
         out.append(('intel (corrected poses)', log.scans, _odom_from_poses(t, log.scan_poses),
                     L.LidarMismatchParams(max_pairs=900, max_gap=4.0, max_lag=0.3)))
     return out
-
-
-def _row(res: dict) -> str:
-    parts = []
-    for f in res['findings']:
-        vals = ', '.join(f'{k} {v:.4g}' for k, v in f['parameters'].items())
-        parts.append(f'{f["effect"]} {vals}')
-    return '; '.join(parts) or 'none'
 
 
 def natural(items: list) -> None:
@@ -123,7 +116,7 @@ def injected(items: list, quick: bool) -> tuple[int, int, int]:
                     status = 'not observable (refused)'
                     refused += 1
                 shown = tuple(round(x, 4) for x in vals)
-                print(f'| {name} | {effect} | {shown} | {_row(res)} | {status} | {dt:.1f} |')
+                print(f'| {name} | {effect} | {shown} | {describe(res)} | {status} | {dt:.1f} |')
     return good, total, refused
 
 
@@ -138,7 +131,7 @@ def nulls(items: list) -> tuple[int, int]:
             res = L.analyse_lidar({'/scan': scans}, {'/scan': real}, odom, odom, prm)
             clean += not res['findings']
             total += 1
-            print(f'| {name} | {seed} | {_row(res)} |')
+            print(f'| {name} | {seed} | {describe(res)} |')
     return clean, total
 
 
@@ -148,7 +141,7 @@ def timing() -> float:
     t = time.process_time()
     res = L.analyse_lidar({'/scan': run['scans']}, {'/scan': real}, run['odom'], run['odom'])
     dt = time.process_time() - t
-    print(f'\n## time: 10-minute pair, 360 beams at 10 Hz: {dt:.1f} s CPU ({_row(res)})')
+    print(f'\n## time: 10-minute pair, 360 beams at 10 Hz: {dt:.1f} s CPU ({describe(res)})')
     return dt
 
 
