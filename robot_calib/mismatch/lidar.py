@@ -196,16 +196,8 @@ def _solve(a: np.ndarray, y: np.ndarray, mask: np.ndarray) -> Optional[np.ndarra
     """Return the robust (Huber IRLS) least-squares solution on the rows of ``mask``."""
     if mask.sum() < 8:
         return None
-    w = np.ones(mask.sum())
-    aa, yy = a[mask], y[mask]
-    x = None
-    for _ in range(6):
-        x = np.linalg.lstsq(aa * w[:, None], yy * w, rcond=None)[0]
-        r = yy - aa @ x
-        sc = 1.4826 * np.median(np.abs(r)) + 1e-9
-        u = np.abs(r) / (1.5 * sc)
-        w = np.sqrt(np.where(u <= 1, 1.0, 1.0 / np.maximum(u, 1e-9)))
-    return x
+    from robot_calib.mismatch.lidar_beams import huber_lstsq
+    return huber_lstsq(a[mask], y[mask])
 
 
 def _mount(x: np.ndarray) -> np.ndarray:

@@ -90,7 +90,8 @@ def pair_scans(sim: list, real: list, tol: float = 0.02) -> tuple:
     return np.array(rs), np.array(rr), ang, np.array(tt), np.array(dp)
 
 
-def _huber(a: np.ndarray, y: np.ndarray) -> np.ndarray:
+def huber_lstsq(a: np.ndarray, y: np.ndarray) -> np.ndarray:
+    """Return the robust least-squares solution of ``a x = y`` (Huber weights, 6 IRLS steps)."""
     w = np.ones(y.size)
     x = np.zeros(a.shape[1])
     for _ in range(6):
@@ -170,12 +171,12 @@ def beam_findings(sim: list, real: list, topic: str, notes: list, not_judged: li
             not_judged.append({'channel': f'{topic}.ranges', 'reason': 'too few beams on '
                                'smooth surfaces in both recordings'})
             return []
-        x = _huber(a, d0)
+        x = huber_lstsq(a, d0)
         if abs(x[2]) < 0.05 * inc:
             break
         turn += x[2]
-    sd = _jack(lambda m: _huber(a[m], d0[m]), bk, BLOCKS)
-    xf = _huber(a[~hd], d0[~hd])
+    sd = _jack(lambda m: huber_lstsq(a[m], d0[m]), bk, BLOCKS)
+    xf = huber_lstsq(a[~hd], d0[~hd])
     x[2] += turn
     # held out: the turn found on all time is a part of the model, so it too must help
     d0 = d0 + turn * g0
