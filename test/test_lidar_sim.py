@@ -7,10 +7,10 @@ import math
 import numpy as np
 import pytest
 
+from robot_calib.core.scan_incidence import incidence
 from robot_calib.sim import run_scenario, run_setup, Setup
 from robot_calib.sim.engine import make_params
 from robot_calib.sim.motion import Plan
-from robot_calib.sim.sensors import incidence
 from robot_calib.sim.world import World
 from scan_helpers import box_ranges
 

@@ -267,7 +267,7 @@ def test_incidence_dropout_reaches_the_simulator_parameters():
 
 
 def test_chord_incidence_is_less_biased_by_range_noise():
-    from robot_calib.sim.sensors import incidence
+    from robot_calib.core.scan_incidence import incidence
     # a straight wall 2 m from the scanner seen over 0-85 deg of incidence, 1 cm noise
     ang = np.radians(np.arange(0.0, 85.0, 1.0))
     true = 2.0 / np.cos(ang)

@@ -11,7 +11,7 @@ A beam the simulated scan returns and the real one does not is a loss
 
 where ``inc_sim`` is the incidence of the simulated beam, the surface's
 direction taken from the neighbouring beams' hit points of the simulated scan
-(the simulator's own rule, :func:`robot_calib.sim.sensors.incidence`, on the
+(the simulator's own rule, :func:`robot_calib.core.scan_incidence.incidence`, on the
 side it picks, but as the chord to the ``SPAN``-th beam when the beams between
 lie within 3 noise sigma of it: one beam's chord turned by the range noise
 makes grazing beams look less grazing, |cos| folded at 0, and the step found
@@ -34,7 +34,7 @@ from typing import Callable
 
 import numpy as np
 
-from robot_calib.sim.sensors import incidence
+from robot_calib.core.scan_incidence import incidence
 
 SPAN = 5
 
