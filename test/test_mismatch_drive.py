@@ -54,6 +54,9 @@ CASES = [
     ('drive_rate_limit', D.V, D.AxisModel(tau=0.1, limit=0.25), D.AxisModel(tau=0.2), 0.25),
     # one delay on both axes of a lagging drive: its dead time, not a clock offset
     ('drive_dead_time', D.V, D.AxisModel(d=0.1, tau=0.3), D.AxisModel(d=0.1, tau=0.2), 0.1),
+    # a drive that settles short of (or past) its command: the chain's gain, judged with it
+    ('drive_gain', D.W, D.AxisModel(tau=0.3), D.AxisModel(tau=0.2, gain=-0.08), -0.08),
+    ('drive_gain', D.V, D.AxisModel(tau=0.3, k=1.0, gain=0.07), D.AxisModel(tau=0.2), 0.07),
 ]
 
 
@@ -62,8 +65,12 @@ def test_drive_effect_found(effect, field, fwd, turn, want):
     sim, real = _pair(3, fwd, turn)
     res, _ = analyse_recordings(sim, real)
     got = _found(res, effect, field)
-    assert abs(got - want) <= 0.25 * want, (effect, got, res['drive'])
+    assert abs(got - want) <= 0.25 * abs(want), (effect, got, res['drive'])
     assert 'Drive model' in res['drive']['/odom']
+    # one owner for a scale of the drive's output: no second one named beside the chain's gain
+    scales = [f['effect'] for f in res['findings'] if f['channel'].endswith(field) and
+              f['effect'] in ('drive_gain', 'wheel_radius_scale', 'track_width_scale')]
+    assert len(scales) <= 1, scales
 
 
 def test_drive_null_pair_has_no_finding():

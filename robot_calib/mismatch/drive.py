@@ -21,9 +21,12 @@ out (the others re-fitted) makes held-out time worse: the model is fitted on
 two thirds of the chunks and the loss of each reduced model is compared on
 pieces (>= ``min_block_s``) of the held-out third, where the part changes the
 prediction, by Student's t over the pieces (:func:`_eliminate`). A dead time
-or lag under one sample period is not named (:func:`_unresolved`). The gain is
-not named here: the amplitude stage judges scales, offsets and slip on what
-the named dynamics leave (:mod:`robot_calib.mismatch.analysis`).
+or lag under one sample period is not named (:func:`_unresolved`). The
+steady-state gain is always fitted with the dynamics and judged last, by the
+same held-out test (g held at 0 in the reduced model): when it passes it is
+the drive's (``drive_gain``) and part of the chain's output, otherwise the
+amplitude stage judges scales, offsets and slip on what the named dynamics
+leave (:mod:`robot_calib.mismatch.analysis`).
 """
 
 from __future__ import annotations
@@ -69,6 +72,7 @@ class AxisModel:
     k: float = 0.0
     slip: float = 0.0
     parts: set = field(default_factory=set)
+    fixed_gain: bool = False  # g held at 0 (the reduced model of the gain's test)
 
 
 def deadband(u: np.ndarray, band: float) -> np.ndarray:
@@ -171,8 +175,19 @@ def predict(u: np.ndarray, wabs: Optional[np.ndarray], dt: float, m: AxisModel,
     return y
 
 
-def _solve(X: np.ndarray, y: np.ndarray, w: np.ndarray) -> tuple[np.ndarray, float]:
-    """Return (coefficients, SSE) of y ~ X on the samples ``w`` (bool), by normal equations."""
+def _solve(X: np.ndarray, y: np.ndarray, w: np.ndarray,
+           fixed_gain: bool = False) -> tuple[np.ndarray, float]:
+    """
+    Return (coefficients, SSE) of y ~ X on the samples ``w`` (bool), by normal equations.
+
+    ``fixed_gain``: the first coefficient (1 + g) held at 1.
+    """
+    if fixed_gain:
+        if X.shape[1] == 1:
+            r = y - X[:, 0]
+            return np.ones(1), float(w.astype(float) @ (r * r))
+        c, sse = _solve(X[:, 1:], y - X[:, 0], w)
+        return np.concatenate(([1.0], c)), sse
     wf = w.astype(float)
     Xw = X * wf[:, None]
     A = Xw.T @ X + 1e-12 * np.eye(X.shape[1])
@@ -204,7 +219,7 @@ def _grid(u, wabs, y, w, dt, m: AxisModel, coupled: bool, max_d: float,
         if acmd is not None:
             base = np.column_stack((base, base[:, 0] * lag(acmd, dt, float(tau))))
         for d in ds:
-            c, sse = _solve(shift(base, d, dt), y, w)
+            c, sse = _solve(shift(base, d, dt), y, w, m.fixed_gain)
             if sse < best[0]:
                 best = (sse, _linear(replace(m, tau=float(tau), d=float(d)), c, coupled,
                                      acmd is not None))
@@ -217,7 +232,7 @@ def _refine(u, wabs, y, w, dt, m: AxisModel, coupled: bool, max_d: float,
     from scipy.optimize import minimize_scalar
 
     def sse(mm: AxisModel) -> float:
-        return _solve(regressors(u, wabs, dt, mm, coupled, acmd), y, w)[1]
+        return _solve(regressors(u, wabs, dt, mm, coupled, acmd), y, w, mm.fixed_gain)[1]
 
     for _ in range(2):
         if 'd' in m.parts or m.d > 0:
@@ -230,13 +245,13 @@ def _refine(u, wabs, y, w, dt, m: AxisModel, coupled: bool, max_d: float,
                                 bounds=(0.7 * m.tau, 1.4 * m.tau), method='bounded',
                                 options={'xatol': 1e-4})
             m = replace(m, tau=float(r.x))
-    c, _ = _solve(regressors(u, wabs, dt, m, coupled, acmd), y, w)
+    c, _ = _solve(regressors(u, wabs, dt, m, coupled, acmd), y, w, m.fixed_gain)
     return _linear(m, c, coupled, acmd is not None)
 
 
 def fit_axis(u: np.ndarray, wabs: Optional[np.ndarray], y: np.ndarray, w: np.ndarray,
              dt: float, max_d: float, parts: set, refine: bool = False,
-             acmd: Optional[np.ndarray] = None) -> AxisModel:
+             acmd: Optional[np.ndarray] = None, fixed_gain: bool = False) -> AxisModel:
     """
     Fit the chain with only ``parts`` free (names of :data:`PARTS`); return the model.
 
@@ -245,17 +260,17 @@ def fit_axis(u: np.ndarray, wabs: Optional[np.ndarray], y: np.ndarray, w: np.nda
     """
     coupled = 'turn_speed_loss' in parts and wabs is not None
     free = tuple(p for p, n in (('d', 'drive_dead_time'), ('tau', 'drive_lag')) if n in parts)
-    m = AxisModel(parts=set(parts))
+    m = AxisModel(parts=set(parts), fixed_gain=fixed_gain)
     slip = acmd is not None
     m, sse = _grid(u, wabs, y, w, dt, m, coupled, max_d, free, acmd) if free else \
-        (_linear(m, _solve(regressors(u, wabs, dt, m, coupled, acmd), y, w)[0], coupled,
+        (_linear(m, _solve(regressors(u, wabs, dt, m, coupled, acmd), y, w, m.fixed_gain)[0], coupled,
                  slip), 0.0)
     scale = float(np.percentile(np.abs(u[w]), 95)) if w.any() else 0.0
     if 'drive_deadband' in parts and scale > 0:
         best = (math.inf, m)
         for f in (0.0, 0.01, 0.02, 0.04, 0.06, 0.08, 0.1, 0.13, 0.16, 0.2, 0.25, 0.3, 0.4):
             mm = replace(m, band=f * scale)
-            c, s = _solve(regressors(u, wabs, dt, mm, coupled, acmd), y, w)
+            c, s = _solve(regressors(u, wabs, dt, mm, coupled, acmd), y, w, mm.fixed_gain)
             if s < best[0]:
                 best = (s, _linear(mm, c, coupled, slip))
         m = best[1]
@@ -269,10 +284,10 @@ def fit_axis(u: np.ndarray, wabs: Optional[np.ndarray], y: np.ndarray, w: np.nda
             # with the dead time and lag searched again: a limit makes its own delay, which a
             # lag fitted without it has taken already
             mm, s = _grid(u, wabs, y, w, dt, mm, coupled, max_d, free, acmd) if free else \
-                (mm, _solve(regressors(u, wabs, dt, mm, coupled, acmd), y, w)[1])
+                (mm, _solve(regressors(u, wabs, dt, mm, coupled, acmd), y, w, mm.fixed_gain)[1])
             if s < best[0]:
                 best = (s, mm if free else _linear(mm, _solve(regressors(
-                    u, wabs, dt, mm, coupled, acmd), y, w)[0], coupled, slip))
+                    u, wabs, dt, mm, coupled, acmd), y, w, mm.fixed_gain)[0], coupled, slip))
         m = best[1]
     if free and (m.band > 0 or math.isfinite(m.limit)):
         m, _ = _grid(u, wabs, y, w, dt, m, coupled, max_d, free, acmd)
@@ -289,7 +304,7 @@ def _refine_nonlinear(u, wabs, y, w, dt, m: AxisModel, coupled: bool, acmd=None)
     from scipy.optimize import minimize_scalar
 
     def sse(mm: AxisModel) -> float:
-        return _solve(regressors(u, wabs, dt, mm, coupled, acmd), y, w)[1]
+        return _solve(regressors(u, wabs, dt, mm, coupled, acmd), y, w, mm.fixed_gain)[1]
 
     for key in ('band', 'limit'):
         v = getattr(m, key)
@@ -300,7 +315,7 @@ def _refine_nonlinear(u, wabs, y, w, dt, m: AxisModel, coupled: bool, acmd=None)
                             options={'xatol': 1e-3})
         if r.fun < sse(m):
             m = replace(m, **{key: float(math.exp(r.x))})
-    c, _ = _solve(regressors(u, wabs, dt, m, coupled, acmd), y, w)
+    c, _ = _solve(regressors(u, wabs, dt, m, coupled, acmd), y, w, m.fixed_gain)
     return _linear(m, c, coupled, acmd is not None)
 
 
@@ -397,14 +412,17 @@ def analyse_drive(pt: PairedTopic, prm, acmd: Optional[np.ndarray] = None,
             model = fit_axis(u, wa, yf, ok, dt, prm.drive_max_dead_time, named, refine=True,
                              acmd=ac)
         out_models[f] = (model, stats, ok)
-    dyn = {p for m, _, _ in out_models.values() for p in m.parts} - {'drive_dead_time'}
+    dyn = {p for m, _, _ in out_models.values() for p in m.parts} - {'drive_dead_time',
+                                                                      'drive_gain'}
     if not dyn:
         return None
     wfull = np.abs(_filled(pt.sim[W])) if W in pt.sim else None
     for f, (model, stats, ok) in out_models.items():
         u = _filled(pt.sim[f])
-        sims[f] = np.where(np.isfinite(pt.sim[f]), predict(u, wfull if f == V else None, pt.dt,
-                                                           model, gain=False), np.nan)
+        # the named gain is the drive's (the amplitude stage judges scales on what it leaves)
+        sims[f] = np.where(np.isfinite(pt.sim[f]), predict(
+            u, wfull if f == V else None, pt.dt, model, gain=False) * (
+                1.0 + model.gain if 'drive_gain' in model.parts else 1.0), np.nan)
         found.extend(_findings(pt, f, model, stats, ok, held, _filled(sim_d[f]), real_d[f],
                                wabs if f == V else None, dt, acd if f == V else None))
     text = describe({f: m for f, (m, _, _) in out_models.items()})
@@ -438,14 +456,20 @@ def _eliminate(u, wa, yf, ok, held, chunk, dt, prm, parts: set, acmd=None,
     Each part is judged on the held-out samples where leaving it out changes
     the prediction by over 1 % of the command's scale (a deadband acts on slow
     commands only), in chunks with at least 5 such samples. Parts in ``keep``
-    are not dropped (a dead time the time stage has shown).
+    are not dropped (a dead time the time stage has shown). A dead time and a
+    lag that both help on held-out time (mean log ratio > 0 over at least 10
+    pieces where each acts) stay together
+    when dropping both fails the test, even if one alone passes: a response
+    with both, modelled by one, biases it (a dead time alone takes part of the
+    lag, and the gain fitted with it shrinks). The gain is judged last.
     """
     fitw = ok & ~held
     cur = set(parts)
     scale = float(np.percentile(np.abs(u[ok]), 95)) if ok.any() else 0.0
 
     def test(drop: set, full: AxisModel, r_full: np.ndarray) -> tuple:
-        red = fit_axis(u, wa, yf, fitw, dt, prm.drive_max_dead_time, cur - drop, acmd=acmd)
+        red = fit_axis(u, wa, yf, fitw, dt, prm.drive_max_dead_time, cur - drop, acmd=acmd,
+                       fixed_gain='drive_gain' in drop)
         r_red = yf - predict(u, wa, dt, red, acmd=acmd)
         # judged where the part changes the prediction (a deadband acts on slow commands
         # only): chosen by the fitted models, not by the held-out data
@@ -468,16 +492,20 @@ def _eliminate(u, wa, yf, ok, held, chunk, dt, prm, parts: set, acmd=None,
         full = fit_axis(u, wa, yf, fitw, dt, prm.drive_max_dead_time, cur, acmd=acmd)
         r_full = yf - predict(u, wa, dt, full, acmd=acmd)
         stats = {p: test({p}, full, r_full) for p in sorted(cur)}
-        # a dead time and a lag that each stand in for the other: kept together when the
+        # a dead time and a lag that stand in for each other: kept together when the
         # response needs them together (their sum is resolved, the split is not)
         pair = {'drive_dead_time', 'drive_lag'}
-        if pair <= cur and not any(stats[p][6] for p in pair) and full.d > 0 and \
-                full.tau > 0 and not pair & keep:
+        if pair <= cur and not all(stats[p][6] for p in pair) and full.d > 0 and \
+                full.tau > 0 and all(stats[p][0] > 0 and stats[p][2] >= 10 for p in pair):
             joint = test(pair, full, r_full)
             if joint[6]:
-                stats.update({p: joint for p in pair})
+                stats.update({p: joint for p in pair if not stats[p][6]})
         bad = [p for p in cur if not stats[p][6] and p not in keep]
         if not bad:
+            # the steady-state gain, judged last on the parts the data need (always fitted)
+            stats['drive_gain'] = test({'drive_gain'}, full, r_full)
+            if stats['drive_gain'][6]:
+                cur.add('drive_gain')
             return cur, stats
         cur.discard(min(bad, key=lambda p: stats[p][0]))
         if not cur:
@@ -488,7 +516,8 @@ _VALUE = {'drive_dead_time': ('tau', 's', lambda m: m.d),
           'drive_lag': ('tau', 's', lambda m: m.tau),
           'drive_deadband': ('band', None, lambda m: m.band),
           'drive_rate_limit': ('limit', None, lambda m: m.limit),
-          'turn_speed_loss': ('coefficient', 's/rad', lambda m: m.k)}
+          'turn_speed_loss': ('coefficient', 's/rad', lambda m: m.k),
+          'drive_gain': ('gain', '', lambda m: m.gain)}
 
 
 def _smooth(x: np.ndarray, width: int = 5) -> np.ndarray:
@@ -524,7 +553,8 @@ def _findings(pt: PairedTopic, f: str, m: AxisModel, stats: dict, ok: np.ndarray
                 'rmse_after': rmse(r_fit, acts & ~held),
                 'heldout_rmse_before': hb, 'heldout_rmse_after': ha}
         key, unit, get = _VALUE[p]
-        unit = unit or (UNIT[f] if p == 'drive_deadband' else UNIT[f] + '/s')
+        unit = unit if unit is not None else (UNIT[f] if p == 'drive_deadband'
+                                               else UNIT[f] + '/s')
         val = float(get(m))
         # the part passed the test at drive_alpha; its strength grows from the 5 % bar
         strength = 1.0 - (L.t_quantile(0.05, max(nb - 1, 1)) / max(z, 1e-12)) ** 2
@@ -533,8 +563,9 @@ def _findings(pt: PairedTopic, f: str, m: AxisModel, stats: dict, ok: np.ndarray
             other = 'drive_dead_time' if p == 'drive_lag' else 'drive_lag'
             alts_sep = E.separating_motion(p, other)
         else:
-            alts_sep = E.separating_motion(p, 'drive_lag' if p == 'drive_rate_limit'
-                                           else 'drive_gain')
+            alts_sep = E.separating_motion(p, {'drive_rate_limit': 'drive_lag',
+                                               'drive_gain': 'wheel_radius_scale'}.get(
+                                                   p, 'drive_gain'))
         fd = {'channel': f'{pt.name}.{f}', 'effect': p, 'parameters': {key: val},
               'window': None, 'fit': fitd, 'units': {key: unit},
               'std': {key: float('nan')}, 'channels': [f'{pt.name}.{f}'],
@@ -565,6 +596,9 @@ def _sentence(p: str, f: str, val: float) -> str:
             '(deadband).'
     if p == 'drive_rate_limit':
         return f'The real {ax} changes no faster than {val:.3g} {UNIT[f]}/s (acceleration limit).'
+    if p == 'drive_gain':
+        return f'The real {ax} settles at {100 * (1 + val):.1f} % of the command (steady-state ' \
+            'gain, fitted with the dynamics).'
     return f'The real forward speed drops while turning: speed = command x (1 - {val:.3g} ' \
         '|omega|), omega in rad/s.'
 
@@ -581,7 +615,9 @@ def describe(models: dict) -> str:
             bits.append(f'{m.tau:.2f} s time constant')
         if not bits:
             bits.append('no lag')
-        s += ' + '.join(bits) + f', settles at {100 * (1 + m.gain):.1f} % of the command'
+        s += ' + '.join(bits)
+        if 'drive_gain' in m.parts:
+            s += f', settles at {100 * (1 + m.gain):.1f} % of the command'
         if 'turn_speed_loss' in m.parts:
             s += f', slows by {m.k:.2f} x |omega| in turns'
         if 'drive_deadband' in m.parts:
