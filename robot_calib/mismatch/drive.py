@@ -34,6 +34,7 @@ from typing import Optional
 
 import numpy as np
 
+from robot_calib.mismatch import drive_interval as DI
 from robot_calib.mismatch import effects as E
 from robot_calib.mismatch import latency as L
 from robot_calib.mismatch.channels import ODOM_TYPE, PairedTopic
@@ -405,8 +406,9 @@ def analyse_drive(pt: PairedTopic, prm, acmd: Optional[np.ndarray] = None,
         u = _filled(pt.sim[f])
         sims[f] = np.where(np.isfinite(pt.sim[f]), predict(u, wfull if f == V else None, pt.dt,
                                                            model, gain=False), np.nan)
-        found.extend(_findings(pt, f, model, stats, ok, held, _filled(sim_d[f]), real_d[f],
-                               wabs if f == V else None, dt, acd if f == V else None))
+        ud, wd, ad = _filled(sim_d[f]), wabs if f == V else None, acd if f == V else None
+        sd = DI.axis_std(ud, wd, np.nan_to_num(real_d[f]), ok, dt, ad, prm, model)
+        found.extend(_findings(pt, f, model, stats, ok, held, ud, real_d[f], wd, dt, ad, sd))
     text = describe({f: m for f, (m, _, _) in out_models.items()})
     for fd in found:
         fd['explanation'] += ' ' + text
@@ -507,8 +509,8 @@ def _blocks(x: np.ndarray, q: int, n: int) -> np.ndarray:
 
 def _findings(pt: PairedTopic, f: str, m: AxisModel, stats: dict, ok: np.ndarray,
               held: np.ndarray, u: np.ndarray, yr: np.ndarray, wa: Optional[np.ndarray],
-              dt: float, acmd: Optional[np.ndarray] = None) -> list:
-    """Return one finding per named part of the axis (contract keys, held-out fit)."""
+              dt: float, acmd: Optional[np.ndarray] = None, sd: Optional[dict] = None) -> list:
+    """Return one finding per named part of the axis (contract keys, held-out fit, ``sd``)."""
     out = []
     y = np.nan_to_num(yr)
     scale = float(np.percentile(np.abs(u[ok]), 95)) if ok.any() else 0.0
@@ -525,7 +527,7 @@ def _findings(pt: PairedTopic, f: str, m: AxisModel, stats: dict, ok: np.ndarray
                 'heldout_rmse_before': hb, 'heldout_rmse_after': ha}
         key, unit, get = _VALUE[p]
         unit = unit or (UNIT[f] if p == 'drive_deadband' else UNIT[f] + '/s')
-        val = float(get(m))
+        val, std = float(get(m)), float(get(replace(m, **sd))) if sd else math.nan
         # the part passed the test at drive_alpha; its strength grows from the 5 % bar
         strength = 1.0 - (L.t_quantile(0.05, max(nb - 1, 1)) / max(z, 1e-12)) ** 2
         alts = [0.0] if together else []  # the other split fits as well
@@ -537,8 +539,8 @@ def _findings(pt: PairedTopic, f: str, m: AxisModel, stats: dict, ok: np.ndarray
                                            else 'drive_gain')
         fd = {'channel': f'{pt.name}.{f}', 'effect': p, 'parameters': {key: val},
               'window': None, 'fit': fitd, 'units': {key: unit},
-              'std': {key: float('nan')}, 'channels': [f'{pt.name}.{f}'],
-              'explanation': _sentence(p, f, val) + (
+              'std': {key: std}, 'channels': [f'{pt.name}.{f}'],
+              'explanation': _sentence(p, f, val, std) + (
                   f' Modelling it cuts the held-out residual where it acts from {hb:.3g} to '
                   f'{ha:.3g}.' + (f' The dead time and the lag are resolved together (d + tau '
                                   f'= {m.d + m.tau:.3g} s), not apart: either alone fits about '
@@ -553,19 +555,21 @@ def _findings(pt: PairedTopic, f: str, m: AxisModel, stats: dict, ok: np.ndarray
     return out
 
 
-def _sentence(p: str, f: str, val: float) -> str:
-    ax = AXIS[f]
+def _sentence(p: str, f: str, val: float, sd: float = math.nan) -> str:
+    ax, pm = AXIS[f], DI.plus_minus(sd)
     if p == 'drive_lag':
-        return f'The real {ax} follows the command with a first-order lag of {val:.3g} s.'
+        return f'The real {ax} follows the command with a first-order lag of {val:.3g}{pm} s.'
     if p == 'drive_dead_time':
-        return f'The real {ax} starts to follow the command {val * 1000:.0f} ms late ' \
-            '(dead time, before the lag).'
+        return f'The real {ax} starts to follow the command {val * 1000:.0f}' \
+            f'{DI.plus_minus(sd, 1000.0)} ms late (dead time, before the lag).'
     if p == 'drive_deadband':
-        return f'{ax.capitalize()} commands smaller than {val:.3g} {UNIT[f]} move nothing ' \
-            '(deadband).'
+        return f'{ax.capitalize()} commands smaller than {val:.3g}{pm} {UNIT[f]} move ' \
+            'nothing (deadband).'
     if p == 'drive_rate_limit':
-        return f'The real {ax} changes no faster than {val:.3g} {UNIT[f]}/s (acceleration limit).'
-    return f'The real forward speed drops while turning: speed = command x (1 - {val:.3g} ' \
+        return f'The real {ax} changes no faster than {val:.3g}{pm} {UNIT[f]}/s ' \
+            '(acceleration limit).'
+    k = f'({val:.3g}{pm})' if pm else f'{val:.3g}'
+    return f'The real forward speed drops while turning: speed = command x (1 - {k} ' \
         '|omega|), omega in rad/s.'
 
 
