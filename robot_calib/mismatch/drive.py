@@ -551,6 +551,8 @@ def _findings(pt: PairedTopic, f: str, m: AxisModel, stats: dict, ok: np.ndarray
               'evidence_strength': evidence(strength, fitd, motion),
               'separating_motion': alts_sep}
         fd['confidence'] = confidence(fd['evidence_strength'], alts)
+        if math.isfinite(std):  # as the other findings give it (findings.make_finding)
+            fd['ci95'] = {key: [val - 1.96 * std, val + 1.96 * std]}
         out.append(fd)
     return out
 

@@ -27,6 +27,20 @@ import numpy as np
 
 MIN_GROUPS = 3
 """Fewest groups of a jackknife (fewer: no interval)."""
+COARSER = 2
+"""
+The block averaging's error, in the std beside the jackknife's spread.
+
+The chain runs on block means (``dt`` apart) and takes a block's mean
+command as held over the block: the response comes out up to half a block
+late (d + tau of a known chain measured that much long), a product (the
+turn speed loss's u |omega|) is taken of means, and a rate limit acts on
+steps already smoothed by the block. Each value's systematic part, added
+to the jackknife's spread in quadrature, is the larger of two changes of
+it: in the final fit with the inputs delayed by half a block, and in the
+final fit on blocks ``COARSER`` times longer (these errors grow with the
+block, so that change is about their size or more).
+"""
 
 
 def groups(ok: np.ndarray, count: int) -> list:
@@ -87,12 +101,31 @@ def axis_std(u: np.ndarray, wabs: Optional[np.ndarray], y: np.ndarray, ok: np.nd
 
     The block jackknife of :func:`~robot_calib.mismatch.drive.fit_axis` with
     ``m``'s named parts, refined as the final fit is, on the samples ``ok``
-    (``prm.drive_jackknife_groups`` groups); arguments as ``fit_axis`` takes them.
+    (``prm.drive_jackknife_groups`` groups); arguments as ``fit_axis`` takes
+    them, on the analyser's grid of block means ``dt`` (s) apart. With the
+    block averaging's own error in quadrature (:data:`COARSER`).
     """
     from robot_calib.mismatch import drive as D  # drive calls this module
 
     if not m.parts:
         return None
-    return block_jackknife(lambda w: D.fit_axis(u, wabs, y, w, dt, prm.drive_max_dead_time,
-                                                m.parts, refine=True, acmd=acmd),
-                           ok, prm.drive_jackknife_groups)
+
+    def fit(u, wabs, y, w, dt, acmd):
+        return D.fit_axis(u, wabs, y, w, dt, prm.drive_max_dead_time, m.parts, refine=True,
+                          acmd=acmd)
+
+    sd = block_jackknife(lambda w: fit(u, wabs, y, w, dt, acmd), ok, prm.drive_jackknife_groups)
+    n = u.size // COARSER
+    if sd is None or n < 100:
+        return sd
+    half = fit(*(x if x is None else D.shift(x, 0.5 * dt, dt) for x in (u, wabs)), y, ok, dt,
+               None if acmd is None else D.shift(acmd, 0.5 * dt, dt))
+    a, b, c, d = (None if x is None else D._blocks(x, COARSER, n) for x in (u, wabs, y, acmd))
+    coarse = fit(a, b, c, D._blocks(ok.astype(float), COARSER, n) == 1.0, COARSER * dt, d)
+    out = {}
+    with np.errstate(invalid='ignore'):
+        for k, v in sd.items():
+            sys_k = np.maximum(abs(getattr(half, k) - getattr(m, k)),
+                               abs(getattr(coarse, k) - getattr(m, k)))
+            out[k] = float(np.hypot(v, sys_k)) if np.isfinite(sys_k) else math.nan
+    return out
