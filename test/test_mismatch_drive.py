@@ -174,3 +174,10 @@ def test_mrclam_names_lag_and_turn_speed_loss():
         lags += 'time constant' in res['drive']['/odom']
     # the forward lag is missed where the time stage took the turn rate's delay as a drift
     assert lags >= 3
+
+
+def test_value_with_std_text():
+    """The std to two digits, the value to its decimal place; nothing said without a std."""
+    assert DI.with_std(0.25312, 0.031) == '0.253 +- 0.031'
+    assert DI.with_std(0.17501, 0.04546, 1000.0) == '175 +- 45'
+    assert DI.with_std(0.25, float('nan')) == '0.25'

@@ -558,20 +558,18 @@ def _findings(pt: PairedTopic, f: str, m: AxisModel, stats: dict, ok: np.ndarray
 
 
 def _sentence(p: str, f: str, val: float, sd: float = math.nan) -> str:
-    ax, pm = AXIS[f], DI.plus_minus(sd)
+    ax, v = AXIS[f], DI.with_std(val, sd)
     if p == 'drive_lag':
-        return f'The real {ax} follows the command with a first-order lag of {val:.3g}{pm} s.'
+        return f'The real {ax} follows the command with a first-order lag of {v} s.'
     if p == 'drive_dead_time':
-        return f'The real {ax} starts to follow the command {val * 1000:.0f}' \
-            f'{DI.plus_minus(sd, 1000.0)} ms late (dead time, before the lag).'
+        return f'The real {ax} starts to follow the command {DI.with_std(val, sd, 1000.0)} ' \
+            'ms late (dead time, before the lag).'
     if p == 'drive_deadband':
-        return f'{ax.capitalize()} commands smaller than {val:.3g}{pm} {UNIT[f]} move ' \
-            'nothing (deadband).'
+        return f'{ax.capitalize()} commands smaller than {v} {UNIT[f]} move nothing (deadband).'
     if p == 'drive_rate_limit':
-        return f'The real {ax} changes no faster than {val:.3g}{pm} {UNIT[f]}/s ' \
-            '(acceleration limit).'
-    k = f'({val:.3g}{pm})' if pm else f'{val:.3g}'
-    return f'The real forward speed drops while turning: speed = command x (1 - {k} ' \
+        return f'The real {ax} changes no faster than {v} {UNIT[f]}/s (acceleration limit).'
+    v = f'({v})' if '+-' in v else v
+    return f'The real forward speed drops while turning: speed = command x (1 - {v} ' \
         '|omega|), omega in rad/s.'
 
 

@@ -14,7 +14,11 @@ Kunsch 1989 for blocks of a dependent series):
 Contiguous groups keep the residuals' correlation in time (a lag's misfit
 after each step) inside a group, so the spread is not that of independent
 samples. The model is run over the whole time line each time; only the
-samples the fit weighs change.
+samples the fit weighs change. The jackknife sees the noise, not the
+approximation of the fit itself (block averages of the time line): that
+part, measured on synthetic drives at up to 100 jackknife stds, is added
+as a systematic part (:data:`COARSER`), so the std is an honest interval
+rather than the precision of a biased estimate.
 """
 
 from __future__ import annotations
@@ -89,9 +93,20 @@ def block_jackknife(fit: Callable[[np.ndarray], Any], ok: np.ndarray,
     return out
 
 
-def plus_minus(sd: float, scale: float = 1.0, fmt: str = '.2g') -> str:
-    """Return ``' +- SD'`` (``sd`` times ``scale`` in ``fmt``), or '' when ``sd`` is not finite."""
-    return f' +- {sd * scale:{fmt}}' if sd is not None and math.isfinite(sd) else ''
+def with_std(val: float, sd: float, scale: float = 1.0) -> str:
+    """
+    Return ``val`` times ``scale`` as text: ``'0.253 +- 0.031'``, or ``'0.253'`` without a std.
+
+    The std to two significant digits and the value to the same decimal place;
+    without a finite, positive ``sd`` the value to three significant digits
+    (whole above 100).
+    """
+    v = val * scale
+    if sd is None or not math.isfinite(sd) or sd <= 0:
+        return f'{v:.3g}' if abs(v) < 100 else f'{v:.0f}'
+    s = sd * scale
+    places = max(0, 1 - math.floor(math.log10(s)))
+    return f'{v:.{places}f} +- {s:.{places}f}'
 
 
 def axis_std(u: np.ndarray, wabs: Optional[np.ndarray], y: np.ndarray, ok: np.ndarray,
