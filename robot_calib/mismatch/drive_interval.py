@@ -130,13 +130,14 @@ def axis_std(u: np.ndarray, wabs: Optional[np.ndarray], y: np.ndarray, ok: np.nd
                           acmd=acmd)
 
     sd = block_jackknife(lambda w: fit(u, wabs, y, w, dt, acmd), ok, prm.drive_jackknife_groups)
-    n = u.size // COARSER
-    if sd is None or n < 100:
-        return sd
+    if sd is None:
+        return None
     half = fit(*(x if x is None else D.shift(x, 0.5 * dt, dt) for x in (u, wabs)), y, ok, dt,
                None if acmd is None else D.shift(acmd, 0.5 * dt, dt))
+    n = u.size // COARSER
     a, b, c, d = (None if x is None else D._blocks(x, COARSER, n) for x in (u, wabs, y, acmd))
-    coarse = fit(a, b, c, D._blocks(ok.astype(float), COARSER, n) == 1.0, COARSER * dt, d)
+    w = D._blocks(ok.astype(float), COARSER, n) == 1.0
+    coarse = fit(a, b, c, w, COARSER * dt, d) if w.sum() >= 100 else half
     out = {}
     with np.errstate(invalid='ignore'):
         for k, v in sd.items():
