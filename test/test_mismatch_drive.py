@@ -2,6 +2,7 @@
 # SPDX-License-Identifier: Apache-2.0
 """The drive chain of the mismatch analyser: known drive effects found, none on a null pair."""
 
+from dataclasses import dataclass
 from pathlib import Path
 import sys
 
@@ -10,6 +11,7 @@ import pytest
 
 from robot_calib.mismatch import analyse_recordings
 from robot_calib.mismatch import drive as D
+from robot_calib.mismatch import drive_interval as DI
 from robot_calib.mismatch.channels import ODOM_TYPE, Topic
 
 DATA = Path(__file__).resolve().parents[1].parent / 'shared' / 'data' / 'mrclam'
@@ -100,6 +102,69 @@ def test_chain_pieces():
     assert np.allclose(D.shift(u, 0.1, 0.02)[:15], 0.0)
 
 
+def _with_std(res: dict, effect: str, field: str) -> tuple:
+    """Return (value, std, explanation) of the finding ``effect`` on ``field``."""
+    for f in res['findings']:
+        if f['effect'] == effect and f['channel'].endswith(field):
+            k = next(iter(f['parameters']))
+            assert set(f['std']) == set(f['parameters'])
+            return float(f['parameters'][k]), float(f['std'][k]), f['explanation']
+    return float('nan'), float('nan'), ''
+
+
+def test_drive_std_covers_the_truth():
+    """A known dead time and lag: each std finite, positive, the truth within 4 std."""
+    sim, real = _pair(3, D.AxisModel(tau=0.35), D.AxisModel(d=0.15, tau=0.2))
+    res, _ = analyse_recordings(sim, real)
+    for effect, field, want in (('drive_dead_time', D.W, 0.15), ('drive_lag', D.W, 0.2),
+                                ('drive_lag', D.V, 0.35)):
+        val, sd, text = _with_std(res, effect, field)
+        assert np.isfinite(sd) and sd > 0, (effect, field, val, sd)
+        assert abs(val - want) <= 4.0 * sd, (effect, field, val, sd)
+        assert ' +- ' in text, text
+        # an interval, not a statement of ignorance: well under the value itself
+        assert sd < 0.5 * want, (effect, field, val, sd)
+
+
+def _turn_std(noise: float, groups: int = 8) -> dict:
+    """Return the jackknife std of a turn axis with a dead time and a lag, at ``noise`` rad/s."""
+    t, _, w = _commands(7, duration=150.0, rate=20.0)
+    dt = t[1] - t[0]
+    rng = np.random.default_rng(8)
+    y = D.predict(w, None, dt, D.AxisModel(d=0.12, tau=0.25)) + \
+        noise * rng.standard_normal(t.size)
+    ok = np.ones(t.size, bool)
+    parts = {'drive_dead_time', 'drive_lag'}
+    return DI.block_jackknife(lambda m: D.fit_axis(w, None, y, m, dt, 0.5, parts, refine=True),
+                              ok, groups)
+
+
+def test_drive_jackknife_shrinks_with_the_noise():
+    """Four times less noise: the jackknife's std of the dead time and lag at least halves."""
+    loud, quiet = _turn_std(0.04), _turn_std(0.01)
+    for k in ('d', 'tau'):
+        assert np.isfinite(quiet[k]) and quiet[k] > 0, (k, loud, quiet)
+        assert quiet[k] < 0.5 * loud[k], (k, loud[k], quiet[k])
+    assert np.isnan(loud['band']) and np.isnan(loud['limit'])  # not fitted: no interval
+
+
+def test_block_jackknife_of_a_mean():
+    """The jackknife of a mean over contiguous groups is the standard error of the group means."""
+    @dataclass
+    class Mean:
+        mu: float
+
+    y = np.random.default_rng(1).standard_normal(800) + np.repeat([0.0, 1.0], 400)
+    ok = np.ones(y.size, bool)
+    ok[::10] = False  # 720 samples: groups of equal count
+    sd = DI.block_jackknife(lambda w: Mean(float(y[w].mean())), ok, 8)
+    means = [y[g].mean() for g in DI.groups(ok, 8)]
+    assert abs(sd['mu'] - np.std(means, ddof=1) / np.sqrt(8)) < 1e-12
+    assert DI.block_jackknife(lambda w: Mean(1.0), ok, 8) == {'mu': pytest.approx(np.nan,
+                                                                                  nan_ok=True)}
+    assert DI.block_jackknife(lambda w: Mean(1.0), ok, 2) is None
+
+
 @pytest.mark.skipif(not DATA.is_dir(), reason='MR.CLAM data not available')
 def test_mrclam_names_lag_and_turn_speed_loss():
     """Each 300 s window: the turn speed loss of the independent fit (0.99-1.12 s/rad)."""
@@ -111,6 +176,15 @@ def test_mrclam_names_lag_and_turn_speed_loss():
         res, _ = analyse_recordings(sim, real)
         k = _found(res, 'turn_speed_loss', D.V)
         assert 0.8 <= k <= 1.5, res['drive']
+        _, sd, _ = _with_std(res, 'turn_speed_loss', D.V)
+        assert 0.0 < sd < 0.2, (p.name, k, sd)
         lags += 'time constant' in res['drive']['/odom']
     # the forward lag is missed where the time stage took the turn rate's delay as a drift
     assert lags >= 3
+
+
+def test_value_with_std_text():
+    """The std to two digits, the value to its decimal place; nothing said without a std."""
+    assert DI.with_std(0.25312, 0.031) == '0.253 +- 0.031'
+    assert DI.with_std(0.17501, 0.04546, 1000.0) == '175 +- 45'
+    assert DI.with_std(0.25, float('nan')) == '0.25'

@@ -31,18 +31,20 @@ leave (:mod:`robot_calib.mismatch.analysis`).
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, replace
 import math
 from typing import Optional
 
 import numpy as np
 
+from robot_calib.mismatch import drive_interval as DI
 from robot_calib.mismatch import effects as E
 from robot_calib.mismatch import latency as L
 from robot_calib.mismatch.channels import ODOM_TYPE, PairedTopic
+from robot_calib.mismatch.drive_chain import (  # noqa: F401 (the chain, re-exported)
+    _filled, AxisModel, deadband, lag, predict, rate_limit, regressors, shift)
 from robot_calib.mismatch.findings import confidence, evidence, motion_ratio
 from robot_calib.mismatch.problem import held_mask, rmse
-from scipy.signal import lfilter
 
 V, W = 'twist.twist.linear.x', 'twist.twist.angular.z'
 AXIS = {V: 'forward speed', W: 'turn rate'}
@@ -58,121 +60,6 @@ E.SEPARATE.update({
     'ones separate an acceleration limit (binds on large steps only) from a lag',
 })
 _TAUS = np.concatenate(([0.0], np.geomspace(0.02, 2.0, 22)))
-
-
-@dataclass
-class AxisModel:
-    """One axis: dead time d, lag tau (s), band, rate limit, gain g, k (s/rad), slip (s^2/m)."""
-
-    d: float = 0.0
-    tau: float = 0.0
-    band: float = 0.0
-    limit: float = math.inf
-    gain: float = 0.0
-    k: float = 0.0
-    slip: float = 0.0
-    parts: set = field(default_factory=set)
-    fixed_gain: bool = False  # g held at 0 (the reduced model of the gain's test)
-
-
-def deadband(u: np.ndarray, band: float) -> np.ndarray:
-    """Return ``u`` with values of magnitude <= ``band`` set to zero (contract drive_deadband)."""
-    return np.where(np.abs(u) > band, u, 0.0) if band > 0 else u
-
-
-_LIMITED: dict = {}
-
-
-def rate_limit(u: np.ndarray, dt: float, limit: float) -> np.ndarray:
-    """Return ``u`` changing by at most ``limit`` per second (units of u per s)."""
-    if not math.isfinite(limit) or limit <= 0:
-        return u
-    key = (hash(u.tobytes()), u.shape, float(dt), float(limit))  # the grids ask again
-    if key not in _LIMITED:
-        if len(_LIMITED) > 512:
-            _LIMITED.clear()
-        _LIMITED[key] = _rate_limit(u, dt, limit)
-    return _LIMITED[key].copy()
-
-
-def _rate_limit(u: np.ndarray, dt: float, limit: float) -> np.ndarray:
-    step = limit * dt
-    out = np.empty(u.size)
-    y = float(u[0])
-    for i, x in enumerate(u.tolist()):
-        y += min(max(x - y, -step), step)
-        out[i] = y
-    return out
-
-
-def lag(x: np.ndarray, dt: float, tau: float) -> np.ndarray:
-    """Return ``x`` through ``1 / (1 + s tau)``, exact discretisation, at rest on ``x[0]``."""
-    if tau <= 0:
-        return x
-    a = math.exp(-dt / tau)
-    y, _ = lfilter([1.0 - a], [1.0, -a], x, axis=0, zi=np.atleast_1d(a * x[0])
-                   if x.ndim == 1 else a * x[:1])
-    return y
-
-
-def shift(x: np.ndarray, d: float, dt: float) -> np.ndarray:
-    """Return ``x`` delayed by ``d`` s (linear interpolation, held at the start)."""
-    if d <= 0:
-        return x
-    s = d / dt
-    i = int(math.floor(s))
-    f = s - i
-
-    def late(k: int) -> np.ndarray:
-        if k <= 0:
-            return x
-        k = min(k, x.shape[0])
-        return np.concatenate((np.repeat(x[:1], k, axis=0), x[:x.shape[0] - k]), axis=0)
-    return late(i) if f == 0.0 else (1.0 - f) * late(i) + f * late(i + 1)
-
-
-def _filled(x: np.ndarray) -> np.ndarray:
-    ok = np.isfinite(x)
-    if ok.all() or ok.sum() < 2:
-        return np.nan_to_num(x)
-    return np.interp(np.arange(x.size), np.flatnonzero(ok), x[ok])
-
-
-def regressors(u: np.ndarray, wabs: Optional[np.ndarray], dt: float, m: AxisModel,
-               coupled: bool, acmd: Optional[np.ndarray] = None) -> np.ndarray:
-    """
-    Return the response columns: chain(u); forward, chain(u |omega|) and slip.
-
-    The slip column is chain(u) times the commanded acceleration ``acmd``
-    through the same dead time and lag (m^2/s^3): wheel slip, fitted with the
-    dynamics so that the lag is not biased by it, judged by the amplitude stage.
-    """
-    u1 = deadband(u, m.band)
-    cols = [u1] + ([u1 * wabs] if coupled and wabs is not None else [])
-    out = [lag(rate_limit(c, dt, m.limit), dt, m.tau) for c in cols]
-    if acmd is not None:
-        out.append(out[0] * lag(acmd, dt, m.tau))
-    return shift(np.column_stack(out), m.d, dt)
-
-
-def predict(u: np.ndarray, wabs: Optional[np.ndarray], dt: float, m: AxisModel,
-            gain: bool = True, acmd: Optional[np.ndarray] = None) -> np.ndarray:
-    """
-    Return the modelled real channel (exact chain, k applied before the rate limit).
-
-    ``gain``: with the steady-state gain and the slip term (False: the dynamics alone).
-    """
-    u1 = deadband(u, m.band)
-    if wabs is not None and m.k:
-        u1 = u1 * (1.0 - m.k * wabs)
-    y = shift(lag(rate_limit(u1, dt, m.limit), dt, m.tau), m.d, dt)
-    if not gain:
-        return y
-    y = (1.0 + m.gain) * y
-    if acmd is not None and m.slip:
-        y = y + m.slip * shift(lag(rate_limit(deadband(u, m.band), dt, m.limit), dt, m.tau) *
-                               lag(acmd, dt, m.tau), m.d, dt)
-    return y
 
 
 def _solve(X: np.ndarray, y: np.ndarray, w: np.ndarray,
@@ -263,8 +150,8 @@ def fit_axis(u: np.ndarray, wabs: Optional[np.ndarray], y: np.ndarray, w: np.nda
     m = AxisModel(parts=set(parts), fixed_gain=fixed_gain)
     slip = acmd is not None
     m, sse = _grid(u, wabs, y, w, dt, m, coupled, max_d, free, acmd) if free else \
-        (_linear(m, _solve(regressors(u, wabs, dt, m, coupled, acmd), y, w, m.fixed_gain)[0], coupled,
-                 slip), 0.0)
+        (_linear(m, _solve(regressors(u, wabs, dt, m, coupled, acmd), y, w, m.fixed_gain)[0],
+                 coupled, slip), 0.0)
     scale = float(np.percentile(np.abs(u[w]), 95)) if w.any() else 0.0
     if 'drive_deadband' in parts and scale > 0:
         best = (math.inf, m)
@@ -412,8 +299,8 @@ def analyse_drive(pt: PairedTopic, prm, acmd: Optional[np.ndarray] = None,
             model = fit_axis(u, wa, yf, ok, dt, prm.drive_max_dead_time, named, refine=True,
                              acmd=ac)
         out_models[f] = (model, stats, ok)
-    dyn = {p for m, _, _ in out_models.values() for p in m.parts} - {'drive_dead_time',
-                                                                      'drive_gain'}
+    dyn = {p for m, _, _ in out_models.values() for p in m.parts} - {
+        'drive_dead_time', 'drive_gain'}
     if not dyn:
         return None
     wfull = np.abs(_filled(pt.sim[W])) if W in pt.sim else None
@@ -423,8 +310,9 @@ def analyse_drive(pt: PairedTopic, prm, acmd: Optional[np.ndarray] = None,
         sims[f] = np.where(np.isfinite(pt.sim[f]), predict(
             u, wfull if f == V else None, pt.dt, model, gain=False) * (
                 1.0 + model.gain if 'drive_gain' in model.parts else 1.0), np.nan)
-        found.extend(_findings(pt, f, model, stats, ok, held, _filled(sim_d[f]), real_d[f],
-                               wabs if f == V else None, dt, acd if f == V else None))
+        ud, wd, ad = _filled(sim_d[f]), wabs if f == V else None, acd if f == V else None
+        sd = DI.axis_std(ud, wd, np.nan_to_num(real_d[f]), ok, dt, ad, prm, model)
+        found.extend(_findings(pt, f, model, stats, ok, held, ud, real_d[f], wd, dt, ad, sd))
     text = describe({f: m for f, (m, _, _) in out_models.items()})
     for fd in found:
         fd['explanation'] += ' ' + text
@@ -536,8 +424,8 @@ def _blocks(x: np.ndarray, q: int, n: int) -> np.ndarray:
 
 def _findings(pt: PairedTopic, f: str, m: AxisModel, stats: dict, ok: np.ndarray,
               held: np.ndarray, u: np.ndarray, yr: np.ndarray, wa: Optional[np.ndarray],
-              dt: float, acmd: Optional[np.ndarray] = None) -> list:
-    """Return one finding per named part of the axis (contract keys, held-out fit)."""
+              dt: float, acmd: Optional[np.ndarray] = None, sd: Optional[dict] = None) -> list:
+    """Return one finding per named part of the axis (contract keys, held-out fit, ``sd``)."""
     out = []
     y = np.nan_to_num(yr)
     scale = float(np.percentile(np.abs(u[ok]), 95)) if ok.any() else 0.0
@@ -553,9 +441,9 @@ def _findings(pt: PairedTopic, f: str, m: AxisModel, stats: dict, ok: np.ndarray
                 'rmse_after': rmse(r_fit, acts & ~held),
                 'heldout_rmse_before': hb, 'heldout_rmse_after': ha}
         key, unit, get = _VALUE[p]
-        unit = unit if unit is not None else (UNIT[f] if p == 'drive_deadband'
-                                               else UNIT[f] + '/s')
-        val = float(get(m))
+        if unit is None:
+            unit = UNIT[f] if p == 'drive_deadband' else UNIT[f] + '/s'
+        val, std = float(get(m)), float(get(replace(m, **sd))) if sd else math.nan
         # the part passed the test at drive_alpha; its strength grows from the 5 % bar
         strength = 1.0 - (L.t_quantile(0.05, max(nb - 1, 1)) / max(z, 1e-12)) ** 2
         alts = [0.0] if together else []  # the other split fits as well
@@ -568,8 +456,8 @@ def _findings(pt: PairedTopic, f: str, m: AxisModel, stats: dict, ok: np.ndarray
                                                    p, 'drive_gain'))
         fd = {'channel': f'{pt.name}.{f}', 'effect': p, 'parameters': {key: val},
               'window': None, 'fit': fitd, 'units': {key: unit},
-              'std': {key: float('nan')}, 'channels': [f'{pt.name}.{f}'],
-              'explanation': _sentence(p, f, val) + (
+              'std': {key: std}, 'channels': [f'{pt.name}.{f}'],
+              'explanation': _sentence(p, f, val, std) + (
                   f' Modelling it cuts the held-out residual where it acts from {hb:.3g} to '
                   f'{ha:.3g}.' + (f' The dead time and the lag are resolved together (d + tau '
                                   f'= {m.d + m.tau:.3g} s), not apart: either alone fits about '
@@ -580,26 +468,28 @@ def _findings(pt: PairedTopic, f: str, m: AxisModel, stats: dict, ok: np.ndarray
               'evidence_strength': evidence(strength, fitd, motion),
               'separating_motion': alts_sep}
         fd['confidence'] = confidence(fd['evidence_strength'], alts)
+        if math.isfinite(std):  # as the other findings give it (findings.make_finding)
+            fd['ci95'] = {key: [val - 1.96 * std, val + 1.96 * std]}
         out.append(fd)
     return out
 
 
-def _sentence(p: str, f: str, val: float) -> str:
-    ax = AXIS[f]
+def _sentence(p: str, f: str, val: float, sd: float = math.nan) -> str:
+    ax, v = AXIS[f], DI.with_std(val, sd)
     if p == 'drive_lag':
-        return f'The real {ax} follows the command with a first-order lag of {val:.3g} s.'
+        return f'The real {ax} follows the command with a first-order lag of {v} s.'
     if p == 'drive_dead_time':
-        return f'The real {ax} starts to follow the command {val * 1000:.0f} ms late ' \
-            '(dead time, before the lag).'
+        return f'The real {ax} starts to follow the command {DI.with_std(val, sd, 1000.0)} ' \
+            'ms late (dead time, before the lag).'
     if p == 'drive_deadband':
-        return f'{ax.capitalize()} commands smaller than {val:.3g} {UNIT[f]} move nothing ' \
-            '(deadband).'
+        return f'{ax.capitalize()} commands smaller than {v} {UNIT[f]} move nothing (deadband).'
     if p == 'drive_rate_limit':
-        return f'The real {ax} changes no faster than {val:.3g} {UNIT[f]}/s (acceleration limit).'
+        return f'The real {ax} changes no faster than {v} {UNIT[f]}/s (acceleration limit).'
     if p == 'drive_gain':
-        return f'The real {ax} settles at {100 * (1 + val):.1f} % of the command (steady-state ' \
-            'gain, fitted with the dynamics).'
-    return f'The real forward speed drops while turning: speed = command x (1 - {val:.3g} ' \
+        return f'The real {ax} settles at {DI.with_std(1.0 + val, sd, 100.0)} % of the ' \
+            'command (steady-state gain, fitted with the dynamics).'
+    v = f'({v})' if '+-' in v else v
+    return f'The real forward speed drops while turning: speed = command x (1 - {v} ' \
         '|omega|), omega in rad/s.'
 
 

@@ -63,3 +63,7 @@ class MismatchParams:
                                maximum=0.5)
     drive_max_dead_time: float = param(0.5, 's', 'largest drive dead time searched',
                                        minimum=0.0)
+    drive_jackknife_groups: int = param(8, '', 'contiguous groups of the fitted time line, '
+                                        'each left out in turn to give the standard deviation '
+                                        "of each drive part's value (block jackknife of the "
+                                        'final fit); under 3: none', minimum=0)
