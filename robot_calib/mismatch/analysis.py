@@ -412,6 +412,13 @@ def _build_candidates(stage: TimeStage, sim: Recording, real: Recording, t0: flo
                             stage.lag_tau)
     cands, cannot = E.candidates(stage.aligned, stage.problem.sigma, aux)
     notes.extend(c for c in cannot if c not in notes)
+    # one owner of a scale: where the drive chain's held-out test names its gain, the chain's
+    # output carries it and no second scale is fitted on that field
+    owned = {f for f, m in stage.drive.models.items() if 'drive_gain' in m.parts} \
+        if stage.drive is not None else set()
+    if owned:
+        cands = [c for c in cands if c.group.partition(':')[::2] not in
+                 {('scale', f) for f in owned}]
     return cands, aux
 
 
