@@ -274,10 +274,15 @@ def analyse_drive(pt: PairedTopic, prm, acmd: Optional[np.ndarray] = None,
     # side, would pass for a lag that filters it
     noisy = any(pt.sim_noisy.get(f) for f in fields)
     src = {f: _smooth(pt.sim[f]) if noisy else pt.sim[f] for f in pt.sim}
-    sim_d = {f: _blocks(src[f], q, n) for f in fields}
+    # the chain's discrete response takes a block's mean as held over the block, which makes
+    # it about half a block late (a known d + tau of 0.35 s read 0.386 s on blocks of 5
+    # samples): the block means of the command are read that much later to start with
+    late_by = 0.5 * (q - 1) * pt.dt
+    sim_d = {f: shift(_blocks(src[f], q, n), late_by, dt) for f in fields}
     real_d = {f: _blocks(_smooth(pt.real[f]) if noisy else pt.real[f], q, n) for f in fields}
     wabs = np.abs(_filled(sim_d[W])) if W in sim_d else None
-    acd = np.nan_to_num(_blocks(acmd, q, n)) if acmd is not None and V in fields else None
+    acd = np.nan_to_num(shift(_blocks(acmd, q, n), late_by, dt)) \
+        if acmd is not None and V in fields else None
     out_models, found, sims = {}, [], {}
     period = max(pt.dt_sim, pt.dt_real, pt.dt)
     for f in fields:

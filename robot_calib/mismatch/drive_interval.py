@@ -36,14 +36,17 @@ COARSER = 2
 The block averaging's error, in the std beside the jackknife's spread.
 
 The chain runs on block means (``dt`` apart) and takes a block's mean
-command as held over the block: the response comes out up to half a block
-late (d + tau of a known chain measured that much long), a product (the
-turn speed loss's u |omega|) is taken of means, and a rate limit acts on
-steps already smoothed by the block. Each value's systematic part, added
-to the jackknife's spread in quadrature, is the larger of two changes of
-it: in the final fit with the inputs delayed by half a block, and in the
-final fit on blocks ``COARSER`` times longer (these errors grow with the
-block, so that change is about their size or more).
+command as held over the block: the response comes out about half a block
+late, which :func:`~robot_calib.mismatch.drive.analyse_drive` corrects by
+reading the commands' block means that much later (d + tau of a known chain
+of 0.35 s read 0.386 s on blocks of 5 samples before the correction); a
+product (the turn speed loss's u |omega|) is taken of means, and a rate
+limit acts on steps already smoothed by the block. Each value's systematic
+part, added to the jackknife's spread in quadrature, is the larger of two
+changes of it: in the final fit with the inputs read a further quarter block
+later (the correction's own error), and in the final fit on blocks
+``COARSER`` times longer, corrected alike (these errors grow with the block,
+so that change is about their size or more).
 """
 
 
@@ -132,10 +135,13 @@ def axis_std(u: np.ndarray, wabs: Optional[np.ndarray], y: np.ndarray, ok: np.nd
     sd = block_jackknife(lambda w: fit(u, wabs, y, w, dt, acmd), ok, prm.drive_jackknife_groups)
     if sd is None:
         return None
-    half = fit(*(x if x is None else D.shift(x, 0.5 * dt, dt) for x in (u, wabs)), y, ok, dt,
-               None if acmd is None else D.shift(acmd, 0.5 * dt, dt))
+    half = fit(*(x if x is None else D.shift(x, 0.25 * dt, dt) for x in (u, wabs)), y, ok, dt,
+               None if acmd is None else D.shift(acmd, 0.25 * dt, dt))
     n = u.size // COARSER
-    a, b, c, d = (None if x is None else D._blocks(x, COARSER, n) for x in (u, wabs, y, acmd))
+    late = 0.5 * (COARSER - 1) * dt  # the coarser blocks' own half-block correction
+    a, b, d = (None if x is None else D.shift(D._blocks(x, COARSER, n), late, COARSER * dt)
+               for x in (u, wabs, acmd))
+    c = D._blocks(y, COARSER, n)
     w = D._blocks(ok.astype(float), COARSER, n) == 1.0
     coarse = fit(a, b, c, w, COARSER * dt, d) if w.sum() >= 100 else half
     out = {}
