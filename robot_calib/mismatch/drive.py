@@ -143,7 +143,7 @@ def fit_axis(u: np.ndarray, wabs: Optional[np.ndarray], y: np.ndarray, w: np.nda
     Fit the chain with only ``parts`` free (names of :data:`PARTS`); return the model.
 
     ``u`` the simulated channel, ``wabs`` |simulated turn rate| (forward axis),
-    ``y`` the real channel, ``w`` the samples fitted (bool).
+    ``y`` the real channel, ``w`` the samples fitted (bool); ``fixed_gain``: g held at 0.
     """
     coupled = 'turn_speed_loss' in parts and wabs is not None
     free = tuple(p for p, n in (('d', 'drive_dead_time'), ('tau', 'drive_lag')) if n in parts)
