@@ -12,7 +12,7 @@ import pytest
 from robot_calib.mismatch import analyse_recordings
 from robot_calib.mismatch import drive as D
 from robot_calib.mismatch import drive_interval as DI
-from robot_calib.mismatch.channels import ODOM_TYPE, Topic
+from robot_calib.mismatch.channels import JOINT_STATE_TYPE, ODOM_TYPE, Topic
 
 DATA = Path(__file__).resolve().parents[1].parent / 'shared' / 'data' / 'mrclam'
 
@@ -91,6 +91,32 @@ def test_drive_even_odd_split_has_no_finding():
                                {f: x[k::2] for f, x in tp.fields.items()})}
     res, _ = analyse_recordings(half(0), half(1))
     assert res['findings'] == [], [(f['effect'], f['parameters']) for f in res['findings']]
+
+
+def _wheel_pair(seed: int, wheel: D.AxisModel, noise: float = 0.05):
+    """Return sim, real joint states: two wheels (r 0.05 m, track 0.3 m), real through ``wheel``."""
+    t, v, w = _commands(seed)
+    dt = t[1] - t[0]
+    rng = np.random.default_rng(seed + 200)
+    rates = {'left_wheel_joint': (v - 0.15 * w) / 0.05, 'right_wheel_joint': (v + 0.15 * w) / 0.05}
+
+    def rec(fn):
+        return {'/joint_states': Topic('/joint_states', JOINT_STATE_TYPE, t, {
+            f'velocity.{j}': fn(x) for j, x in rates.items()})}
+    return rec(lambda x: x), rec(lambda x: D.predict(x, None, dt, wheel) +
+                                 noise * rng.standard_normal(t.size))
+
+
+def test_wheel_joints_get_the_drive_chain():
+    """Each wheel of a joint-state topic is a motor of its own: its dead time and lag named."""
+    sim, real = _wheel_pair(7, D.AxisModel(d=0.1, tau=0.25))
+    res, _ = analyse_recordings(sim, real)
+    for j in ('left_wheel_joint', 'right_wheel_joint'):
+        d, tau = (_found(res, e, f'velocity.{j}') for e in ('drive_dead_time', 'drive_lag'))
+        assert abs(np.nan_to_num(d) + tau - 0.35) <= 0.25 * 0.35, (j, d, tau, res['drive'])
+    assert 'wheel rate' in res['drive']['/joint_states']
+    clean, _ = analyse_recordings(*_wheel_pair(8, D.AxisModel()))  # the same wheels, noise
+    assert clean['findings'] == [], [(f['effect'], f['parameters']) for f in clean['findings']]
 
 
 def test_chain_pieces():

@@ -59,7 +59,8 @@ from robot_calib.mismatch import robust as R
 from robot_calib.mismatch import select as S
 from robot_calib.mismatch import timing
 from robot_calib.mismatch.align import pair_topics
-from robot_calib.mismatch.channels import ChannelError, ODOM_TYPE, PairedTopic, Recording
+from robot_calib.mismatch.channels import (ChannelError, JOINT_STATE_TYPE, ODOM_TYPE,
+                                           PairedTopic, Recording)
 from robot_calib.mismatch.drive_stage import drive_stage
 from robot_calib.mismatch.findings import (heldout_support, motion_ratio, term_finding,
                                            unsupported)
@@ -373,10 +374,12 @@ def _align_time(pt: PairedTopic, prob0: Problem, sim: Recording, real: Recording
             # a drifting delay too: its run-wide value is the best single alignment
             taus.update(timing.field_taus(te, list(pt.sim)))
     drive = None
-    if pt.msgtype == ODOM_TYPE:  # the drive chain; a late speed or turn is first its response
+    if pt.msgtype in (ODOM_TYPE, JOINT_STATE_TYPE):
+        # the drive chain; a late speed, turn or wheel rate is first its response
         drive, delays, findings, taus = drive_stage(
             pt, prm, taus, delays, findings,
-            lambda p, tau: motion_regressors(sim, real, p, t0, [], tau).get('acmd'))
+            lambda p, tau: motion_regressors(sim, real, p, t0, [], tau).get('acmd')
+            if pt.msgtype == ODOM_TYPE else None)
     aligned = timing.aligned(pt, taus)
     lags = [(te, info) for kind, te, info in delays if kind == 'drive_lag']
     if drive is not None:

@@ -40,7 +40,7 @@ import numpy as np
 from robot_calib.mismatch import drive_interval as DI
 from robot_calib.mismatch import effects as E
 from robot_calib.mismatch import latency as L
-from robot_calib.mismatch.channels import ODOM_TYPE, PairedTopic
+from robot_calib.mismatch.channels import JOINT_STATE_TYPE, ODOM_TYPE, PairedTopic
 from robot_calib.mismatch.drive_chain import (  # noqa: F401 (the chain, re-exported)
     _filled, AxisModel, deadband, lag, predict, rate_limit, regressors, shift)
 from robot_calib.mismatch.findings import confidence, evidence, motion_ratio
@@ -49,6 +49,28 @@ from robot_calib.mismatch.problem import held_mask, rmse
 V, W = 'twist.twist.linear.x', 'twist.twist.angular.z'
 AXIS = {V: 'forward speed', W: 'turn rate'}
 UNIT = {V: 'm/s', W: 'rad/s'}
+
+
+def wheel_rates(fields) -> list:
+    """Return the wheel-rate channels of a joint-state topic (rad/s; not steering joints)."""
+    return [f for f in fields if f.startswith('velocity.') and 'steer' not in f]
+
+
+def driven(f: str) -> bool:
+    """Return True for a channel a drive moves: forward speed, turn rate, or a wheel's rate."""
+    return f in (V, W) or bool(wheel_rates([f]))
+
+
+def axis_name(f: str) -> str:
+    """Return the name of a driven channel in words (a wheel joint's by its joint name)."""
+    return AXIS.get(f, f'{f.partition(".")[2]} wheel rate')
+
+
+def unit_of(f: str) -> str:
+    """Return the unit of a driven channel (m/s, or rad/s for a turn rate or a wheel)."""
+    return UNIT.get(f, 'rad/s')
+
+
 PARTS = ('drive_dead_time', 'drive_lag', 'drive_deadband', 'drive_rate_limit',
          'turn_speed_loss')
 E.SEPARATE.update({
@@ -246,9 +268,11 @@ class DriveResult:
 def analyse_drive(pt: PairedTopic, prm, acmd: Optional[np.ndarray] = None,
                   late: frozenset = frozenset()) -> Optional[DriveResult]:
     """
-    Fit the drive chain to an odometry topic; return it when any dynamic part is named.
+    Fit the drive chain to a topic; return it when any dynamic part is named.
 
-    None when the topic has no forward or turn channel, when nothing beyond a
+    Odometry: its forward speed and turn rate; joint states: each wheel's
+    rate (a motor of its own: no turn speed loss, slip or acceleration). None
+    when the topic has no such channel, when nothing beyond a
     pure delay (which the time stage judges) is named, or when the drive
     model is off (``prm.drive_model``). ``acmd``: the commanded acceleration
     on the topic's grid (m/s^2), for the slip fitted beside the forward axis.
@@ -256,9 +280,12 @@ def analyse_drive(pt: PairedTopic, prm, acmd: Optional[np.ndarray] = None,
     rather than a lag): their dead time is kept, the chain judges what the
     dynamics add to it.
     """
-    if not getattr(prm, 'drive_model', True) or pt.msgtype != ODOM_TYPE or prm.mode == 'seed':
+    if not getattr(prm, 'drive_model', True) or prm.mode == 'seed' or \
+            pt.msgtype not in (ODOM_TYPE, JOINT_STATE_TYPE):
         return None
-    fields = [f for f in (V, W) if f in pt.sim and f in pt.real]
+    # odometry: forward speed and turn rate; joint states: each wheel's rate
+    fields = [f for f in ((V, W) if pt.msgtype == ODOM_TYPE else wheel_rates(pt.sim))
+              if f in pt.sim and f in pt.real]
     if not fields or pt.t.size < 200:
         return None
     # the parts are chosen and fitted on block averages of at least 10 Hz (cost)
@@ -447,7 +474,7 @@ def _findings(pt: PairedTopic, f: str, m: AxisModel, stats: dict, ok: np.ndarray
                 'heldout_rmse_before': hb, 'heldout_rmse_after': ha}
         key, unit, get = _VALUE[p]
         if unit is None:
-            unit = UNIT[f] if p == 'drive_deadband' else UNIT[f] + '/s'
+            unit = unit_of(f) if p == 'drive_deadband' else unit_of(f) + '/s'
         val, std = float(get(m)), float(get(replace(m, **sd))) if sd else math.nan
         # the part passed the test at drive_alpha; its strength grows from the 5 % bar
         strength = 1.0 - (L.t_quantile(0.05, max(nb - 1, 1)) / max(z, 1e-12)) ** 2
@@ -480,16 +507,16 @@ def _findings(pt: PairedTopic, f: str, m: AxisModel, stats: dict, ok: np.ndarray
 
 
 def _sentence(p: str, f: str, val: float, sd: float = math.nan) -> str:
-    ax, v = AXIS[f], DI.with_std(val, sd)
+    ax, v = axis_name(f), DI.with_std(val, sd)
     if p == 'drive_lag':
         return f'The real {ax} follows the command with a first-order lag of {v} s.'
     if p == 'drive_dead_time':
         return f'The real {ax} starts to follow the command {DI.with_std(val, sd, 1000.0)} ' \
             'ms late (dead time, before the lag).'
     if p == 'drive_deadband':
-        return f'{ax.capitalize()} commands smaller than {v} {UNIT[f]} move nothing (deadband).'
+        return f'{ax.capitalize()} commands smaller than {v} {unit_of(f)} move nothing (deadband).'
     if p == 'drive_rate_limit':
-        return f'The real {ax} changes no faster than {v} {UNIT[f]}/s (acceleration limit).'
+        return f'The real {ax} changes no faster than {v} {unit_of(f)}/s (acceleration limit).'
     if p == 'drive_gain':
         return f'The real {ax} settles at {DI.with_std(1.0 + val, sd, 100.0)} % of the ' \
             'command (steady-state gain, fitted with the dynamics).'
@@ -502,7 +529,7 @@ def describe(models: dict) -> str:
     """Return the drive in its own terms, one clause per axis."""
     parts = []
     for f, m in models.items():
-        s = f'{AXIS[f]}: '
+        s = f'{axis_name(f)}: '
         bits = []
         if m.d > 0 and 'drive_dead_time' in m.parts:
             bits.append(f'{m.d:.2f} s dead time')
@@ -516,8 +543,8 @@ def describe(models: dict) -> str:
         if 'turn_speed_loss' in m.parts:
             s += f', slows by {m.k:.2f} x |omega| in turns'
         if 'drive_deadband' in m.parts:
-            s += f', deadband {m.band:.3g} {UNIT[f]}'
+            s += f', deadband {m.band:.3g} {unit_of(f)}'
         if 'drive_rate_limit' in m.parts:
-            s += f', rate limit {m.limit:.3g} {UNIT[f]}/s'
+            s += f', rate limit {m.limit:.3g} {unit_of(f)}/s'
         parts.append(s)
     return 'Drive model (fitted together): ' + '; '.join(parts) + '.'

@@ -17,17 +17,17 @@ from dataclasses import replace
 
 from robot_calib.mismatch import timing
 from robot_calib.mismatch.channels import PairedTopic
-from robot_calib.mismatch.drive import analyse_drive, DriveResult, V, W
+from robot_calib.mismatch.drive import analyse_drive, driven, DriveResult, V
 
 
 def clock_taus(taus: dict) -> dict:
-    """Return the delays (s) of ``taus`` that no drive can make: any but a late speed or turn."""
-    return {f: t for f, t in taus.items() if not (f in (V, W) and t > 0)}
+    """Return the delays (s) of ``taus`` no drive can make: any but a late speed, turn or wheel."""
+    return {f: t for f, t in taus.items() if not (driven(f) and t > 0)}
 
 
 def over_delays(prm, taus: dict):
     """Return ``prm`` with the dead time searched past the time stage's delays of speed, turn."""
-    late = [t for f, t in taus.items() if f in (V, W) and t > 0]
+    late = [t for f, t in taus.items() if driven(f) and t > 0]
     if not late or max(late) + 0.1 <= prm.drive_max_dead_time:
         return prm
     return replace(prm, drive_max_dead_time=max(late) + 0.1)
