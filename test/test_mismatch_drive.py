@@ -94,7 +94,7 @@ def test_drive_even_odd_split_has_no_finding():
 
 
 def _wheel_pair(seed: int, wheel: D.AxisModel, noise: float = 0.05):
-    """Return sim, real joint states: two wheels (r 0.05 m, track 0.3 m), real through ``wheel``."""
+    """Return sim, real joint states of two wheels (r 0.05 m, track 0.3 m); real via ``wheel``."""
     t, v, w = _commands(seed)
     dt = t[1] - t[0]
     rng = np.random.default_rng(seed + 200)
