@@ -296,41 +296,15 @@ def analyse_drive(pt: PairedTopic, prm, acmd: Optional[np.ndarray] = None,
     chunk = max(1, n // prm.heldout_chunks)
     # the test's units: each held-out chunk cut into pieces of at least min_block_s
     piece = max(1, chunk // max(1, int(chunk * dt / prm.min_block_s)))
-    # a noisy simulation (another recording): both sides through one moving average of 5
-    # samples, which the dynamics commute with; the sim's own noise, absent from the real
-    # side, would pass for a lag that filters it
-    noisy = any(pt.sim_noisy.get(f) for f in fields)
-    src = {f: _smooth(pt.sim[f]) if noisy else pt.sim[f] for f in pt.sim}
-    # the chain's discrete response takes a block's mean as held over the block, which makes
-    # it about half a block late (a known d + tau of 0.35 s read 0.386 s on blocks of 5
-    # samples): the block means of the command are read that much later to start with
-    late_by = 0.5 * (q - 1) * pt.dt
-    sim_d = {f: shift(_blocks(src[f], q, n), late_by, dt) for f in fields}
-    real_d = {f: _blocks(_smooth(pt.real[f]) if noisy else pt.real[f], q, n) for f in fields}
+    sim_d, real_d, acd = _block_inputs(pt, fields, acmd, q, n)
     wabs = np.abs(_filled(sim_d[W])) if W in sim_d else None
-    acd = np.nan_to_num(shift(_blocks(acmd, q, n), late_by, dt)) \
-        if acmd is not None and V in fields else None
     out_models, found, sims = {}, [], {}
     period = max(pt.dt_sim, pt.dt_real, pt.dt)
     for f in fields:
-        u, y = _filled(sim_d[f]), real_d[f]
-        ok = np.isfinite(sim_d[f]) & np.isfinite(y)
-        if ok.sum() < 100 or np.std(u[ok]) <= 0:
-            continue
-        yf = np.nan_to_num(y)
-        wa = wabs if f == V else None
-        parts = _axis_parts(f, u, wa, ok)
-        ac = acd if f == V else None
-        named, stats = _eliminate(u, wa, yf, ok, held, piece, dt, prm, parts, ac,
-                                  frozenset({'drive_dead_time'} if f in late else ()))
-        model = fit_axis(u, wa, yf, ok, dt, prm.drive_max_dead_time, named, refine=True,
-                         acmd=ac)
-        small = _unresolved(model, period)
-        if small:
-            named = named - small
-            model = fit_axis(u, wa, yf, ok, dt, prm.drive_max_dead_time, named, refine=True,
-                             acmd=ac)
-        out_models[f] = (model, stats, ok)
+        chosen = _choose_axis(f, sim_d[f], real_d[f], wabs if f == V else None,
+                              acd if f == V else None, held, piece, dt, prm, f in late, period)
+        if chosen is not None:
+            out_models[f] = chosen
     dyn = {p for m, _, _ in out_models.values() for p in m.parts} - {
         'drive_dead_time', 'drive_gain'}
     if not dyn:
@@ -349,6 +323,55 @@ def analyse_drive(pt: PairedTopic, prm, acmd: Optional[np.ndarray] = None,
     for fd in found:
         fd['explanation'] += ' ' + text
     return DriveResult({f: m for f, (m, _, _) in out_models.items()}, found, sims, text)
+
+
+def _block_inputs(pt: PairedTopic, fields: list, acmd: Optional[np.ndarray], q: int,
+                  n: int) -> tuple:
+    """
+    Return (sim, real, commanded acceleration): means of ``q`` samples, ``n`` of them.
+
+    A noisy simulation (another recording) puts both sides through one moving
+    average of 5 samples, which the dynamics commute with: the sim's own noise,
+    absent from the real side, would pass for a lag that filters it. The
+    chain's discrete response takes a block's mean as held over the block,
+    which makes it about half a block late (a known d + tau of 0.35 s read
+    0.386 s on blocks of 5 samples): the block means of the command are read
+    that much later to start with.
+    """
+    dt = pt.dt * q
+    noisy = any(pt.sim_noisy.get(f) for f in fields)
+    late_by = 0.5 * (q - 1) * pt.dt
+    sim_d = {f: shift(_blocks(_smooth(pt.sim[f]) if noisy else pt.sim[f], q, n), late_by, dt)
+             for f in fields}
+    real_d = {f: _blocks(_smooth(pt.real[f]) if noisy else pt.real[f], q, n) for f in fields}
+    acd = np.nan_to_num(shift(_blocks(acmd, q, n), late_by, dt)) \
+        if acmd is not None and V in fields else None
+    return sim_d, real_d, acd
+
+
+def _choose_axis(f: str, sim: np.ndarray, real: np.ndarray, wa: Optional[np.ndarray],
+                 ac: Optional[np.ndarray], held: np.ndarray, piece: int, dt: float, prm,
+                 late: bool, period: float) -> Optional[tuple]:
+    """
+    Return (model, stats, fitted samples) of one axis, or None when it cannot be judged.
+
+    The parts by backward elimination (:func:`_eliminate`; a dead time the
+    time stage showed kept when ``late``), fitted again on all the samples,
+    without a dead time or lag under one sample ``period`` (:func:`_unresolved`).
+    """
+    u = _filled(sim)
+    ok = np.isfinite(sim) & np.isfinite(real)
+    if ok.sum() < 100 or np.std(u[ok]) <= 0:
+        return None
+    yf = np.nan_to_num(real)
+    named, stats = _eliminate(u, wa, yf, ok, held, piece, dt, prm, _axis_parts(f, u, wa, ok),
+                              ac, frozenset({'drive_dead_time'} if late else ()))
+    model = fit_axis(u, wa, yf, ok, dt, prm.drive_max_dead_time, named, refine=True, acmd=ac)
+    small = _unresolved(model, period)
+    if small:
+        model = fit_axis(u, wa, yf, ok, dt, prm.drive_max_dead_time, named - small,
+                         refine=True, acmd=ac)
+    return model, stats, ok
 
 
 def _unresolved(m: AxisModel, period: float) -> set:
