@@ -143,7 +143,6 @@ def beam_findings(sim: list, real: list, topic: str, notes: list, not_judged: li
     blk_s = np.minimum((np.arange(ns) * BLOCKS) // ns, BLOCKS - 1)
     held_s = ((np.minimum((np.arange(ns) * CHUNKS) // ns, CHUNKS - 1)) % 3) == 2
     window = [float(tt[0]), float(tt[-1])]
-    out = []
     sweep = _sweep_rows(motion, tt, nbm, min_turn, topic, not_judged)
     turn = 0.0
     for _ in range(4):  # Gauss-Newton on the angle: re-sample the sim beams, fit again
@@ -186,6 +185,27 @@ def beam_findings(sim: list, real: list, topic: str, notes: list, not_judged: li
     if sweep is not None:
         names += [('scan_distortion', ('sweep_time',), (5,)),
                   ('lidar_time_offset', ('tau',), (6,))]
+    out = _judged(x, xf, sd, names, d0, a, hd, topic, notes)
+    e = d0 - a @ x
+    out.extend(_noise(rs, r0, e, bk, hd, topic, window, notes))
+    # lost returns are counted where the sim, turned by the yaw fitted, sees a surface on both
+    # sides of the real beam's direction: a turned beam next to an edge or a gap of the sim
+    # scan may miss it without any dropout
+    out.extend(dropout_findings(_turned(rs, x[2] / inc) if x[2] else rs, rr, ang, blk_s,
+                                held_s, topic, lambda f, b: _jack(f, b, BLOCKS), notes,
+                                _sim_noise(rs) or 0.01))
+    return out
+
+
+def _judged(x: np.ndarray, xf: np.ndarray, sd: np.ndarray, names: list, d0: np.ndarray,
+            a: np.ndarray, hd: np.ndarray, topic: str, notes: list) -> list:
+    """
+    Return the findings of the fitted terms that clear the bar and help held-out time.
+
+    ``x`` the fit on all time with its block-jackknife ``sd``, ``xf`` the fit on the
+    fitted part; ``names``: (effect, keys, columns of ``a``); ``hd``: held-out rows.
+    """
+    out = []
     for effect, keys, js in names:
         z = math.sqrt(sum((x[j] / max(sd[j], 1e-12)) ** 2 for j in js))
         size = math.sqrt(sum(x[j] ** 2 for j in js))
@@ -199,24 +219,7 @@ def beam_findings(sim: list, real: list, topic: str, notes: list, not_judged: li
             notes.append(f'{topic}: a candidate {effect} did not improve the held-out part')
             continue
         val = float(x[js[0]])
-        txt = {'range_bias': f'Real ranges are {val * 100:+.1f} cm longer than the simulated '
-               'ones at the same beam (offset at every range).',
-               'range_scale': f'Real ranges are {val * 100:+.2f} % longer than the simulated '
-               'ones, in proportion to range.',
-               'lidar_mounting_yaw': f'Real beams look {math.degrees(val):+.2f} deg off the '
-               'simulated ones: the scanner is turned about z from where the simulation '
-               'mounts it.',
-               'lidar_mounting_offset': 'Real beams look as if the scanner sat '
-               f'({x[3] * 100:+.1f}, {x[4] * 100:+.1f}) cm from where the simulation '
-               'mounts it.',
-               'lidar_time_offset': f'Real scans show the scene {abs(val) * 1000:.0f} ms '
-               f'{"before" if val > 0 else "after"} their stamp, relative to the simulated '
-               "ones (beam by beam, with the odometry's motion): their stamps are late by "
-               'that much.',
-               'scan_distortion': 'Real scans are bent by the sweep while the robot turns as '
-               f'if each sweep took {val * 1000:+.0f} ms longer than the simulated one (beam '
-               'i seen i/n of the sweep after the stamp; a deskewed simulation sweeps in 0 '
-               'ms).'}[effect]
+        txt = _sentence(effect, val, x)
         chan = f'{topic}.stamp' if effect == 'lidar_time_offset' else f'{topic}.ranges'
         out.append({'channel': chan, 'effect': effect,
                     'parameters': {k: float(x[j]) for k, j in zip(keys, js)},
@@ -224,15 +227,29 @@ def beam_findings(sim: list, real: list, topic: str, notes: list, not_judged: li
                     'fit': {'rmse_before': res[0], 'rmse_after': res[2],
                             'heldout_rmse_before': res[1], 'heldout_rmse_after': res[3]},
                     'confidence': _conf(z), 'evidence': {'z': float(z)}, 'explanation': txt})
-    e = d0 - a @ x
-    out.extend(_noise(rs, r0, e, bk, hd, topic, window, notes))
-    # lost returns are counted where the sim, turned by the yaw fitted, sees a surface on both
-    # sides of the real beam's direction: a turned beam next to an edge or a gap of the sim
-    # scan may miss it without any dropout
-    out.extend(dropout_findings(_turned(rs, x[2] / inc) if x[2] else rs, rr, ang, blk_s,
-                                held_s, topic, lambda f, b: _jack(f, b, BLOCKS), notes,
-                                _sim_noise(rs) or 0.01))
     return out
+
+
+def _sentence(effect: str, val: float, x: np.ndarray) -> str:
+    """Return the explanation of a beam finding (``val`` its first parameter, ``x`` the fit)."""
+    return {'range_bias': f'Real ranges are {val * 100:+.1f} cm longer than the simulated '
+            'ones at the same beam (offset at every range).',
+            'range_scale': f'Real ranges are {val * 100:+.2f} % longer than the simulated '
+            'ones, in proportion to range.',
+            'lidar_mounting_yaw': f'Real beams look {math.degrees(val):+.2f} deg off the '
+            'simulated ones: the scanner is turned about z from where the simulation '
+            'mounts it.',
+            'lidar_mounting_offset': 'Real beams look as if the scanner sat '
+            f'({x[3] * 100:+.1f}, {x[4] * 100:+.1f}) cm from where the simulation '
+            'mounts it.',
+            'lidar_time_offset': f'Real scans show the scene {abs(val) * 1000:.0f} ms '
+            f'{"before" if val > 0 else "after"} their stamp, relative to the simulated '
+            "ones (beam by beam, with the odometry's motion): their stamps are late by "
+            'that much.',
+            'scan_distortion': 'Real scans are bent by the sweep while the robot turns as '
+            f'if each sweep took {val * 1000:+.0f} ms longer than the simulated one (beam '
+            'i seen i/n of the sweep after the stamp; a deskewed simulation sweeps in 0 '
+            'ms).'}[effect]
 
 
 def _sweep_rows(motion, tt, nbm, min_turn, topic, not_judged) -> Optional[tuple]:
