@@ -222,27 +222,32 @@ def test_sweep_finding_switches_the_simulated_sweep():
     assert 'scan_distortion' in text
 
 
+def _one_dropout(out: dict) -> dict:
+    """Return the only dropout finding of an analysis (asserting there is one)."""
+    found = [f for f in out['findings'] if f['effect'] == 'dropout_rate']
+    assert len(found) == 1, out['findings']
+    return found[0]
+
+
 def test_grazing_dropouts_found_by_incidence():
     # the real scanner loses a quarter of the beams meeting a surface beyond 1 rad from its
     # normal (the simulator's grazing dropouts): found by incidence, not by range
     out = _sim_pair(['lidar.dropout_incidence=1.0', 'lidar.dropout_incidence_rate=0.25'])
-    found = [f for f in out['findings'] if f['effect'] == 'dropout_rate']
-    assert len(found) == 1, out['findings']
-    par = found[0]['parameters']
+    found = _one_dropout(out)
+    par = found['parameters']
     assert 'incidence' in par and 'beyond' not in par, par
     assert abs(par['incidence'] - 1.0) <= 0.25 and abs(par['rate'] - 0.25) <= 0.0625, par
-    assert found[0]['fit']['heldout_rmse_after'] < found[0]['fit']['heldout_rmse_before']
+    assert found['fit']['heldout_rmse_after'] < found['fit']['heldout_rmse_before']
     assert {f['effect'] for f in out['findings']} == {'dropout_rate'}, out['findings']
 
 
 def test_range_dropouts_still_found_by_range():
-    out = _sim_pair(['lidar.dropout_beyond=3.5', 'lidar.dropout_beyond_rate=0.12'])
-    found = [f for f in out['findings'] if f['effect'] == 'dropout_rate']
-    assert len(found) == 1, out['findings']
-    par = found[0]['parameters']
+    found = _one_dropout(_sim_pair(['lidar.dropout_beyond=3.5',
+                                    'lidar.dropout_beyond_rate=0.12']))
+    par = found['parameters']
     assert 'beyond' in par and 'incidence' not in par, par
     assert abs(par['beyond'] - 3.5) <= 0.875 and abs(par['rate'] - 0.12) <= 0.03, par
-    assert not found[0].get('alternatives'), found[0]
+    assert not found.get('alternatives'), found
 
 
 def test_clean_simulated_pair_names_no_dropout():
