@@ -81,6 +81,7 @@ E.SEPARATE.update({
     frozenset(('drive_rate_limit', 'drive_lag')): 'large steps of the command beside small '
     'ones separate an acceleration limit (binds on large steps only) from a lag',
 })
+_LIMIT_STEP, _LIMITS = 1.5, 10  # the rate limits' grid: ratio and count
 _TAUS = np.concatenate(([0.0], np.geomspace(0.02, 2.0, 22)))
 
 
@@ -184,19 +185,23 @@ def fit_axis(u: np.ndarray, wabs: Optional[np.ndarray], y: np.ndarray, w: np.nda
                 best = (s, _linear(mm, c, coupled, slip))
         m = best[1]
     if 'drive_rate_limit' in parts and scale > 0:
-        jumps = np.abs(np.diff(u))
-        step = float(np.percentile(jumps[jumps > 1e-3 * scale], 90)) \
-            if (jumps > 1e-3 * scale).sum() > 5 else scale
-        best = (math.inf, m)
-        for ramp in (0.0, 0.05, 0.1, 0.2, 0.3, 0.45, 0.65, 0.9, 1.3, 2.0, 3.0):
-            mm = replace(m, limit=step / ramp if ramp > 0 else math.inf)
-            # with the dead time and lag searched again: a limit makes its own delay, which a
-            # lag fitted without it has taken already
-            mm, s = _grid(u, wabs, y, w, dt, mm, coupled, max_d, free, acmd) if free else \
-                (mm, _solve(regressors(u, wabs, dt, mm, coupled, acmd), y, w, mm.fixed_gain)[1])
-            if s < best[0]:
-                best = (s, mm if free else _linear(mm, _solve(regressors(
-                    u, wabs, dt, mm, coupled, acmd), y, w, mm.fixed_gain)[0], coupled, slip))
+        # limits from under the command's fastest change down by factors of 1.5, with the
+        # dead time and lag searched again (a limit makes its own delay, which a lag fitted
+        # without it has taken already); the best searched again half a step either side
+        pairs = w[1:] & w[:-1]
+        top = float(np.max(np.abs(np.diff(u))[pairs])) / dt if pairs.any() else scale / dt
+
+        def trial(lim: float) -> tuple:
+            mm = replace(m, limit=lim)
+            if free:
+                return _grid(u, wabs, y, w, dt, mm, coupled, max_d, free, acmd)[::-1]
+            c, s = _solve(regressors(u, wabs, dt, mm, coupled, acmd), y, w, mm.fixed_gain)
+            return s, _linear(mm, c, coupled, slip)
+        tried = [trial(top / _LIMIT_STEP ** i if i else math.inf) for i in range(_LIMITS + 1)]
+        best = min(tried, key=lambda sm: sm[0])
+        if math.isfinite(best[1].limit):
+            best = min([best] + [trial(best[1].limit * _LIMIT_STEP ** h) for h in (-0.5, 0.5)],
+                       key=lambda sm: sm[0])
         m = best[1]
     if free and (m.band > 0 or math.isfinite(m.limit)):
         m, _ = _grid(u, wabs, y, w, dt, m, coupled, max_d, free, acmd)
