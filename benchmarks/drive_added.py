@@ -16,8 +16,13 @@ Each effect acts on the real body-frame twist as the drive would have moved
 - ``deadband``: turn commands smaller than a band (0.02-0.04 rad/s) move
   nothing: the yaw rate is zero where the held command, delayed by the
   drive's own response time (``response``, s), lies inside the band;
-- ``accel_limit``: one axis changes no faster than a limit (forward 0.08-0.15
-  m/s^2, turn 0.4-0.8 rad/s^2), applied to the measured speed sample by sample.
+- ``accel_limit``: one axis' motion changes no faster than a limit (forward
+  0.08-0.15 m/s^2, turn 0.4-0.8 rad/s^2): the measured speed's motion (its
+  centred 0.2 s moving average) is rate limited and the measurement's noise
+  (the rest) added back unchanged. Limiting the measured speed itself, noise
+  and all, slews the noise too (at 50 Hz the motion capture's speed changes
+  faster than the limit in a third of its samples even at a constant
+  command), which is a low-pass filter the drive does not have.
 """
 
 from __future__ import annotations
@@ -85,6 +90,15 @@ def _rate_limit(x: np.ndarray, dt: float, limit: float) -> np.ndarray:
     return y
 
 
+MOTION_S = 0.2  # s, the zero-phase moving average that separates motion from noise
+
+
+def _smooth(x: np.ndarray, width: int) -> np.ndarray:
+    """Return the centred moving average of ``width`` samples (shorter at the ends)."""
+    k = np.ones(width)
+    return np.convolve(x, k, mode='same') / np.convolve(np.ones(x.size), k, mode='same')
+
+
 def apply(t: np.ndarray, fields: dict, e: dict, cmd: dict, response: float = 0.0) -> tuple:
     """
     Return (t, fields) of the real twist with effect ``e`` added.
@@ -104,8 +118,11 @@ def apply(t: np.ndarray, fields: dict, e: dict, cmd: dict, response: float = 0.0
         for a, b in stretches(t):
             dt = float(np.median(np.diff(t[a:b]))) if b - a > 1 else 0.02
             seg = f[k][a:b]
-            f[k][a:b] = _lag(seg, dt, p['tau']) if name == 'time_constant' else \
-                _rate_limit(seg, dt, p['limit'])
+            if name == 'time_constant':
+                f[k][a:b] = _lag(seg, dt, p['tau'])
+            else:  # the motion limited, the measurement's noise on it as it was
+                motion = _smooth(seg, max(1, int(round(MOTION_S / dt))))
+                f[k][a:b] = _rate_limit(motion, dt, p['limit']) + (seg - motion)
     elif name == 'deadband':
         idx = np.searchsorted(cmd['t'], t - response, side='right') - 1
         held = np.where(idx >= 0, cmd['w'][np.clip(idx, 0, None)], 0.0)
