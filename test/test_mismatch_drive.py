@@ -75,6 +75,24 @@ def test_drive_effect_found(effect, field, fwd, turn, want):
     assert len(scales) <= 1, scales
 
 
+def test_rate_limit_over_smooth_commands_found():
+    """A limit that binds only on a few large steps among many small changes is found."""
+    t = np.arange(0.0, 240.0, 0.02)
+    steps = np.where((t // 8.0) % 2 == 0, 0.0, 0.6) * np.sign(np.sin(0.37 * (t // 8.0) + 0.5))
+    w = 0.3 * np.sin(2 * np.pi * t / 20.0) + steps  # smooth turns (0.1 rad/s^2) and steps
+    v = 0.2 + 0.1 * np.sin(2 * np.pi * t / 30.0)
+    rng = np.random.default_rng(11)
+    turn = D.AxisModel(tau=0.15, limit=1.0)
+    rw = D.predict(w, None, 0.02, turn) + 0.01 * rng.standard_normal(t.size)
+    rv = D.predict(v, np.abs(w), 0.02, D.AxisModel(tau=0.2)) + 0.004 * rng.standard_normal(t.size)
+
+    def rec(a, b):
+        return {'/odom': Topic('/odom', ODOM_TYPE, t, {D.V: a, D.W: b})}
+    res, _ = analyse_recordings(rec(v, w), rec(rv, rw))
+    got = _found(res, 'drive_rate_limit', D.W)
+    assert abs(got - 1.0) <= 0.25, (got, res['drive'])
+
+
 def test_drive_null_pair_has_no_finding():
     sim, real = _pair(5, D.AxisModel(), D.AxisModel())
     res, _ = analyse_recordings(sim, real)
