@@ -93,6 +93,42 @@ def test_rate_limit_over_smooth_commands_found():
     assert abs(got - 1.0) <= 0.25, (got, res['drive'])
 
 
+def _lag_finding(res: dict, field: str) -> dict:
+    return next(f for f in res['findings'] if f['effect'] == 'drive_lag' and
+                f['channel'].endswith(field))
+
+
+@pytest.mark.parametrize('zeta', [0.4, 0.7])
+def test_second_order_drive_named_with_its_damping(zeta):
+    """An underdamped turn response is named second order, its damping within 25 %."""
+    sim, real = _pair(4, D.AxisModel(tau=0.3), D.AxisModel(tau=0.3, zeta=zeta))
+    res, _ = analyse_recordings(sim, real)
+    lag = _lag_finding(res, D.W)
+    assert abs(lag['parameters']['damping'] - zeta) <= 0.25 * zeta, lag
+    assert abs(lag['parameters']['tau'] - 0.3) <= 0.25 * 0.3, lag
+    assert 'second order' in lag['explanation']
+    # the first-order forward axis stays first order
+    assert 'damping' not in _lag_finding(res, D.V)['parameters']
+
+
+def test_second_order_step_overshoots_and_chain_matches_the_simulator():
+    """The simulator's second order overshoots as zeta says; the chain's response is the same."""
+    from robot_calib.sim.drive import DriveDynamics
+    from robot_calib.sim.params import DriveParams
+
+    zeta, tau, dt = 0.4, 0.3, 0.01
+    u = np.zeros((600, 2))
+    u[50:, 1] = 0.5
+    sim = DriveDynamics(DriveParams(angular_time_constant=tau, angular_damping=zeta), dt,
+                        0.3, 0.05)(u)[:, 1]
+    want = np.exp(-np.pi * zeta / np.sqrt(1 - zeta * zeta))
+    assert sim.max() / 0.5 - 1.0 == pytest.approx(want, rel=0.02)
+    # the mean delay of the step response is tau, as a first-order lag's
+    assert np.sum(1.0 - sim[50:] / 0.5) * dt == pytest.approx(tau, rel=0.02)
+    chain = D.predict(u[:, 1], None, dt, D.AxisModel(tau=tau, zeta=zeta))
+    assert np.max(np.abs(chain - sim)) < 1e-9
+
+
 def test_drive_null_pair_has_no_finding():
     sim, real = _pair(5, D.AxisModel(), D.AxisModel())
     res, _ = analyse_recordings(sim, real)

@@ -151,7 +151,7 @@ def test_findings_map_to_the_simulator_as_real_equals_f_of_sim(pair, tmp_path):
 
 
 def test_an_effect_seen_on_several_channels_is_applied_once(tmp_path):
-    rows = [('drive_lag', '/odom.twist.twist.angular.z', {'tau': 0.3}),
+    rows = [('drive_lag', '/odom.twist.twist.angular.z', {'tau': 0.3, 'damping': 0.5}),
             ('drive_lag', '/ground_truth/odom.twist.twist.angular.z', {'tau': 0.31}),
             ('drive_lag', '/joint_states.velocity.left_wheel_joint', {'tau': 0.4}),
             ('gyro_bias', '/imu.angular_velocity.z', {'bias': 0.01}),
@@ -160,5 +160,6 @@ def test_an_effect_seen_on_several_channels_is_applied_once(tmp_path):
     params = yaml.safe_load((tmp_path / 'sim_params.yaml').read_text())['sim']
     # the turn-rate lag from an angular channel, the forward lag from the wheel joint
     assert params['drive']['angular_time_constant'] == pytest.approx(0.3)
+    assert params['drive']['angular_damping'] == pytest.approx(0.5)  # a second order
     assert params['drive']['linear_time_constant'] == pytest.approx(0.4)
     assert params['imu']['gyro_bias'][2] == pytest.approx(0.01)

@@ -42,37 +42,15 @@ from robot_calib.mismatch import effects as E
 from robot_calib.mismatch import latency as L
 from robot_calib.mismatch.channels import JOINT_STATE_TYPE, ODOM_TYPE, PairedTopic
 from robot_calib.mismatch.drive_chain import (  # noqa: F401 (the chain, re-exported)
-    _filled, AxisModel, deadband, lag, predict, rate_limit, regressors, shift)
+    _filled, AxisModel, deadband, lag, predict, rate_limit, regressors, response, shift)
+from robot_calib.mismatch.drive_text import (  # noqa: F401 (the names, re-exported)
+    _damping_sentence, _sentence, AXIS, axis_name, describe, driven, UNIT, unit_of, V, W,
+    wheel_rates)
 from robot_calib.mismatch.findings import confidence, evidence, motion_ratio
 from robot_calib.mismatch.problem import held_mask, rmse
 
-V, W = 'twist.twist.linear.x', 'twist.twist.angular.z'
-AXIS = {V: 'forward speed', W: 'turn rate'}
-UNIT = {V: 'm/s', W: 'rad/s'}
-
-
-def wheel_rates(fields) -> list:
-    """Return the wheel-rate channels of a joint-state topic (rad/s; not steering joints)."""
-    return [f for f in fields if f.startswith('velocity.') and 'steer' not in f]
-
-
-def driven(f: str) -> bool:
-    """Return True for a channel a drive moves: forward speed, turn rate, or a wheel's rate."""
-    return f in (V, W) or bool(wheel_rates([f]))
-
-
-def axis_name(f: str) -> str:
-    """Return the name of a driven channel in words (a wheel joint's by its joint name)."""
-    return AXIS.get(f, f'{f.partition(".")[2]} wheel rate')
-
-
-def unit_of(f: str) -> str:
-    """Return the unit of a driven channel (m/s, or rad/s for a turn rate or a wheel)."""
-    return UNIT.get(f, 'rad/s')
-
-
 PARTS = ('drive_dead_time', 'drive_lag', 'drive_deadband', 'drive_rate_limit',
-         'turn_speed_loss')
+         'turn_speed_loss', 'drive_damping')  # damping: a second-order lag, drive_lag's
 E.SEPARATE.update({
     frozenset(('drive_deadband', 'drive_gain')): 'slow commands near zero beside fast ones '
     'separate a deadband from a gain',
@@ -82,6 +60,8 @@ E.SEPARATE.update({
     'ones separate an acceleration limit (binds on large steps only) from a lag',
 })
 _LIMIT_STEP, _LIMITS = 1.5, 10  # the rate limits' grid: ratio and count
+_ZETAS = (0.25, 0.35, 0.45, 0.55, 0.65, 0.75)  # second-order dampings searched (overshoot)
+_ZETA_MAX = 0.8  # a damping above overshoots < 1.5 %: a first order with a dead time
 _TAUS = np.concatenate(([0.0], np.geomspace(0.02, 2.0, 22)))
 
 
@@ -115,9 +95,9 @@ def _linear(m: AxisModel, c: np.ndarray, coupled: bool = False,
 
 
 def _grid(u, wabs, y, w, dt, m: AxisModel, coupled: bool, max_d: float,
-          free: tuple = ('d', 'tau'), acmd=None) -> tuple[AxisModel, float]:
+          free: tuple = ('d', 'tau'), acmd=None, taus=None) -> tuple[AxisModel, float]:
     """Return the best (d, tau) on grids (others fixed) with g, k, slip solved linearly."""
-    taus = _TAUS if 'tau' in free else [m.tau]
+    taus = taus if taus is not None else _TAUS if 'tau' in free else [m.tau]
     step = max(1, int(round(0.04 / dt)))
     ds = [k * dt for k in range(0, int(max_d / dt) + 1, step)] if 'd' in free else [m.d]
     u1 = deadband(u, m.band)
@@ -125,9 +105,9 @@ def _grid(u, wabs, y, w, dt, m: AxisModel, coupled: bool, max_d: float,
     rl = np.column_stack([rate_limit(c, dt, m.limit) for c in cols])
     best = (math.inf, m)
     for tau in taus:
-        base = lag(rl, dt, float(tau))
+        base = response(rl, dt, float(tau), m.zeta)
         if acmd is not None:
-            base = np.column_stack((base, base[:, 0] * lag(acmd, dt, float(tau))))
+            base = np.column_stack((base, base[:, 0] * response(acmd, dt, float(tau), m.zeta)))
         for d in ds:
             c, sse = _solve(shift(base, d, dt), y, w, m.fixed_gain)
             if sse < best[0]:
@@ -205,27 +185,50 @@ def fit_axis(u: np.ndarray, wabs: Optional[np.ndarray], y: np.ndarray, w: np.nda
         m = best[1]
     if free and (m.band > 0 or math.isfinite(m.limit)):
         m, _ = _grid(u, wabs, y, w, dt, m, coupled, max_d, free, acmd)
+    if 'drive_damping' in parts and 'tau' in free and m.tau > 0:
+        m = _damped(u, wabs, y, w, dt, m, coupled, max_d, free, acmd)
     if refine and free:
         m = _refine(u, wabs, y, w, dt, m, coupled, max_d, acmd)
-    if refine and (m.band > 0 or math.isfinite(m.limit)):
+    if refine and (m.band > 0 or math.isfinite(m.limit) or m.zeta > 0):
         m = _refine_nonlinear(u, wabs, y, w, dt, m, coupled, acmd)
     m.parts = set(parts)
     return m
 
 
+def _damped(u, wabs, y, w, dt, m: AxisModel, coupled: bool, max_d: float, free: tuple,
+            acmd=None) -> AxisModel:
+    """
+    Return the better of ``m`` (first order) and a second-order response of about its delay.
+
+    Both with d and tau refined between grid points first: on the grid alone a
+    second order's slow start passes for the part of a dead time between two
+    grid points.
+    """
+    def sse(mm: AxisModel) -> float:
+        return _solve(regressors(u, wabs, dt, mm, coupled, acmd), y, w, mm.fixed_gain)[1]
+
+    near = [t for t in _TAUS if 0.5 * m.tau <= t <= 2.0 * m.tau] or [m.tau]
+    second = min((_grid(u, wabs, y, w, dt, replace(m, zeta=z), coupled, max_d, free, acmd,
+                        near) for z in _ZETAS), key=lambda ms: ms[1])[0]
+    first = _refine(u, wabs, y, w, dt, m, coupled, max_d, acmd)
+    second = _refine(u, wabs, y, w, dt, second, coupled, max_d, acmd)
+    return second if sse(second) < sse(first) else first
+
+
 def _refine_nonlinear(u, wabs, y, w, dt, m: AxisModel, coupled: bool, acmd=None) -> AxisModel:
-    """Return ``m`` with its band and rate limit refined between grid points (log scale)."""
+    """Return ``m`` with its band, rate limit and damping refined between grid points (log)."""
     from scipy.optimize import minimize_scalar
 
     def sse(mm: AxisModel) -> float:
         return _solve(regressors(u, wabs, dt, mm, coupled, acmd), y, w, mm.fixed_gain)[1]
 
-    for key in ('band', 'limit'):
+    for key in ('band', 'limit', 'zeta'):
         v = getattr(m, key)
         if not (v > 0 and math.isfinite(v)):
             continue
+        top = v * 1.6 if key != 'zeta' else min(v * 1.6, _ZETA_MAX)
         r = minimize_scalar(lambda x: sse(replace(m, **{key: math.exp(x)})),
-                            bounds=(math.log(v / 1.6), math.log(v * 1.6)), method='bounded',
+                            bounds=(math.log(v / 1.6), math.log(top)), method='bounded',
                             options={'xatol': 1e-3})
         if r.fun < sse(m):
             m = replace(m, **{key: float(math.exp(r.x))})
@@ -438,6 +441,8 @@ def _eliminate(u, wa, yf, ok, held, chunk, dt, prm, parts: set, acmd=None,
 
     while True:
         full = fit_axis(u, wa, yf, fitw, dt, prm.drive_max_dead_time, cur, acmd=acmd)
+        if full.zeta <= 0:  # the first order fits better: no second order to test
+            cur.discard('drive_damping')
         r_full = yf - predict(u, wa, dt, full, acmd=acmd)
         stats = {p: test({p}, full, r_full) for p in sorted(cur)}
         # a dead time and a lag that stand in for each other: kept together when the
@@ -456,6 +461,8 @@ def _eliminate(u, wa, yf, ok, held, chunk, dt, prm, parts: set, acmd=None,
                 cur.add('drive_gain')
             return cur, stats
         cur.discard(min(bad, key=lambda p: stats[p][0]))
+        if 'drive_lag' not in cur:
+            cur.discard('drive_damping')
         if not cur:
             return cur, stats
 
@@ -489,7 +496,8 @@ def _findings(pt: PairedTopic, f: str, m: AxisModel, stats: dict, ok: np.ndarray
     out = []
     y = np.nan_to_num(yr)
     scale = float(np.percentile(np.abs(u[ok]), 95)) if ok.any() else 0.0
-    for p in sorted(m.parts):
+    second = _second_order(m, stats)
+    for p in sorted(m.parts - {'drive_damping'}):
         z, thr, nb, red, hb, ha, _, full, together = stats[p]
         # the models of the test (fitted on the fitted part), on the samples where the part
         # changes the prediction, as it was tested
@@ -530,49 +538,19 @@ def _findings(pt: PairedTopic, f: str, m: AxisModel, stats: dict, ok: np.ndarray
         fd['confidence'] = confidence(fd['evidence_strength'], alts)
         if math.isfinite(std):  # as the other findings give it (findings.make_finding)
             fd['ci95'] = {key: [val - 1.96 * std, val + 1.96 * std]}
+        if p == 'drive_lag' and second:
+            zsd = float(sd['zeta']) if sd and 'zeta' in sd else math.nan
+            fd['parameters']['damping'] = m.zeta
+            fd['units']['damping'] = ''
+            fd['std']['damping'] = zsd
+            fd['explanation'] += ' ' + _damping_sentence(m.zeta, zsd, second)
+            fd['evidence']['damping_z'] = second[0]
         out.append(fd)
     return out
 
 
-def _sentence(p: str, f: str, val: float, sd: float = math.nan) -> str:
-    ax, v = axis_name(f), DI.with_std(val, sd)
-    if p == 'drive_lag':
-        return f'The real {ax} follows the command with a first-order lag of {v} s.'
-    if p == 'drive_dead_time':
-        return f'The real {ax} starts to follow the command {DI.with_std(val, sd, 1000.0)} ' \
-            'ms late (dead time, before the lag).'
-    if p == 'drive_deadband':
-        return f'{ax.capitalize()} commands smaller than {v} {unit_of(f)} move nothing (deadband).'
-    if p == 'drive_rate_limit':
-        return f'The real {ax} changes no faster than {v} {unit_of(f)}/s (acceleration limit).'
-    if p == 'drive_gain':
-        return f'The real {ax} settles at {DI.with_std(1.0 + val, sd, 100.0)} % of the ' \
-            'command (steady-state gain, fitted with the dynamics).'
-    v = f'({v})' if '+-' in v else v
-    return f'The real forward speed drops while turning: speed = command x (1 - {v} ' \
-        '|omega|), omega in rad/s.'
-
-
-def describe(models: dict) -> str:
-    """Return the drive in its own terms, one clause per axis."""
-    parts = []
-    for f, m in models.items():
-        s = f'{axis_name(f)}: '
-        bits = []
-        if m.d > 0 and 'drive_dead_time' in m.parts:
-            bits.append(f'{m.d:.2f} s dead time')
-        if 'drive_lag' in m.parts:
-            bits.append(f'{m.tau:.2f} s time constant')
-        if not bits:
-            bits.append('no lag')
-        s += ' + '.join(bits)
-        if 'drive_gain' in m.parts:
-            s += f', settles at {100 * (1 + m.gain):.1f} % of the command'
-        if 'turn_speed_loss' in m.parts:
-            s += f', slows by {m.k:.2f} x |omega| in turns'
-        if 'drive_deadband' in m.parts:
-            s += f', deadband {m.band:.3g} {unit_of(f)}'
-        if 'drive_rate_limit' in m.parts:
-            s += f', rate limit {m.limit:.3g} {unit_of(f)}/s'
-        parts.append(s)
-    return 'Drive model (fitted together): ' + '; '.join(parts) + '.'
+def _second_order(m: AxisModel, stats: dict) -> Optional[tuple]:
+    """Return the damping's test (z, threshold, pieces) when the lag is named second order."""
+    if m.zeta > 0 and {'drive_lag', 'drive_damping'} <= m.parts and 'drive_damping' in stats:
+        return stats['drive_damping'][:3]
+    return None

@@ -8,6 +8,9 @@ The drive chain's pieces (:mod:`.drive` fits them): one axis' model and its resp
     u3 = rate limited u2, |du3/dt| <= limit          drive_rate_limit (limit)
     u4 = u3 (t - d)                                  drive_dead_time (d, s)
     y  = (1 + g) lag(u4, tau)                        drive_lag (tau, s), drive_gain (g)
+
+where the lag is first order, or second order with a damping zeta (``drive_lag``'s
+``damping``) and the same mean delay tau.
 """
 
 from __future__ import annotations
@@ -17,7 +20,8 @@ import math
 from typing import Optional
 
 import numpy as np
-from scipy.signal import lfilter
+from robot_calib.sim.drive import second_order_coefficients
+from scipy.signal import lfilter, lfilter_zi
 
 
 @dataclass
@@ -33,6 +37,7 @@ class AxisModel:
     slip: float = 0.0
     parts: set = field(default_factory=set)
     fixed_gain: bool = False  # g held at 0 (the reduced model of the gain's test)
+    zeta: float = 0.0  # damping of a second-order response of mean delay tau (0: first order)
 
 
 def deadband(u: np.ndarray, band: float) -> np.ndarray:
@@ -75,6 +80,16 @@ def lag(x: np.ndarray, dt: float, tau: float) -> np.ndarray:
     return y
 
 
+def response(x: np.ndarray, dt: float, tau: float, zeta: float = 0.0) -> np.ndarray:
+    """Return ``x`` through the first-order lag ``tau`` (s), or the second order (``zeta`` > 0)."""
+    if zeta <= 0 or tau <= 0:
+        return lag(x, dt, tau)
+    b, a = second_order_coefficients(float(dt), float(tau), float(zeta))
+    zi = lfilter_zi(b, a)
+    y, _ = lfilter(b, a, x, axis=0, zi=zi * x[0] if x.ndim == 1 else zi[:, None] * x[:1])
+    return y
+
+
 def shift(x: np.ndarray, d: float, dt: float) -> np.ndarray:
     """Return ``x`` delayed by ``d`` s (linear interpolation, held at the start)."""
     if d <= 0:
@@ -109,9 +124,9 @@ def regressors(u: np.ndarray, wabs: Optional[np.ndarray], dt: float, m: AxisMode
     """
     u1 = deadband(u, m.band)
     cols = [u1] + ([u1 * wabs] if coupled and wabs is not None else [])
-    out = [lag(rate_limit(c, dt, m.limit), dt, m.tau) for c in cols]
+    out = [response(rate_limit(c, dt, m.limit), dt, m.tau, m.zeta) for c in cols]
     if acmd is not None:
-        out.append(out[0] * lag(acmd, dt, m.tau))
+        out.append(out[0] * response(acmd, dt, m.tau, m.zeta))
     return shift(np.column_stack(out), m.d, dt)
 
 
@@ -125,11 +140,12 @@ def predict(u: np.ndarray, wabs: Optional[np.ndarray], dt: float, m: AxisModel,
     u1 = deadband(u, m.band)
     if wabs is not None and m.k:
         u1 = u1 * (1.0 - m.k * wabs)
-    y = shift(lag(rate_limit(u1, dt, m.limit), dt, m.tau), m.d, dt)
+    y = shift(response(rate_limit(u1, dt, m.limit), dt, m.tau, m.zeta), m.d, dt)
     if not gain:
         return y
     y = (1.0 + m.gain) * y
     if acmd is not None and m.slip:
-        y = y + m.slip * shift(lag(rate_limit(deadband(u, m.band), dt, m.limit), dt, m.tau) *
-                               lag(acmd, dt, m.tau), m.d, dt)
+        y = y + m.slip * shift(response(rate_limit(deadband(u, m.band), dt, m.limit), dt,
+                                        m.tau, m.zeta) * response(acmd, dt, m.tau, m.zeta),
+                               m.d, dt)
     return y

@@ -279,6 +279,9 @@ class _Mapper:
             if e == 'drive_lag':
                 # cascaded first-order lags: the sum of time constants keeps the mean delay
                 self.add(f'drive.{axis}_time_constant', par['tau'], why)
+                if par.get('damping'):  # second order, of the same mean delay
+                    self.v[f'drive.{axis}_damping'] = float(par['damping'])
+                    self.note(f'drive.{axis}_damping', why)
             elif e == 'drive_dead_time':
                 self.add(f'drive.{axis}_dead_time', par['tau'], why)
             elif e == 'drive_gain':

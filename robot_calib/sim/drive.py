@@ -12,7 +12,10 @@ per axis in this order (:class:`~robot_calib.sim.params.DriveParams`):
 3. steady-state gain: ``(1 + g) u``;
 4. rate limit: ``|du/dt| <= a_max`` (acceleration saturation, as a controller's
    speed limiter does);
-5. first-order lag ``tau``: ``tau y' + y = u`` (exact for a held sample);
+5. first-order lag ``tau``: ``tau y' + y = u`` (exact for a held sample), or,
+   with a damping ``zeta > 0``, the second-order response
+   ``y'' + 2 zeta wn y' + wn^2 y = wn^2 u`` of the same mean delay
+   ``tau = 2 zeta / wn`` (overshoot for ``zeta < 1``);
 
 then the couplings between the axes:
 
@@ -31,11 +34,29 @@ advance one control tick at a time). All stages off is the identity.
 
 from __future__ import annotations
 
+from functools import lru_cache
 import math
 
 import numpy as np
 
 from robot_calib.sim.params import DriveParams
+
+
+@lru_cache(maxsize=512)
+def second_order_coefficients(dt: float, tau: float, zeta: float) -> tuple:
+    """
+    Return (b, a) of the discrete second-order response, mean delay ``tau`` (s), damping ``zeta``.
+
+    ``wn^2 / (s^2 + 2 zeta wn s + wn^2)`` with ``wn = 2 zeta / tau`` (the mean
+    delay of its step response is ``tau``, as a first-order lag's), held
+    between samples ``dt`` (s) apart (zero-order hold, exact), read one sample
+    earlier as the first-order lag ``y[k] = a y[k-1] + (1 - a) u[k]`` is.
+    """
+    from scipy.signal import cont2discrete
+
+    wn = 2.0 * zeta / tau
+    num, den, _ = cont2discrete(([wn * wn], [1.0, 2.0 * zeta * wn, wn * wn]), dt, method='zoh')
+    return tuple(np.ravel(num)[1:]), tuple(np.ravel(den))
 
 
 class DriveDynamics:
@@ -63,6 +84,10 @@ class DriveDynamics:
         self.rate = np.array([p.linear_rate_limit, p.angular_rate_limit]) * self.dt
         taus = (p.linear_time_constant, p.angular_time_constant)
         self.alpha = [math.exp(-self.dt / tau) if tau > 0 else 0.0 for tau in taus]
+        zetas = (p.linear_damping, p.angular_damping)
+        self.second = [second_order_coefficients(self.dt, tau, z) if tau > 0 and z > 0
+                       else None for tau, z in zip(taus, zetas)]
+        self.state2 = [np.zeros(2), np.zeros(2)]
         self.history = [np.zeros(n) for n in self.delay]
         self.limited = np.zeros(2)
         self.lagged = np.zeros(2)
@@ -100,6 +125,10 @@ class DriveDynamics:
         if a == 0.0:
             return u
         from scipy.signal import lfilter
+        if self.second[j] is not None:
+            b2, a2 = self.second[j]
+            y, self.state2[j] = lfilter(b2, a2, u, zi=self.state2[j])
+            return y
         y, _ = lfilter([1.0 - a], [1.0, -a], u, zi=[a * float(self.lagged[j])])
         self.lagged[j] = y[-1]
         return y

@@ -243,6 +243,12 @@ class DriveParams:
                                         'its command (0: none)', minimum=0.0, maximum=10.0)
     angular_time_constant: float = param(0.0, 's', 'first-order lag of the turn rate behind '
                                          'its command (0: none)', minimum=0.0, maximum=10.0)
+    linear_damping: float = param(0.0, '', 'damping of a second-order forward response of '
+                                  'mean delay linear_time_constant (0: first order; below 1 '
+                                  'it overshoots)', minimum=0.0, maximum=10.0)
+    angular_damping: float = param(0.0, '', 'damping of a second-order turn-rate response of '
+                                   'mean delay angular_time_constant (0: first order)',
+                                   minimum=0.0, maximum=10.0)
     turn_speed_loss: float = param(0.0, 's/rad', 'forward speed lost in turns: v = v (1 - k '
                                    '|omega|), omega the turn rate after its dynamics (floored '
                                    'at 0)', minimum=0.0, maximum=10.0)
