@@ -25,7 +25,8 @@ weak ones sorted out (:func:`_sort_minor_and_weak`). In three stages:
    drift apart), not a latency. The simulation is then delayed by it.
 2. amplitude: forward selection of the library's effects on the aligned
    residual (:mod:`.select`), kept only when they pass a block-robust test
-   (:mod:`.robust`) and improve held-out time.
+   (:mod:`.robust`) and improve held-out time; a window only when the effect's
+   change at its edges passes that test too, else the effect is global.
 3. what is left: structure beyond noise that no effect explains becomes one
    ``unexplained`` finding (where, how large, what it follows), never a
    forced wrong name (:mod:`.residual`).

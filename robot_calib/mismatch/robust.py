@@ -24,6 +24,11 @@ A constant offset that shows in every block passes with a few blocks; a
 "scale" that only follows the ground truth's errors in some stretches does
 not.
 
+An effect in a window claims that it changes at the window's edges.
+:func:`window_prune` fits it inside and outside the window and judges the
+difference the same way; a window whose edges fail (a residual that wanders
+slowly sits lower in a stretch left out) is dropped and the effect is global.
+
 A gain (a scale, a cross-axis term) acts the same on slow and on fast motion.
 :func:`band_prune` splits its regressor into a slow part (a moving average)
 and the fast rest and fits both. When the two coefficients differ by the same
