@@ -25,7 +25,8 @@ weak ones sorted out (:func:`_sort_minor_and_weak`). In three stages:
    drift apart), not a latency. The simulation is then delayed by it.
 2. amplitude: forward selection of the library's effects on the aligned
    residual (:mod:`.select`), kept only when they pass a block-robust test
-   (:mod:`.robust`) and improve held-out time.
+   (:mod:`.robust`) and improve held-out time; a window only when the effect's
+   change at its edges passes that test too, else the effect is global.
 3. what is left: structure beyond noise that no effect explains becomes one
    ``unexplained`` finding (where, how large, what it follows), never a
    forced wrong name (:mod:`.residual`).
@@ -139,12 +140,10 @@ def _implausible(prob: Problem, sel: list, not_judged: list, notes: list, cands:
                          'with a physical value and is reported instead')
             continue
         dropped.append((t, params))
-        pt = prob.pt
-        where = 'the whole recording' if t.window is None else \
-            f'{pt.t[t.window[0]]:.1f}-{pt.t[min(t.window[1], prob.n) - 1]:.1f} s'
-        not_judged.append({'channel': t.channel, 'reason': f'in {where} the real channel does '
-                           f'not follow the simulation (the best {t.effect} fit, {desc}, is far '
-                           'beyond a physical value; is the simulated signal noise there?)'})
+        not_judged.append({'channel': t.channel, 'reason': f'in {_where(t, prob)} the real '
+                           f'channel does not follow the simulation (the best {t.effect} fit, '
+                           f'{desc}, is far beyond a physical value; is the simulated signal '
+                           'noise there?)'})
     # a channel that does not follow the simulation over the whole recording carries no
     # other finding either (an offset fitted to unrelated motion is no gyro bias)
     lost = {f for t, _ in dropped if t.window is None and len(t.cols) == 1 for f in t.cols}
@@ -177,6 +176,13 @@ def _plain_offsets(prob: Problem, sel: list, prm: MismatchParams) -> list:
     return out
 
 
+def _where(t: E.Term, prob: Problem) -> str:
+    """Return where a term acts: 'the whole recording' or its window in seconds."""
+    if t.window is None:
+        return 'the whole recording'
+    return f'{prob.pt.t[t.window[0]]:.1f}-{prob.pt.t[min(t.window[1], prob.n) - 1]:.1f} s'
+
+
 def _min_len(prob: Problem, prm: MismatchParams) -> int:
     """Return the shortest effect window (samples); longer than the recording in seed mode."""
     if prm.mode == 'seed':  # global effects only
@@ -205,6 +211,11 @@ def _select(prob: Problem, cands: list, prm: MismatchParams, edges: np.ndarray,
     if sel and prm.mode != 'seed':
         sel = S.refine_windows(prob, sel, min_len)
         sel = S.unexcited_windows(prob, sel)
+        sel, wide = R.window_prune(prob, sel, edges, prm.window_alpha, prm.min_block_s)
+        notes.extend(f'{t.channel}: a candidate {t.effect} fits in {_where(t, prob)}, but its '
+                     f'change at the edges is not consistent across the recording (robust test '
+                     f'{w[2]:.3g} < {w[3]:.3g} over {w[4]:.1f} blocks); reported over the whole '
+                     'recording' for t, w in wide)
     sel = S.refine_nonlinear(prob, sel)
     sel = S.backward_eliminate(prob, sel, prm.margin)
     sel, dropped = R.robust_prune(prob, sel, edges, prm.alpha,

@@ -36,6 +36,10 @@ class MismatchParams:
     max_terms: int = param(14, '', 'most effects selected per topic', minimum=1)
     alpha: float = param(1e-6, '', 'false-alarm probability of the block-robust test an '
                          'effect must pass', minimum=1e-15, maximum=0.5)
+    window_alpha: float = param(1e-3, '', 'false-alarm probability of the block-robust test '
+                                'that a windowed effect changes at its window edges; a window '
+                                'that fails it is reported over the whole recording',
+                                minimum=1e-15, maximum=0.5)
     gain_band_s: float = param(0.25, 's', 'moving average splitting a gain (scale, cross-axis) '
                                'into slow and fast motion; a gain whose two parts differ by the '
                                'block-robust test while the slow one fails it is not reported '

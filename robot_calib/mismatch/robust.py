@@ -24,6 +24,11 @@ A constant offset that shows in every block passes with a few blocks; a
 "scale" that only follows the ground truth's errors in some stretches does
 not.
 
+An effect in a window claims that it changes at the window's edges.
+:func:`window_prune` fits it inside and outside the window and judges the
+difference the same way; a window whose edges fail (a residual that wanders
+slowly sits lower in a stretch left out) is dropped and the effect is global.
+
 A gain (a scale, a cross-axis term) acts the same on slow and on fast motion.
 :func:`band_prune` splits its regressor into a slow part (a moving average)
 and the fast rest and fits both. When the two coefficients differ by the same
@@ -159,7 +164,7 @@ def sandwich(prob: Problem, terms: list, fit: S.Fit,
     return C @ B @ C * (k / (k - p))
 
 
-def wald_bar(p: int, blocks: int, alpha: float) -> float:
+def wald_bar(p: int, blocks: float, alpha: float) -> float:
     """
     Return the bar a robust Wald statistic of ``p`` coefficients over ``blocks`` must pass.
 
@@ -272,3 +277,87 @@ def band_prune(prob: Problem, sel: list, edges: np.ndarray, alpha: float,
         else:
             out.append(t)
     return out, dropped
+
+
+def effective_blocks(prob: Problem, term, edges: np.ndarray) -> float:
+    """
+    Return the effective number of blocks carrying the term: ``(sum E_b)^2 / sum E_b^2``.
+
+    ``E_b`` is the term's weighted regressor energy in block ``b`` (its share of
+    the information). Blocks weighted unequally (quiet stretches weigh more)
+    count for fewer (Kish 1965, effective sample size of a weighted sample).
+    """
+    e = _block_energy(prob, term, edges)
+    s2 = float(np.sum(e * e))
+    return float(np.sum(e)) ** 2 / s2 if s2 > 0 else 0.0
+
+
+def _outside(term):
+    """Return ``term`` acting everywhere except in its window (its own group)."""
+    i0, i1 = term.window
+    cols = {}
+    for f, c in term.cols.items():
+        c = np.array(c, dtype=float)
+        c[i0:i1] = 0.0
+        cols[f] = c
+    return term.with_window(None).with_cols(cols, f'{term.group}:outside')
+
+
+def window_test(prob: Problem, sel: list, j: int, edges: np.ndarray, alpha: float,
+                min_block_s: float = 1.0) -> Optional[tuple]:
+    """
+    Return ``(inside, outside, W, threshold, K_e)`` of the windowed term ``sel[j]``.
+
+    A window claims the effect changes at its edges. The term is fitted inside
+    its window and, as a second term, outside it (the same regressors, zero
+    inside), with the other selected terms. ``W`` is the robust Wald statistic
+    of the difference of the two coefficients (block sandwich on the blocks
+    that judge the term itself, :func:`focused_edges`: a short window is cut
+    finer, as in :func:`wald`); it must pass ``p F(p, K_e - p)`` at ``alpha``,
+    ``K_e`` the effective number of blocks (:func:`effective_blocks`) of the
+    side holding fewer. A residual that wanders slowly makes a step at any edge
+    significant to the selection's white-noise score, but not consistently
+    across blocks: a window leaving out a stretch of a few blocks, where the
+    residual happens to sit lower, is no evidence that the effect is absent
+    there. None when a side has too few blocks for a covariance (or the term
+    is nonlinear).
+    """
+    t = sel[j]
+    if t.window is None or 'offset' in t.meta or 'theta' in t.meta:
+        return None
+    out = _outside(t)
+    model = sel[:j] + sel[j + 1:] + [t, out]
+    fit = S.fit(prob, model, contributions=True)
+    edges = focused_edges(prob, t, edges, min_block_s)
+    V = sandwich(prob, model, fit, edges)
+    p = t.p
+    ke = min(effective_blocks(prob, t, edges), effective_blocks(prob, out, edges))
+    if V is None or ke <= p:
+        return None
+    d = np.asarray(fit.betas[-2], float) - np.asarray(fit.betas[-1], float)
+    P = V.shape[0]
+    ii, io = np.arange(P - 2 * p, P - p), np.arange(P - p, P)
+    Vd = V[np.ix_(ii, ii)] + V[np.ix_(io, io)] - V[np.ix_(ii, io)] - V[np.ix_(io, ii)]
+    try:
+        w = float(d @ np.linalg.solve(Vd + 1e-300 * np.eye(p), d))
+    except np.linalg.LinAlgError:
+        return None
+    if not np.isfinite(w):
+        return None
+    return (fit.betas[-2], fit.betas[-1], w, wald_bar(p, ke, alpha), ke)
+
+
+def window_prune(prob: Problem, sel: list, edges: np.ndarray, alpha: float,
+                 min_block_s: float = 1.0) -> tuple[list, list]:
+    """
+    Make global the windowed terms whose change at the window's edges fails :func:`window_test`.
+
+    Returns (terms, widened) with ``widened`` holding ``(term as it was, test)``.
+    """
+    out, widened = list(sel), []
+    for j, t in enumerate(sel):
+        test = window_test(prob, out, j, edges, alpha, min_block_s)
+        if test is not None and test[2] < test[3]:
+            out[j] = t.with_window(None)
+            widened.append((t, test))
+    return out, widened
