@@ -37,6 +37,7 @@ from typing import Optional
 
 import numpy as np
 
+from robot_calib.mismatch import drive_cap as DC
 from robot_calib.mismatch import drive_interval as DI
 from robot_calib.mismatch import effects as E
 from robot_calib.mismatch import latency as L
@@ -313,21 +314,36 @@ def analyse_drive(pt: PairedTopic, prm, acmd: Optional[np.ndarray] = None,
                               acd if f == V else None, held, piece, dt, prm, f in late, period)
         if chosen is not None:
             out_models[f] = chosen
+    # a differential drive's wheel-speed cap, over both axes (the axes fitted again under it)
+    judged = DC.judge(sim_d, real_d, wabs, acd, held, piece, dt, prm, late, period,
+                      out_models) if pt.msgtype == ODOM_TYPE and prm.drive_wheel_cap else None
+    cap = judged[0] if judged else None
+    if judged:
+        out_models = judged[1]
+        vh, wh = DC._axes({f: m for f, (m, _, _) in out_models.items()}, sim_d, wabs, acd, dt)
+        s_d = DC.scale(vh, wh, cap)
+        real_d = {f: real_d[f] / s_d for f in real_d}  # the axes' findings: under the cap
+        found.append(DC.finding(pt.name, cap, judged[2], float(np.mean(s_d < 0.99))))
     dyn = {p for m, _, _ in out_models.values() for p in m.parts} - {
         'drive_dead_time', 'drive_gain'}
-    if not dyn:
+    if not dyn and cap is None:
         return None
     wfull = np.abs(_filled(pt.sim[W])) if W in pt.sim else None
+    s_full = DC.scale(*(predict(_filled(pt.sim[f]), wfull if f == V else None, pt.dt,
+                                out_models[f][0]) for f in (V, W)), cap) if cap else 1.0
     for f, (model, stats, ok) in out_models.items():
         u = _filled(pt.sim[f])
         # the named gain is the drive's (the amplitude stage judges scales on what it leaves)
         sims[f] = np.where(np.isfinite(pt.sim[f]), predict(
             u, wfull if f == V else None, pt.dt, model, gain=False) * (
-                1.0 + model.gain if 'drive_gain' in model.parts else 1.0), np.nan)
+                1.0 + model.gain if 'drive_gain' in model.parts else 1.0) * s_full, np.nan)
         ud, wd, ad = _filled(sim_d[f]), wabs if f == V else None, acd if f == V else None
         sd = DI.axis_std(ud, wd, np.nan_to_num(real_d[f]), ok, dt, ad, prm, model)
         found.extend(_findings(pt, f, model, stats, ok, held, ud, real_d[f], wd, dt, ad, sd))
     text = describe({f: m for f, (m, _, _) in out_models.items()})
+    if cap:
+        text = text[:-1] + f'; both capped where the faster wheel would pass {cap.limit:.3g} ' \
+            f'm/s (|v| + {cap.half:.3g} |omega|).'
     for fd in found:
         fd['explanation'] += ' ' + text
     return DriveResult({f: m for f, (m, _, _) in out_models.items()}, found, sims, text)

@@ -62,6 +62,8 @@ class MismatchParams:
     drive_model: bool = param(True, '', 'fit the drive chain (dead time, lag, deadband, rate '
                               'limit, turn-coupled speed loss) on odometry speed and turn rate '
                               'before the amplitude effects')
+    drive_wheel_cap: bool = param(True, '', 'look for a wheel-speed cap on a differential '
+                                  'drive odometry (speed and turn rate shrinking together)')
     drive_alpha: float = param(1e-3, '', 'false-alarm probability of the held-out chunk test '
                                'a part of the drive model must pass', minimum=1e-15,
                                maximum=0.5)
