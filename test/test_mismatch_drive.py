@@ -129,6 +129,14 @@ def test_second_order_step_overshoots_and_chain_matches_the_simulator():
     assert np.max(np.abs(chain - sim)) < 1e-9
 
 
+def test_a_lagging_drive_names_its_lags_and_nothing_else():
+    """Two first-order lags: no deadband, limit, loss or gain of size zero beside them."""
+    sim, real = _pair(9, D.AxisModel(tau=0.3), D.AxisModel(tau=0.2))
+    res, _ = analyse_recordings(sim, real)
+    named = {f['effect'] for f in res['findings'] + res['minor_findings']}
+    assert named == {'drive_lag'}, res['drive']
+
+
 def test_drive_null_pair_has_no_finding():
     sim, real = _pair(5, D.AxisModel(), D.AxisModel())
     res, _ = analyse_recordings(sim, real)

@@ -213,7 +213,8 @@ def _damped(u, wabs, y, w, dt, m: AxisModel, coupled: bool, max_d: float, free: 
                         near) for z in _ZETAS), key=lambda ms: ms[1])[0]
     first = _refine(u, wabs, y, w, dt, m, coupled, max_d, acmd)
     second = _refine(u, wabs, y, w, dt, second, coupled, max_d, acmd)
-    return second if sse(second) < sse(first) else first
+    # the first order as the grid left it, as every model without a damping is in the test
+    return second if sse(second) < sse(first) else m
 
 
 def _refine_nonlinear(u, wabs, y, w, dt, m: AxisModel, coupled: bool, acmd=None) -> AxisModel:
@@ -435,8 +436,10 @@ def _eliminate(u, wa, yf, ok, held, chunk, dt, prm, parts: set, acmd=None,
     scale = float(np.percentile(np.abs(u[ok]), 95)) if ok.any() else 0.0
 
     def test(drop: set, full: AxisModel, r_full: np.ndarray) -> tuple:
+        # a second order's d and tau are refined between grid points: so is the first order
+        # it is tested against
         red = fit_axis(u, wa, yf, fitw, dt, prm.drive_max_dead_time, cur - drop, acmd=acmd,
-                       fixed_gain='drive_gain' in drop)
+                       fixed_gain='drive_gain' in drop, refine='drive_damping' in drop)
         r_red = yf - predict(u, wa, dt, red, acmd=acmd)
         # judged where the part changes the prediction (a deadband acts on slow commands
         # only): chosen by the fitted models, not by the held-out data
