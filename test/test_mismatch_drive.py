@@ -137,6 +137,36 @@ def test_a_lagging_drive_names_its_lags_and_nothing_else():
     assert named == {'drive_lag'}, res['drive']
 
 
+@pytest.mark.parametrize('seed,limit', [(9, 0.3), (7, 0.18)])
+def test_wheel_speed_cap_found_with_the_lags_under_it(seed, limit):
+    """A differential drive whose faster wheel is capped (18 % or 57 % of the time)."""
+    from robot_calib.mismatch import drive_cap as DC
+
+    t, v, w = _commands(seed)
+    dt = t[1] - t[0]
+    lv = D.predict(v, None, dt, D.AxisModel(tau=0.3))
+    lw = D.predict(w, None, dt, D.AxisModel(tau=0.2))
+    s = DC.scale(lv, lw, DC.WheelCap(limit, 0.15))
+    rng = np.random.default_rng(seed + 100)
+
+    def rec(a, b):
+        return {'/odom': Topic('/odom', ODOM_TYPE, t, {D.V: a, D.W: b})}
+    res, _ = analyse_recordings(rec(v, w), rec(s * lv + 0.004 * rng.standard_normal(t.size),
+                                               s * lw + 0.01 * rng.standard_normal(t.size)))
+    cap = next(f for f in res['findings'] if f['effect'] == 'wheel_speed_limit')
+    assert cap['parameters']['limit'] == pytest.approx(limit, rel=0.05), cap
+    assert cap['parameters']['half_track'] == pytest.approx(0.15, rel=0.15), cap
+    for field, tau in ((D.V, 0.3), (D.W, 0.2)):
+        assert _found(res, 'drive_lag', field) == pytest.approx(tau, rel=0.25), res['drive']
+    # nothing else of the drive is named beside the cap and the lags, no scale over 2 %
+    drive = {f['effect'] for f in res['findings'] if f['effect'].startswith('drive_') or
+             f['effect'] == 'turn_speed_loss'}
+    assert drive == {'drive_lag'}, res['drive']
+    scales = [f['parameters']['scale'] for f in res['findings']
+              if f['effect'] in ('track_width_scale', 'wheel_radius_scale')]
+    assert all(abs(k) < 0.02 for k in scales), scales
+
+
 def test_drive_null_pair_has_no_finding():
     sim, real = _pair(5, D.AxisModel(), D.AxisModel())
     res, _ = analyse_recordings(sim, real)

@@ -122,12 +122,16 @@ def test_findings_map_to_the_simulator_as_real_equals_f_of_sim(pair, tmp_path):
             ('track_width_scale', '/odom.twist.twist.angular.z', {'scale': 0.1}),
             ('gyro_bias', '/imu.angular_velocity.z', {'bias': 0.01}),
             ('drive_rate_limit', '/odom.twist.twist.linear.x', {'limit': 0.7}),
+            ('wheel_speed_limit', '/odom.twist.twist.linear.x',
+             {'limit': 0.3, 'half_track': 0.15}),
             ('gyro_cross_axis', '/imu.angular_velocity.x', {'coefficient': 0.02})]
     export.write(tmp_path, _findings(ideal, real, rows), str(ideal))
     params = yaml.safe_load((tmp_path / 'sim_params.yaml').read_text())['sim']
     assert params['drive']['linear_gain'] == pytest.approx(0.05)
     assert params['drive']['angular_gain'] == pytest.approx(1 / 1.1 - 1)
     assert params['drive']['linear_rate_limit'] == pytest.approx(0.7)
+    # the faster wheel's rim speed 0.3 m/s is 6 rad/s of the simulated robot's 0.05 m radius
+    assert params['drive']['max_wheel_speed'] == pytest.approx(0.3 / 0.05)
     assert params['imu']['gyro_bias'] == pytest.approx([0.0, 0.0, 0.01])
     assert 'gyro_cross_axis' in (tmp_path / 'sim_params.yaml').read_text().split('\nsim:')[1]
     ros = yaml.safe_load((tmp_path / 'suggestions.yaml').read_text())[
@@ -137,6 +141,8 @@ def test_findings_map_to_the_simulator_as_real_equals_f_of_sim(pair, tmp_path):
     assert ros['wheel_separation_multiplier'] == pytest.approx(1 / 1.1 / 1.05, rel=1e-5)
     assert ros['linear']['x']['max_acceleration'] == pytest.approx(0.7)
     assert np.isnan(ros['angular']['z']['max_acceleration'])
+    assert ros['linear']['x']['max_velocity'] == pytest.approx(0.3)
+    assert ros['angular']['z']['max_velocity'] == pytest.approx(0.3 / 0.15)
     # the corrected simulation's odometry reads what the real one would: speed x 1.05
     scaled = tmp_path / 'scaled'
     assert cli.main(['simulate', 'follow', str(real), '--out', str(scaled),
