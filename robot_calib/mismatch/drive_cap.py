@@ -175,11 +175,18 @@ def judge(sim_d: dict, real_d: dict, wabs, acd, held: np.ndarray, piece: int, dt
     if has.sum() < 3:
         return None
     dlt = np.log((sse_r[has] + 1e-300) / (sse_f[has] + 1e-300))
-    z = float(np.mean(dlt) / (np.std(dlt, ddof=1) / math.sqrt(dlt.size)))
+    spread = float(np.std(dlt, ddof=1))
+    z = float(np.mean(dlt) / (spread / math.sqrt(dlt.size))) if spread > 0 else 0.0
     thr = L.t_quantile(prm.drive_alpha, dlt.size - 1)
     if not z > thr:
         return None
-    return cap, again, (z, thr, int(dlt.size))
+    # the forward speed's residual where the cap binds, without and with it
+    fit_rmse = {key: float(np.sqrt(np.mean(e[V][m] ** 2))) if m.any() else None
+                for key, e, m in (('rmse_before', er, fitw & (s < 0.99)),
+                                  ('rmse_after', ef, fitw & (s < 0.99)),
+                                  ('heldout_rmse_before', er, binds),
+                                  ('heldout_rmse_after', ef, binds))}
+    return cap, again, (z, thr, int(dlt.size), fit_rmse)
 
 
 def finding(topic: str, cap: WheelCap, test: tuple, bound: float) -> dict:
@@ -187,8 +194,11 @@ def finding(topic: str, cap: WheelCap, test: tuple, bound: float) -> dict:
     from robot_calib.mismatch import drive as D
     from robot_calib.mismatch.findings import confidence
 
-    z, thr, pieces = test
-    strength = 1.0 - (thr / max(z, 1e-12)) ** 2 * 0.5
+    from robot_calib.mismatch import latency as L
+
+    z, thr, pieces, fit_rmse = test
+    # it passed the test at drive_alpha; its strength grows from the 5 % bar, as the axes' parts
+    strength = 1.0 - (L.t_quantile(0.05, max(pieces - 1, 1)) / max(z, 1e-12)) ** 2
     return {'channel': f'{topic}.{D.V}', 'effect': 'wheel_speed_limit',
             'parameters': {'limit': cap.limit, 'half_track': cap.half},
             'units': {'limit': 'm/s', 'half_track': 'm'}, 'window': None,
@@ -200,5 +210,4 @@ def finding(topic: str, cap: WheelCap, test: tuple, bound: float) -> dict:
             f'over {pieces} pieces).',
             'evidence': {'z': z, 'z_threshold': thr, 'blocks': pieces,
                          'test': 'held-out pieces of both axes with and without the cap'},
-            'confidence': confidence(max(0.0, min(1.0, strength)), []),
-            'fit': {}}
+            'confidence': confidence(max(0.0, min(1.0, strength)), []), 'fit': fit_rmse}
