@@ -167,6 +167,28 @@ def test_wheel_speed_cap_found_with_the_lags_under_it(seed, limit):
     assert all(abs(k) < 0.02 for k in scales), scales
 
 
+def test_a_cap_met_driving_straight_has_no_half_track():
+    """Capped only while hardly turning: the top speed named, its half track unknown (None)."""
+    from robot_calib.mismatch import drive_cap as DC
+
+    t, v, _ = _commands(9)
+    w = 0.01 * np.sin(t / 7.0)
+    dt = t[1] - t[0]
+    lv = D.predict(v, None, dt, D.AxisModel(tau=0.3))
+    lw = D.predict(w, None, dt, D.AxisModel(tau=0.2))
+    s = DC.scale(lv, lw, DC.WheelCap(0.25, 0.15))
+    rng = np.random.default_rng(109)
+
+    def rec(a, b):
+        return {'/odom': Topic('/odom', ODOM_TYPE, t, {D.V: a, D.W: b})}
+    res, _ = analyse_recordings(rec(v, w), rec(s * lv + 0.004 * rng.standard_normal(t.size),
+                                               s * lw + 0.01 * rng.standard_normal(t.size)))
+    cap = next(f for f in res['findings'] if f['effect'] == 'wheel_speed_limit')
+    assert cap['parameters']['limit'] == pytest.approx(0.25, rel=0.05), cap
+    assert cap['parameters']['half_track'] is None, cap
+    assert 'cannot be told' in cap['explanation']
+
+
 def test_drive_null_pair_has_no_finding():
     sim, real = _pair(5, D.AxisModel(), D.AxisModel())
     res, _ = analyse_recordings(sim, real)

@@ -29,6 +29,8 @@ HALVES = np.geomspace(0.05, 0.6, 12)  # m, half tracks searched
 QUANTILES = (50.0, 60.0, 70.0, 80.0, 85.0, 90.0, 94.0, 97.0, 99.0)  # of |v| + h |omega|
 MIN_SCALE = 0.3  # the real motion is divided by s no further than this
 ROUNDS = 3  # the axes and the cap fitted in turn
+HALF_TOLERANCE = 0.05  # a half track 40 % off fitting within this share is not told apart
+STRAIGHT = 0.8  # share of the capped rim speed from the forward speed: a straight-line cap
 
 
 @dataclass
@@ -37,6 +39,7 @@ class WheelCap:
 
     limit: float
     half: float
+    half_known: bool = True  # False: the cap bound only while driving nearly straight
 
 
 def scale(v: np.ndarray, w: np.ndarray, cap: Optional[WheelCap]) -> np.ndarray:
@@ -91,6 +94,38 @@ def _refine(vh, wh, yv, yw, wv, ww, cap: WheelCap) -> WheelCap:
     x0 = np.log([cap.limit, cap.half])
     r = minimize(sse, x0, method='Nelder-Mead', options={'xatol': 1e-4, 'fatol': 1e-9})
     return WheelCap(*map(float, np.exp(r.x))) if r.fun < sse(x0) else cap
+
+
+def _half_known(vh, wh, yv, yw, w: np.ndarray, cap: WheelCap) -> bool:
+    """
+    Return True when the data tell the half track: moving it by 40 % either way worsens the fit.
+
+    Each other half track gets its own limit; a cap that binds only while the
+    robot drives nearly straight fits as well with any (the fit changes by
+    under :data:`HALF_TOLERANCE` of its residual).
+    """
+    from scipy.optimize import minimize_scalar
+
+    vh, wh, yv, yw = vh[w], wh[w], yv[w], yw[w]
+
+    def sse(c: WheelCap) -> tuple:
+        s = scale(vh, wh, c)
+        return yv - s * vh, yw - s * wh
+    ev, ew = sse(cap)
+    wv, ww = 1.0 / max(float(ev @ ev) / ev.size, 1e-12), 1.0 / max(float(ew @ ew) / ew.size,
+                                                                   1e-12)
+    best = wv * float(ev @ ev) + ww * float(ew @ ew)
+    for factor in (0.7, 1.4):
+        half = cap.half * factor
+
+        def cost(x: float) -> float:
+            a, b = sse(WheelCap(math.exp(x), half))
+            return wv * float(a @ a) + ww * float(b @ b)
+        r = minimize_scalar(cost, bounds=(math.log(cap.limit / 3), math.log(cap.limit * 3)),
+                            method='bounded')
+        if r.fun - best < HALF_TOLERANCE * best:
+            return False
+    return True
 
 
 def _axes(models: dict, sim_d: dict, wabs, acd, dt: float, gain: bool = True) -> tuple:
@@ -162,6 +197,15 @@ def judge(sim_d: dict, real_d: dict, wabs, acd, held: np.ndarray, piece: int, dt
     if cap is None:
         return None
     s = scale(fv, fw, cap)
+    if not _half_known(fv, fw, yv, yw, fitw, cap):
+        # a cap met only while driving nearly straight is the top speed, its half track
+        # unknown; one met turning in place gives only limit / half: not named
+        capped = fitw & (s < 0.99)
+        rim = np.abs(fv[capped]) + cap.half * np.abs(fw[capped])
+        if not capped.any() or \
+                float(np.mean(np.abs(fv[capped]))) < STRAIGHT * float(np.mean(rim)):
+            return None
+        cap.half_known = False
     er = {V: yv - rv, W: yw - rw}
     ef = {V: yv - s * fv, W: yw - s * fw}
     wts = {f: 1.0 / max(float(np.mean(er[f][fitw] ** 2)), 1e-12) for f in (V, W)}
@@ -200,12 +244,18 @@ def finding(topic: str, cap: WheelCap, test: tuple, bound: float) -> dict:
     # it passed the test at drive_alpha; its strength grows from the 5 % bar, as the axes' parts
     strength = 1.0 - (L.t_quantile(0.05, max(pieces - 1, 1)) / max(z, 1e-12)) ** 2
     return {'channel': f'{topic}.{D.V}', 'effect': 'wheel_speed_limit',
-            'parameters': {'limit': cap.limit, 'half_track': cap.half},
+            'parameters': {'limit': cap.limit,
+                           'half_track': cap.half if cap.half_known else None},
             'units': {'limit': 'm/s', 'half_track': 'm'}, 'window': None,
             'channels': [f'{topic}.{D.V}', f'{topic}.{D.W}'],
-            'explanation': f"The faster wheel's rim speed is capped at {cap.limit:.3g} m/s "
-            f'(half track {cap.half:.3g} m): where |v| + {cap.half:.3g} |omega| would exceed it, '
-            f'speed and turn rate shrink together ({100 * bound:.0f} % of the time). Against '
+            'explanation': (f"The faster wheel's rim speed is capped at {cap.limit:.3g} m/s "
+                            f'(half track {cap.half:.3g} m): where |v| + {cap.half:.3g} |omega| '
+                            'would exceed it, speed and turn rate shrink together'
+                            if cap.half_known else
+                            f'The forward speed is capped at {cap.limit:.3g} m/s (a wheel-speed '
+                            'cap met only while driving nearly straight: the half track it '
+                            'acts about cannot be told from these data)') +
+            f' ({100 * bound:.0f} % of the time). Against '
             f'the same drive without the cap the held-out fit improves (z {z:.1f} > {thr:.1f} '
             f'over {pieces} pieces).',
             'evidence': {'z': z, 'z_threshold': thr, 'blocks': pieces,

@@ -208,10 +208,11 @@ class _Mapper:
             # own track
             r, half = float(self.v['robot.wheel_radius']), 0.5 * float(self.v['robot.track_width'])
             self.v['drive.max_wheel_speed'] = float(par['limit']) / r
+            found = par.get('half_track')
             self.note('drive.max_wheel_speed', why + (
-                f' (found about a half track of {par["half_track"]:.3g} m; the simulated '
-                f'robot has {half:.3g} m)' if abs(par['half_track'] - half) > 0.1 * half
-                else ''))
+                ' (its half track unknown: met driving straight)' if found is None else
+                f' (found about a half track of {found:.3g} m; the simulated robot has '
+                f'{half:.3g} m)' if abs(found - half) > 0.1 * half else ''))
         elif e == 'steering_offset':
             self.add('wheels.steering_offset', par['offset'], why)
         elif e in LIDAR_KEYS:

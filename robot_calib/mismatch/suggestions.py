@@ -48,8 +48,9 @@ def _controller(findings: dict) -> tuple[dict, list, list]:
             why.append(text)
         elif e == 'wheel_speed_limit':
             # the faster wheel's cap: its bounds driving straight and turning in place
+            half = par.get('half_track')
             speeds = {'linear': float(par['limit']),
-                      'angular': float(par['limit']) / float(par['half_track'])}
+                      'angular': math.nan if half is None else float(par['limit']) / half}
             why.append(text)
         elif e == 'drive_rate_limit':
             for axis in axes:
