@@ -234,7 +234,7 @@ def judge(sim_d: dict, real_d: dict, wabs, acd, held: np.ndarray, piece: int, dt
 
 
 def finding(topic: str, cap: WheelCap, test: tuple, bound: float) -> dict:
-    """Return the cap as a finding (``wheel_speed_limit``; ``bound``: fraction of time capped)."""
+    """Return the cap as reported (``wheel_speed_limit``; ``bound``: the share of time capped)."""
     from robot_calib.mismatch import drive as D
     from robot_calib.mismatch.findings import confidence
 
