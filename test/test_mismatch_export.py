@@ -157,7 +157,11 @@ def test_findings_map_to_the_simulator_as_real_equals_f_of_sim(pair, tmp_path):
 
 
 def test_an_effect_seen_on_several_channels_is_applied_once(tmp_path):
-    rows = [('drive_lag', '/odom.twist.twist.angular.z', {'tau': 0.3, 'damping': 0.5}),
+    rows = [('wheel_speed_limit', '/odom.twist.twist.linear.x',
+             {'limit': 0.3, 'half_track': 0.15}),
+            ('wheel_speed_limit', '/ground_truth/odom.twist.twist.linear.x',
+             {'limit': 0.29, 'half_track': None}),
+            ('drive_lag', '/odom.twist.twist.angular.z', {'tau': 0.3, 'damping': 0.5}),
             ('drive_lag', '/ground_truth/odom.twist.twist.angular.z', {'tau': 0.31}),
             ('drive_lag', '/joint_states.velocity.left_wheel_joint', {'tau': 0.4}),
             ('gyro_bias', '/imu.angular_velocity.z', {'bias': 0.01}),
@@ -167,5 +171,7 @@ def test_an_effect_seen_on_several_channels_is_applied_once(tmp_path):
     # the turn-rate lag from an angular channel, the forward lag from the wheel joint
     assert params['drive']['angular_time_constant'] == pytest.approx(0.3)
     assert params['drive']['angular_damping'] == pytest.approx(0.5)  # a second order
+    # one cap, the one whose half track is known: 0.3 m/s on the 0.05 m wheels
+    assert params['drive']['max_wheel_speed'] == pytest.approx(6.0)
     assert params['drive']['linear_time_constant'] == pytest.approx(0.4)
     assert params['imu']['gyro_bias'][2] == pytest.approx(0.01)

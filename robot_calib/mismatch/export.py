@@ -369,6 +369,9 @@ def one_per_slot(findings: list, topic_map: dict) -> tuple[list, list]:
         elif e in ('wheel_radius_scale', 'track_width_scale') and \
                 not field.startswith('velocity.'):
             slots = [((e,), (True, conf, -i), None)]
+        elif e == 'wheel_speed_limit':  # one cap of the robot; one with its half track first
+            known = (f.get('parameters') or {}).get('half_track') is not None
+            slots = [((e,), (known, conf, -i), None)]
         else:
             slots = [((e, f['channel']), (True, conf, -i), None)]
         for slot, rank, axes in slots:
