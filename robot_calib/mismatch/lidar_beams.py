@@ -122,23 +122,11 @@ def beam_findings(sim: list, real: list, topic: str, notes: list, not_judged: li
     sweep distortion; ``min_turn`` (rad): the summed turning over the compared scans
     below which the distortion is not judged.
     """
-    p = pair_scans(sim, real)
-    if p is None or p[0].shape[0] < 20:
-        not_judged.append({'channel': f'{topic}.ranges', 'reason': 'the beams are compared '
-                           'only between scans of the same stamps and beam angles (an ideal '
-                           'scan at the true pose, or a simulation replayed along the real '
-                           'path); these recordings have none in common'})
+    p = _comparable(sim, real, topic, not_judged)
+    if p is None:
         return []
-    rs, rr, ang, tt, dp = p
+    rs, rr, ang, tt, dp, agree = p
     inc = float(ang[1] - ang[0]) if ang.size > 1 else 1.0
-    both = np.isfinite(rs) & np.isfinite(rr)
-    agree = both & (np.abs(rr - rs) < 0.1 + 0.05 * np.nan_to_num(rs))
-    share = np.median(agree.sum(axis=1) / np.maximum(both.sum(axis=1), 1))
-    if share < 0.6:
-        not_judged.append({'channel': f'{topic}.ranges', 'reason': 'the two recordings do not '
-                           f'see the same geometry beam for beam (only {share:.0%} of the beams '
-                           'agree within 0.1 m + 5 %); the beams are not compared'})
-        return []
     ns, nbm = rs.shape
     blk_s = np.minimum((np.arange(ns) * BLOCKS) // ns, BLOCKS - 1)
     held_s = ((np.minimum((np.arange(ns) * CHUNKS) // ns, CHUNKS - 1)) % 3) == 2
@@ -195,6 +183,31 @@ def beam_findings(sim: list, real: list, topic: str, notes: list, not_judged: li
                                 held_s, topic, lambda f, b: _jack(f, b, BLOCKS), notes,
                                 _sim_noise(rs) or 0.01))
     return out
+
+
+def _comparable(sim: list, real: list, topic: str, not_judged: list) -> Optional[tuple]:
+    """
+    Return the paired scans and the beams that agree, or None (the reason in ``not_judged``).
+
+    (sim ranges, real ranges, beam angles, stamps, stamp differences, agreeing beams).
+    """
+    p = pair_scans(sim, real)
+    if p is None or p[0].shape[0] < 20:
+        not_judged.append({'channel': f'{topic}.ranges', 'reason': 'the beams are compared '
+                           'only between scans of the same stamps and beam angles (an ideal '
+                           'scan at the true pose, or a simulation replayed along the real '
+                           'path); these recordings have none in common'})
+        return None
+    rs, rr = p[0], p[1]
+    both = np.isfinite(rs) & np.isfinite(rr)
+    agree = both & (np.abs(rr - rs) < 0.1 + 0.05 * np.nan_to_num(rs))
+    share = np.median(agree.sum(axis=1) / np.maximum(both.sum(axis=1), 1))
+    if share < 0.6:
+        not_judged.append({'channel': f'{topic}.ranges', 'reason': 'the two recordings do not '
+                           f'see the same geometry beam for beam (only {share:.0%} of the beams '
+                           'agree within 0.1 m + 5 %); the beams are not compared'})
+        return None
+    return (*p, agree)
 
 
 def _judged(x: np.ndarray, xf: np.ndarray, sd: np.ndarray, names: list, d0: np.ndarray,
