@@ -25,6 +25,9 @@ from typing import Optional
 
 import numpy as np
 
+from robot_calib.mismatch import latency as L
+from robot_calib.mismatch.findings import confidence
+
 HALVES = np.geomspace(0.05, 0.6, 12)  # m, half tracks searched
 QUANTILES = (50.0, 60.0, 70.0, 80.0, 85.0, 90.0, 94.0, 97.0, 99.0)  # of |v| + h |omega|
 MIN_SCALE = 0.3  # the real motion is divided by s no further than this
@@ -159,7 +162,6 @@ def judge(sim_d: dict, real_d: dict, wabs, acd, held: np.ndarray, piece: int, dt
     cap passes Student's t at ``prm.drive_alpha`` on the pieces where it binds.
     """
     from robot_calib.mismatch import drive as D
-    from robot_calib.mismatch import latency as L
 
     V, W = D.V, D.W
     if V not in chosen or W not in chosen:
@@ -206,6 +208,22 @@ def judge(sim_d: dict, real_d: dict, wabs, acd, held: np.ndarray, piece: int, dt
                 float(np.mean(np.abs(fv[capped]))) < STRAIGHT * float(np.mean(rim)):
             return None
         cap.half_known = False
+    test = _heldout(yv, yw, (rv, rw), (fv, fw), s, ok, fitw, held, piece, prm)
+    return (cap, again, test) if test else None
+
+
+def _heldout(yv, yw, reduced: tuple, full: tuple, s: np.ndarray, ok: np.ndarray,
+             fitw: np.ndarray, held: np.ndarray, piece: int, prm) -> Optional[tuple]:
+    """
+    Return the cap's held-out test (z, threshold, pieces, fit RMSEs) when it passes, else None.
+
+    ``reduced``, ``full``: the two axes' chains without and with the cap (its factor ``s``),
+    both fitted on ``fitw``; judged on the held-out pieces where the cap binds.
+    """
+    from robot_calib.mismatch import drive as D
+
+    V, W = D.V, D.W
+    (rv, rw), (fv, fw) = reduced, full
     er = {V: yv - rv, W: yw - rw}
     ef = {V: yv - s * fv, W: yw - s * fw}
     wts = {f: 1.0 / max(float(np.mean(er[f][fitw] ** 2)), 1e-12) for f in (V, W)}
@@ -230,15 +248,12 @@ def judge(sim_d: dict, real_d: dict, wabs, acd, held: np.ndarray, piece: int, dt
                                   ('rmse_after', ef, fitw & (s < 0.99)),
                                   ('heldout_rmse_before', er, binds),
                                   ('heldout_rmse_after', ef, binds))}
-    return cap, again, (z, thr, int(dlt.size), fit_rmse)
+    return z, thr, int(dlt.size), fit_rmse
 
 
 def finding(topic: str, cap: WheelCap, test: tuple, bound: float) -> dict:
     """Return the cap as reported (``wheel_speed_limit``; ``bound``: the share of time capped)."""
     from robot_calib.mismatch import drive as D
-    from robot_calib.mismatch.findings import confidence
-
-    from robot_calib.mismatch import latency as L
 
     z, thr, pieces, fit_rmse = test
     # it passed the test at drive_alpha; its strength grows from the 5 % bar, as the axes' parts
