@@ -88,6 +88,12 @@ def _solve(X: np.ndarray, y: np.ndarray, w: np.ndarray,
     return c, max(yy - float(c @ b), 0.0)
 
 
+def _chain_fit(u, wabs, y, w, dt, m: AxisModel, coupled: bool,
+               acmd=None) -> tuple[np.ndarray, float]:
+    """Return (coefficients, SSE) of the chain ``m`` on the samples ``w``, g, k, slip linear."""
+    return _solve(regressors(u, wabs, dt, m, coupled, acmd), y, w, m.fixed_gain)
+
+
 def _linear(m: AxisModel, c: np.ndarray, coupled: bool = False,
             slip: bool = False) -> AxisModel:
     g = float(c[0]) - 1.0
@@ -123,7 +129,7 @@ def _refine(u, wabs, y, w, dt, m: AxisModel, coupled: bool, max_d: float,
     from scipy.optimize import minimize_scalar
 
     def sse(mm: AxisModel) -> float:
-        return _solve(regressors(u, wabs, dt, mm, coupled, acmd), y, w, mm.fixed_gain)[1]
+        return _chain_fit(u, wabs, y, w, dt, mm, coupled, acmd)[1]
 
     for _ in range(2):
         if 'd' in m.parts or m.d > 0:
@@ -136,7 +142,7 @@ def _refine(u, wabs, y, w, dt, m: AxisModel, coupled: bool, max_d: float,
                                 bounds=(0.7 * m.tau, 1.4 * m.tau), method='bounded',
                                 options={'xatol': 1e-4})
             m = replace(m, tau=float(r.x))
-    c, _ = _solve(regressors(u, wabs, dt, m, coupled, acmd), y, w, m.fixed_gain)
+    c, _ = _chain_fit(u, wabs, y, w, dt, m, coupled, acmd)
     return _linear(m, c, coupled, acmd is not None)
 
 
@@ -154,14 +160,14 @@ def fit_axis(u: np.ndarray, wabs: Optional[np.ndarray], y: np.ndarray, w: np.nda
     m = AxisModel(parts=set(parts), fixed_gain=fixed_gain)
     slip = acmd is not None
     m, sse = _grid(u, wabs, y, w, dt, m, coupled, max_d, free, acmd) if free else \
-        (_linear(m, _solve(regressors(u, wabs, dt, m, coupled, acmd), y, w, m.fixed_gain)[0],
+        (_linear(m, _chain_fit(u, wabs, y, w, dt, m, coupled, acmd)[0],
                  coupled, slip), 0.0)
     scale = float(np.percentile(np.abs(u[w]), 95)) if w.any() else 0.0
     if 'drive_deadband' in parts and scale > 0:
         best = (math.inf, m)
         for f in (0.0, 0.01, 0.02, 0.04, 0.06, 0.08, 0.1, 0.13, 0.16, 0.2, 0.25, 0.3, 0.4):
             mm = replace(m, band=f * scale)
-            c, s = _solve(regressors(u, wabs, dt, mm, coupled, acmd), y, w, mm.fixed_gain)
+            c, s = _chain_fit(u, wabs, y, w, dt, mm, coupled, acmd)
             if s < best[0]:
                 best = (s, _linear(mm, c, coupled, slip))
         m = best[1]
@@ -176,7 +182,7 @@ def fit_axis(u: np.ndarray, wabs: Optional[np.ndarray], y: np.ndarray, w: np.nda
             mm = replace(m, limit=lim)
             if free:
                 return _grid(u, wabs, y, w, dt, mm, coupled, max_d, free, acmd)[::-1]
-            c, s = _solve(regressors(u, wabs, dt, mm, coupled, acmd), y, w, mm.fixed_gain)
+            c, s = _chain_fit(u, wabs, y, w, dt, mm, coupled, acmd)
             return s, _linear(mm, c, coupled, slip)
         tried = [trial(top / _LIMIT_STEP ** i if i else math.inf) for i in range(_LIMITS + 1)]
         best = min(tried, key=lambda sm: sm[0])
@@ -206,7 +212,7 @@ def _damped(u, wabs, y, w, dt, m: AxisModel, coupled: bool, max_d: float, free: 
     grid points.
     """
     def sse(mm: AxisModel) -> float:
-        return _solve(regressors(u, wabs, dt, mm, coupled, acmd), y, w, mm.fixed_gain)[1]
+        return _chain_fit(u, wabs, y, w, dt, mm, coupled, acmd)[1]
 
     near = [t for t in _TAUS if 0.5 * m.tau <= t <= 2.0 * m.tau] or [m.tau]
     second = min((_grid(u, wabs, y, w, dt, replace(m, zeta=z), coupled, max_d, free, acmd,
@@ -222,7 +228,7 @@ def _refine_nonlinear(u, wabs, y, w, dt, m: AxisModel, coupled: bool, acmd=None)
     from scipy.optimize import minimize_scalar
 
     def sse(mm: AxisModel) -> float:
-        return _solve(regressors(u, wabs, dt, mm, coupled, acmd), y, w, mm.fixed_gain)[1]
+        return _chain_fit(u, wabs, y, w, dt, mm, coupled, acmd)[1]
 
     for key in ('band', 'limit', 'zeta'):
         v = getattr(m, key)
@@ -234,7 +240,7 @@ def _refine_nonlinear(u, wabs, y, w, dt, m: AxisModel, coupled: bool, acmd=None)
                             options={'xatol': 1e-3})
         if r.fun < sse(m):
             m = replace(m, **{key: float(math.exp(r.x))})
-    c, _ = _solve(regressors(u, wabs, dt, m, coupled, acmd), y, w, m.fixed_gain)
+    c, _ = _chain_fit(u, wabs, y, w, dt, m, coupled, acmd)
     return _linear(m, c, coupled, acmd is not None)
 
 
