@@ -59,8 +59,9 @@ class MismatchParams:
                                'smallest size worth naming); smaller effects are listed as '
                                'minor_findings; 0 reports every significant effect',
                                minimum=0.0)
-    drive_model: bool = param(True, '', 'fit the drive chain (dead time, lag, deadband, rate '
-                              'limit, turn-coupled speed loss) on odometry speed and turn rate '
+    drive_model: bool = param(True, '', 'fit the drive chain (dead time, first- or '
+                              'second-order lag, gain, deadband, rate limit, turn-coupled speed '
+                              'loss) on odometry speed and turn rate and on wheel joint rates '
                               'before the amplitude effects')
     drive_wheel_cap: bool = param(True, '', 'look for a wheel-speed cap on a differential '
                                   'drive odometry (speed and turn rate shrinking together)')
