@@ -137,12 +137,13 @@ def test_a_lagging_drive_names_its_lags_and_nothing_else():
     assert named == {'drive_lag'}, res['drive']
 
 
-@pytest.mark.parametrize('seed,limit', [(9, 0.3), (7, 0.18)])
-def test_wheel_speed_cap_found_with_the_lags_under_it(seed, limit):
-    """A differential drive whose faster wheel is capped (18 % or 57 % of the time)."""
+def _capped(seed: int, limit: float, straight: bool = False) -> dict:
+    """Return the analysis of a lagging drive whose faster wheel is capped (half track 0.15 m)."""
     from robot_calib.mismatch import drive_cap as DC
 
     t, v, w = _commands(seed)
+    if straight:  # hardly turning
+        w = 0.01 * np.sin(t / 7.0)
     dt = t[1] - t[0]
     lv = D.predict(v, None, dt, D.AxisModel(tau=0.3))
     lw = D.predict(w, None, dt, D.AxisModel(tau=0.2))
@@ -153,6 +154,13 @@ def test_wheel_speed_cap_found_with_the_lags_under_it(seed, limit):
         return {'/odom': Topic('/odom', ODOM_TYPE, t, {D.V: a, D.W: b})}
     res, _ = analyse_recordings(rec(v, w), rec(s * lv + 0.004 * rng.standard_normal(t.size),
                                                s * lw + 0.01 * rng.standard_normal(t.size)))
+    return res
+
+
+@pytest.mark.parametrize('seed,limit', [(9, 0.3), (7, 0.18)])
+def test_wheel_speed_cap_found_with_the_lags_under_it(seed, limit):
+    """A differential drive whose faster wheel is capped (18 % or 57 % of the time)."""
+    res = _capped(seed, limit)
     cap = next(f for f in res['findings'] if f['effect'] == 'wheel_speed_limit')
     assert cap['parameters']['limit'] == pytest.approx(limit, rel=0.05), cap
     assert cap['parameters']['half_track'] == pytest.approx(0.15, rel=0.15), cap
@@ -169,20 +177,7 @@ def test_wheel_speed_cap_found_with_the_lags_under_it(seed, limit):
 
 def test_a_cap_met_driving_straight_has_no_half_track():
     """Capped only while hardly turning: the top speed named, its half track unknown (None)."""
-    from robot_calib.mismatch import drive_cap as DC
-
-    t, v, _ = _commands(9)
-    w = 0.01 * np.sin(t / 7.0)
-    dt = t[1] - t[0]
-    lv = D.predict(v, None, dt, D.AxisModel(tau=0.3))
-    lw = D.predict(w, None, dt, D.AxisModel(tau=0.2))
-    s = DC.scale(lv, lw, DC.WheelCap(0.25, 0.15))
-    rng = np.random.default_rng(109)
-
-    def rec(a, b):
-        return {'/odom': Topic('/odom', ODOM_TYPE, t, {D.V: a, D.W: b})}
-    res, _ = analyse_recordings(rec(v, w), rec(s * lv + 0.004 * rng.standard_normal(t.size),
-                                               s * lw + 0.01 * rng.standard_normal(t.size)))
+    res = _capped(9, 0.25, straight=True)
     cap = next(f for f in res['findings'] if f['effect'] == 'wheel_speed_limit')
     assert cap['parameters']['limit'] == pytest.approx(0.25, rel=0.05), cap
     assert cap['parameters']['half_track'] is None, cap
