@@ -23,7 +23,8 @@ import numpy as np
 
 from robot_calib.core import types as T
 from robot_calib.core.geometry import quat_from_rpy
-from robot_calib.io.bags import BagError, BagSet, BagWriter, normalize_topic
+from robot_calib.io.bag_writer import BagWriter
+from robot_calib.io.bags import BagError, BagSet, normalize_topic
 
 _NS = 1_000_000_000
 

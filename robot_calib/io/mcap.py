@@ -3,8 +3,9 @@
 """
 mcap details below rosbags: a fast chunk reader, corrupt chunks, chunk CRCs, direct appends.
 
-rosbags parses mcap files and writes them; :mod:`robot_calib.io.bags` uses it
-and adds here what replay needs from the format itself:
+rosbags parses mcap files and writes them; :mod:`robot_calib.io.bags` (reading)
+and :mod:`robot_calib.io.bag_writer` use it and add here what replay needs from
+the format itself:
 
 - :func:`messages` reads the records of each chunk with ``struct`` instead of
   rosbags' per-field loop, and skips a corrupt chunk whole (reported, never
