@@ -228,6 +228,59 @@ def test_wheel_joints_get_the_drive_chain():
     assert clean['findings'] == [], [(f['effect'], f['parameters']) for f in clean['findings']]
 
 
+def _wheels_capped(seed: int, cap: float, one: bool = False) -> dict:
+    """
+    Return the analysis of two wheels (lags 0.25 / 0.3 s) whose faster one is capped (rad/s).
+
+    ``one``: the left wheel alone clipped at ``cap``, the right one free (no coupling).
+    """
+    t, v, w = _commands(seed)
+    dt = t[1] - t[0]
+    left, right = (D.predict((v + sign * 0.15 * w) / 0.05, None, dt, D.AxisModel(tau=tau))
+                   for sign, tau in ((-1.0, 0.25), (1.0, 0.3)))
+    if one:
+        real = (np.clip(left, -cap, cap), right)
+    else:  # the simulator's cap (robot_calib/sim/drive.py), written out here
+        s = np.minimum(1.0, cap / np.maximum(np.maximum(np.abs(left), np.abs(right)), 1e-12))
+        real = (s * left, s * right)
+    rng = np.random.default_rng(seed + 200)
+    names = ('velocity.left_wheel_joint', 'velocity.right_wheel_joint')
+
+    def rec(a, b):
+        return {'/joint_states': Topic('/joint_states', JOINT_STATE_TYPE, t, dict(zip(names, (
+            a, b))))}
+    res, _ = analyse_recordings(rec((v - 0.15 * w) / 0.05, (v + 0.15 * w) / 0.05),
+                                rec(*(x + 0.05 * rng.standard_normal(t.size) for x in real)))
+    return res
+
+
+@pytest.mark.parametrize('seed,cap', [(9, 6.0), (7, 4.0)])
+def test_wheel_rate_cap_on_joint_states_found_with_the_lags_under_it(seed, cap):
+    """Two wheels whose faster one is capped (19 % or 51 % of the time): W in rad/s, the lags."""
+    res = _wheels_capped(seed, cap)
+    found = [f for f in res['findings'] if f['effect'] == 'wheel_speed_limit']
+    assert len(found) == 1, res['drive']
+    assert found[0]['parameters']['limit'] == pytest.approx(cap, rel=0.02), found
+    assert found[0]['parameters']['half_track'] is None, found
+    assert found[0]['units']['limit'] == 'rad/s'
+    assert 'wheel rate' in found[0]['explanation']
+    assert len(found[0]['channels']) == 2
+    for joint, tau in (('left_wheel_joint', 0.25), ('right_wheel_joint', 0.3)):
+        got = _found(res, 'drive_lag', f'velocity.{joint}')
+        assert got == pytest.approx(tau, rel=0.1), (joint, got, res['drive'])
+    # the cap is not taken for a gain, a rate limit or a deadband of the wheels
+    drive = {f['effect'] for f in res['findings'] if f['effect'].startswith('drive_')}
+    assert drive == {'drive_lag'}, res['drive']
+
+
+def test_uncapped_or_one_wheel_clipped_joint_states_name_no_wheel_cap():
+    """No cap: none named. The left wheel alone clipped (no coupling): no common cap named."""
+    for res in (_wheels_capped(9, 1e3), _wheels_capped(9, 5.0, one=True)):
+        caps = [f['parameters'] for f in res['findings'] + res['minor_findings']
+                if f['effect'] == 'wheel_speed_limit']
+        assert caps == [], (caps, res['drive'])
+
+
 def test_chain_pieces():
     u = np.r_[np.zeros(10), np.ones(100)]
     assert np.allclose(D.deadband(np.array([0.05, -0.2]), 0.1), [0.0, -0.2])

@@ -287,7 +287,8 @@ def analyse_drive(pt: PairedTopic, prm, acmd: Optional[np.ndarray] = None,
     Fit the drive chain to a topic; return it when any dynamic part is named.
 
     Odometry: its forward speed and turn rate; joint states: each wheel's
-    rate (a motor of its own: no turn speed loss, slip or acceleration). None
+    rate (a motor of its own: no turn speed loss, slip or acceleration); a
+    wheel-speed cap over both axes, or over two wheels (:mod:`.drive_cap`). None
     when the topic has no such channel, when nothing beyond a
     pure delay (which the time stage judges) is named, or when the drive
     model is off (``prm.drive_model``). ``acmd``: the commanded acceleration
@@ -321,23 +322,19 @@ def analyse_drive(pt: PairedTopic, prm, acmd: Optional[np.ndarray] = None,
                               acd if f == V else None, held, piece, dt, prm, f in late, period)
         if chosen is not None:
             out_models[f] = chosen
-    # a differential drive's wheel-speed cap, over both axes (the axes fitted again under it)
-    judged = DC.judge(sim_d, real_d, wabs, acd, held, piece, dt, prm, late, period,
-                      out_models) if pt.msgtype == ODOM_TYPE and prm.drive_wheel_cap else None
+    # a differential drive's wheel-speed cap, over both axes or two wheels (fitted again under it)
+    judged = DC.under_cap(pt, fields, sim_d, real_d, wabs, acd, held, piece, dt, prm, late,
+                          period, out_models)
     cap = judged[0] if judged else None
     if judged:
-        out_models = judged[1]
-        vh, wh = DC._axes({f: m for f, (m, _, _) in out_models.items()}, sim_d, wabs, acd, dt)
-        s_d = DC.scale(vh, wh, cap)
-        real_d = {f: real_d[f] / s_d for f in real_d}  # the axes' findings: under the cap
-        found.append(DC.finding(pt.name, cap, judged[2], float(np.mean(s_d < 0.99))))
+        out_models, real_d = judged[1], judged[2]
+        found.append(judged[3])
     dyn = {p for m, _, _ in out_models.values() for p in m.parts} - {
         'drive_dead_time', 'drive_gain'}
     if not dyn and cap is None:
         return None
     wfull = np.abs(_filled(pt.sim[W])) if W in pt.sim else None
-    s_full = DC.scale(*(predict(_filled(pt.sim[f]), wfull if f == V else None, pt.dt,
-                                out_models[f][0]) for f in (V, W)), cap) if cap else 1.0
+    s_full = DC.full_scale(pt, judged[4], out_models, cap) if cap else 1.0
     for f, (model, stats, ok) in out_models.items():
         u = _filled(pt.sim[f])
         # the named gain is the drive's (the amplitude stage judges scales on what it leaves)
@@ -349,8 +346,7 @@ def analyse_drive(pt: PairedTopic, prm, acmd: Optional[np.ndarray] = None,
         found.extend(_findings(pt, f, model, stats, ok, held, ud, real_d[f], wd, dt, ad, sd))
     text = describe({f: m for f, (m, _, _) in out_models.items()})
     if cap:
-        text = text[:-1] + f'; both capped where the faster wheel would pass {cap.limit:.3g} ' \
-            f'm/s (|v| + {cap.half:.3g} |omega|).'
+        text = text[:-1] + DC.text(cap)
     for fd in found:
         fd['explanation'] += ' ' + text
     return DriveResult({f: m for f, (m, _, _) in out_models.items()}, found, sims, text)
