@@ -175,3 +175,22 @@ def test_an_effect_seen_on_several_channels_is_applied_once(tmp_path):
     assert params['drive']['max_wheel_speed'] == pytest.approx(6.0)
     assert params['drive']['linear_time_constant'] == pytest.approx(0.4)
     assert params['imu']['gyro_bias'][2] == pytest.approx(0.01)
+
+
+def test_a_wheel_rate_cap_exports_in_rad_s_and_yields_to_the_odometry_cap(tmp_path):
+    """A cap found on the wheel joints: drive.max_wheel_speed as it is; an odometry one first."""
+    joint = ('wheel_speed_limit', '/joint_states.velocity.left_wheel_joint',
+             {'limit': 5.0, 'half_track': None})
+    export.write(tmp_path, _findings('sim', 'real', [joint]))
+    params = yaml.safe_load((tmp_path / 'sim_params.yaml').read_text())['sim']
+    assert params['drive']['max_wheel_speed'] == pytest.approx(5.0)  # no division by a radius
+    text = (tmp_path / 'suggestions.yaml').read_text()
+    ros = yaml.safe_load(text)['diff_drive_controller']['ros__parameters']
+    assert ros['linear']['x']['has_velocity_limits'] is False  # no m/s without the radius
+    assert 'cap on the wheel rates' in text
+    # beside an odometry cap (even one whose half track is unknown) the odometry's is exported
+    odom = ('wheel_speed_limit', '/odom.twist.twist.linear.x', {'limit': 0.2, 'half_track': None})
+    for rows in ([joint, odom], [odom, joint]):
+        export.write(tmp_path, _findings('sim', 'real', rows))
+        params = yaml.safe_load((tmp_path / 'sim_params.yaml').read_text())['sim']
+        assert params['drive']['max_wheel_speed'] == pytest.approx(0.2 / 0.05)

@@ -203,6 +203,10 @@ class _Mapper:
             self._drive(e, par, axes or _drive_axes(field), why)
         elif e == 'turn_speed_loss':
             self.add('drive.turn_speed_loss', par['coefficient'], why)
+        elif e == 'wheel_speed_limit' and field.startswith('velocity.'):
+            # found on the wheel joints' rates: the simulator's own cap, in rad/s
+            self.v['drive.max_wheel_speed'] = float(par['limit'])
+            self.note('drive.max_wheel_speed', why + ' (a wheel rate, from the joint states)')
         elif e == 'wheel_speed_limit':
             # the simulator caps the faster wheel in rad/s of its nominal radius, about its
             # own track
@@ -369,9 +373,11 @@ def one_per_slot(findings: list, topic_map: dict) -> tuple[list, list]:
         elif e in ('wheel_radius_scale', 'track_width_scale') and \
                 not field.startswith('velocity.'):
             slots = [((e,), (True, conf, -i), None)]
-        elif e == 'wheel_speed_limit':  # one cap of the robot; one with its half track first
+        elif e == 'wheel_speed_limit':
+            # one cap of the robot: the odometry's (one with its half track first), else the
+            # wheel joints' (rad/s)
             known = (f.get('parameters') or {}).get('half_track') is not None
-            slots = [((e,), (known, conf, -i), None)]
+            slots = [((e,), (2 * (not field.startswith('velocity.')) + known, conf, -i), None)]
         else:
             slots = [((e, f['channel']), (True, conf, -i), None)]
         for slot, rank, axes in slots:

@@ -46,6 +46,10 @@ def _controller(findings: dict) -> tuple[dict, list, list]:
                 else:
                     ang *= 1.0 + float(par['gain'])
             why.append(text)
+        elif e == 'wheel_speed_limit' and field.startswith('velocity.'):
+            rest.append(f'{text}: a cap on the wheel rates (rad/s); diff_drive_controller '
+                        'limits the body velocity: the cap times the wheel radius is the top '
+                        'speed driving straight')
         elif e == 'wheel_speed_limit':
             # the faster wheel's cap: its bounds driving straight and turning in place
             half = par.get('half_track')
