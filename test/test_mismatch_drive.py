@@ -281,6 +281,30 @@ def test_uncapped_or_one_wheel_clipped_joint_states_name_no_wheel_cap():
         assert caps == [], (caps, res['drive'])
 
 
+def test_simulator_wheel_cap_round_trip_on_joint_states(tmp_path):
+    """``simulate drive`` with drive.max_wheel_speed 6 rad/s, followed ideally: W and the lags."""
+    from robot_calib import cli
+    from robot_calib.mismatch.channels import read_bag
+
+    sets = [a for kv in ('drive.linear_time_constant=0.25', 'drive.angular_time_constant=0.25',
+                         'drive.max_wheel_speed=6', 'wheels.left_radius_error=0',
+                         'wheels.right_radius_error=0', 'wheels.track_width_error=0')
+            for a in ('--set', kv)]
+    assert cli.main(['simulate', 'drive', '--out', str(tmp_path / 'real'), '--duration', '120',
+                     '--seed', '3', *sets]) == 0
+    assert cli.main(['simulate', 'follow', str(tmp_path / 'real'), '--out',
+                     str(tmp_path / 'ideal'), *sets[6:]]) == 0  # the same wheels, no drive
+    sim, real = ({'/joint_states': read_bag(tmp_path / n)['/joint_states']}
+                 for n in ('ideal', 'real'))
+    res, _ = analyse_recordings(sim, real)
+    cap = [f['parameters']['limit'] for f in res['findings']
+           if f['effect'] == 'wheel_speed_limit']
+    assert cap == [pytest.approx(6.0, rel=0.02)], res['drive']
+    for joint in ('left_wheel_joint', 'right_wheel_joint'):  # both axes lag 0.25 s: each wheel
+        got = _found(res, 'drive_lag', f'velocity.{joint}')
+        assert got == pytest.approx(0.25, rel=0.1), (joint, got, res['drive'])
+
+
 def test_chain_pieces():
     u = np.r_[np.zeros(10), np.ones(100)]
     assert np.allclose(D.deadband(np.array([0.05, -0.2]), 0.1), [0.0, -0.2])
