@@ -228,13 +228,16 @@ def test_wheel_joints_get_the_drive_chain():
     assert clean['findings'] == [], [(f['effect'], f['parameters']) for f in clean['findings']]
 
 
-def _wheels_capped(seed: int, cap: float, one: bool = False) -> dict:
+def _wheels_capped(seed: int, cap: float, one: bool = False, one_way: bool = False) -> dict:
     """
     Return the analysis of two wheels (lags 0.25 / 0.3 s) whose faster one is capped (rad/s).
 
-    ``one``: the left wheel alone clipped at ``cap``, the right one free (no coupling).
+    ``one``: the left wheel alone clipped at ``cap``, the right one free (no coupling);
+    ``one_way``: always turning left (the right wheel the faster one).
     """
     t, v, w = _commands(seed)
+    if one_way:
+        w = np.abs(w) + 0.2
     dt = t[1] - t[0]
     left, right = (D.predict((v + sign * 0.15 * w) / 0.05, None, dt, D.AxisModel(tau=tau))
                    for sign, tau in ((-1.0, 0.25), (1.0, 0.3)))
@@ -274,8 +277,14 @@ def test_wheel_rate_cap_on_joint_states_found_with_the_lags_under_it(seed, cap):
 
 
 def test_uncapped_or_one_wheel_clipped_joint_states_name_no_wheel_cap():
-    """No cap: none named. The left wheel alone clipped (no coupling): no common cap named."""
-    for res in (_wheels_capped(9, 1e3), _wheels_capped(9, 5.0, one=True)):
+    """
+    No cap: none named. The left wheel alone clipped (no coupling): no common cap named.
+
+    A common cap met on the right wheel only (always turning left): the left's own limit is
+    not seen, so it is not named either.
+    """
+    for res in (_wheels_capped(9, 1e3), _wheels_capped(9, 5.0, one=True),
+                _wheels_capped(9, 6.0, one_way=True)):
         caps = [f['parameters'] for f in res['findings'] + res['minor_findings']
                 if f['effect'] == 'wheel_speed_limit']
         assert caps == [], (caps, res['drive'])

@@ -168,6 +168,11 @@ def _both_wheels(xs: tuple, s: np.ndarray, w: np.ndarray) -> bool:
     return SIDE <= float(np.mean(left)) <= 1.0 - SIDE
 
 
+def _each_wheel(er: list, ef: list, binds: np.ndarray) -> bool:
+    """Return True when each wheel's held-out residual where the cap binds shrinks with it."""
+    return all(float(b[binds] @ b[binds]) < float(a[binds] @ a[binds]) for a, b in zip(er, ef))
+
+
 def _axes(models: dict, sim_d: dict, wabs, acd, dt: float, gain: bool = True,
           fields: Optional[tuple] = None) -> tuple:
     """Return the channels' chains on the block grid (forward, turn by default; ``gain``)."""
@@ -290,8 +295,7 @@ def _heldout(ys: tuple, reduced: tuple, full: tuple, s: np.ndarray, ok: np.ndarr
     has = np.bincount(np.flatnonzero(binds) // piece, minlength=sse_r.size) >= 3
     if has.sum() < 3:
         return None
-    if wheels and not all(float(ef[i][binds] @ ef[i][binds]) < float(er[i][binds] @ er[i][binds])
-                          for i in idx_f):
+    if wheels and not _each_wheel(er, ef, binds):
         return None
     dlt = np.log((sse_r[has] + 1e-300) / (sse_f[has] + 1e-300))
     spread = float(np.std(dlt, ddof=1))
