@@ -64,7 +64,8 @@ class MismatchParams:
                               'loss) on odometry speed and turn rate and on wheel joint rates '
                               'before the amplitude effects')
     drive_wheel_cap: bool = param(True, '', 'look for a wheel-speed cap on a differential '
-                                  'drive odometry (speed and turn rate shrinking together)')
+                                  'drive odometry (speed and turn rate shrinking together) '
+                                  "and on two wheel joints' rates (both slowing together)")
     drive_alpha: float = param(1e-3, '', 'false-alarm probability of the held-out chunk test '
                                'a part of the drive model must pass', minimum=1e-15,
                                maximum=0.5)
