@@ -184,6 +184,23 @@ def test_a_cap_met_driving_straight_has_no_half_track():
     assert 'cannot be told' in cap['explanation']
 
 
+def test_cap_fit_keeps_a_half_track_a_robot_can_have():
+    """A turn-rate ceiling and little forward motion: the half track stays in the searched range.
+
+    Unbounded, the limit and the half track grow together without end (1e12 m
+    on a real pair): a turn-rate cap dressed as the wheel of no robot.
+    """
+    from robot_calib.mismatch import drive_cap as DC
+    rng = np.random.default_rng(7)
+    t, v, w = _commands(5)
+    vh, wh = 0.1 * v, 1.5 * w
+    yv = vh + 0.002 * rng.standard_normal(t.size)
+    yw = np.clip(wh, -0.5, 0.5) + 0.01 * rng.standard_normal(t.size)
+    cap, with_cap, without = DC.fit((vh, wh), (yv, yw), np.ones(t.size, bool))
+    assert cap is not None and with_cap < without
+    assert DC.HALVES[0] <= cap.half <= DC.HALVES[-1] * (1 + 1e-9), cap
+
+
 def test_drive_null_pair_has_no_finding():
     sim, real = _pair(5, D.AxisModel(), D.AxisModel())
     res, _ = analyse_recordings(sim, real)

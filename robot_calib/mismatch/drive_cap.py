@@ -117,8 +117,13 @@ def _refine(xs: tuple, ys: tuple, wts: list, cap: WheelCap) -> WheelCap:
     def sse(x: np.ndarray) -> float:
         return _wsse(xs, ys, wts, make(x))
 
+    # the half track within the searched range: past it the limit and the half track grow
+    # together without bound, a turn-rate cap dressed as a wheel of an impossible robot
     x0 = np.log([cap.limit] if cap.half is None else [cap.limit, cap.half])
-    r = minimize(sse, x0, method='Nelder-Mead', options={'xatol': 1e-4, 'fatol': 1e-9})
+    bounds = [(None, None)] + ([] if cap.half is None else
+                               [(math.log(HALVES[0]), math.log(HALVES[-1]))])
+    r = minimize(sse, x0, method='Nelder-Mead', options={'xatol': 1e-4, 'fatol': 1e-9},
+                 bounds=bounds)
     return make(r.x, np.exp) if r.fun < sse(x0) else cap
 
 
