@@ -2,6 +2,8 @@
 # SPDX-License-Identifier: Apache-2.0
 """Tests of the mismatch analyser's effect windows: when a fitted window is reported."""
 
+import re
+
 import numpy as np
 import pytest
 
@@ -77,3 +79,31 @@ def test_an_offset_in_a_window_amid_the_same_wander_keeps_its_window():
     f = _bias(out)
     assert f['window'] == pytest.approx([40.0, 100.0], abs=1.0)
     assert f['parameters']['bias'] == pytest.approx(BIAS, rel=0.15)
+
+
+def test_a_scale_that_changes_from_block_to_block_is_refused_with_its_spread():
+    """A yaw-rate scale drawn anew every 20 s: refused, and the note gives its size and spread."""
+    rng = np.random.default_rng(5)
+    rate, duration = 100.0, 300.0
+    n = int(duration * rate)
+    t = np.arange(n) / rate
+    gyro = np.column_stack([0.8 * _smooth(rng, n, int(0.5 * rate)) for _ in range(3)])
+    acc = np.column_stack([0.5 * _smooth(rng, n, int(0.5 * rate)) for _ in range(3)])
+    acc[:, 2] += GRAVITY
+    sim = {f: (gyro if i < 3 else acc)[:, i % 3].copy() for i, f in enumerate(IMU_FIELDS)}
+    real = {f: v + rng.standard_normal(n) * (0.003 if i < 3 else 0.03)
+            for i, (f, v) in enumerate(sim.items())}
+    levels = rng.normal(0.0, 0.1, int(duration / 20.0) + 1)
+    real[IMU_FIELDS[2]] = real[IMU_FIELDS[2]] * (1.0 + levels[(t // 20.0).astype(int)])
+    out, _ = analyse_recordings({'/imu': Topic('/imu', IMU_TYPE, t, sim)},
+                                {'/imu': Topic('/imu', IMU_TYPE, t, real)})
+    assert not [f for f in out['findings'] if f['effect'] == 'gyro_scale']
+    notes = [s for s in out['notes'] if 'not consistently' in s and 'gyro_scale' in s]
+    assert notes, out['notes']
+    # the user reads how large it is and how far it wanders, not only that it was refused
+    m = re.search(r'\(([-+.\de]+) over the recording, ([-+.\de]+) to ([-+.\de]+) from block',
+                  notes[0])
+    assert m, notes[0]
+    whole, low, high = map(float, m.groups())
+    assert low < high and high - low > 0.1, notes[0]  # levels drawn with a 0.1 spread
+    assert low - 0.05 <= whole <= high + 0.05, notes[0]

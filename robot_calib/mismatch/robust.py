@@ -45,6 +45,7 @@ from typing import Optional
 
 import numpy as np
 
+from robot_calib.mismatch import effects as E
 from robot_calib.mismatch import select as S
 from robot_calib.mismatch.locate import moving_average
 from robot_calib.mismatch.problem import Problem
@@ -208,10 +209,47 @@ def wald(prob: Problem, terms: list, fit: S.Fit, edges: np.ndarray,
     return out
 
 
+def block_spread(prob: Problem, terms: list, fit: S.Fit, edges: np.ndarray, j: int,
+                 share: float = 0.25) -> Optional[tuple]:
+    """
+    Return (whole, low, high) of the one-coefficient term ``terms[j]``: its value and spread.
+
+    Each block's own estimate, the others held, is one Gauss-Newton step from
+    the whole recording's: ``beta_b = beta + s_b / E_b`` (``s_b`` the block's
+    score, :func:`block_scores`, ``E_b`` its weighted regressor energy); only
+    blocks with at least ``share`` of the median active block's energy count
+    (a block that hardly excites the term says nothing of it). ``low`` and
+    ``high`` are the 10th and 90th percentiles of those estimates. In the
+    term's table units (:func:`~robot_calib.mismatch.effects.to_params`, first
+    parameter); None for a term of more coefficients or fewer than 3 blocks.
+    """
+    t = terms[j]
+    if t.p != 1:
+        return None
+    if not fit.contrib:
+        fit = S.fit(prob, terms, contributions=True)
+    energy = _block_energy(prob, t, edges)
+    score = block_scores(prob, terms, fit, edges)[:, _term_index(terms)[j][0]]
+    active = energy[energy > 0.02 * energy.max()] if energy.size and energy.max() > 0 else []
+    use = energy >= share * float(np.median(active)) if len(active) else energy < 0
+    if use.sum() < 3:
+        return None
+    beta = float(np.asarray(fit.betas[j], float)[0])
+    per = beta + score[use] / energy[use]
+
+    def unit(b: float) -> float:
+        return next(iter(E.to_params(t, np.array([b]), np.zeros((1, 1)))[0].values()))
+    lo, hi = sorted((unit(float(np.percentile(per, q))) for q in (10.0, 90.0)))
+    return unit(beta), lo, hi
+
+
 def robust_prune(prob: Problem, sel: list, edges: np.ndarray, alpha: float,
                  refine=None, min_block_s: float = 1.0) -> tuple[list, list]:
     """
     Drop, weakest first, the terms that fail the robust Wald test; return (kept, dropped).
+
+    ``dropped`` holds ``(term, (W, threshold, blocks, spread))``, ``spread`` the
+    term's value and its spread between blocks (:func:`block_spread`) or None.
 
     :param refine: called on the kept terms after each drop (e.g. nonlinear refinement)
     """
@@ -224,7 +262,8 @@ def robust_prune(prob: Problem, sel: list, edges: np.ndarray, alpha: float,
         i = int(np.argmin(ratios))
         if ratios[i] >= 1.0:
             break
-        dropped.append((out.pop(i), tests[i]))
+        spread = block_spread(prob, out, f, edges, i)
+        dropped.append((out.pop(i), tests[i] + (spread,)))
         if refine is not None and out:
             out = refine(out)
     return out, dropped
