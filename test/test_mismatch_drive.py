@@ -421,6 +421,28 @@ def test_mrclam_names_lag_and_turn_speed_loss():
     assert lags >= 3
 
 
+@pytest.mark.skipif(not DATA.is_dir(), reason='MR.CLAM data not available')
+def test_mrclam_turn_deficit_is_no_top_speed():
+    """Robot 2's first window with its turn rate 8.9 % short: no wheel-speed cap named.
+
+    Its straight commands sit at one speed; a cap just over it (0.0695 m/s,
+    half track unknown) fitted the turn deficit of the turns it met, and the
+    forward speed alone does not call for it: a top speed is judged on the
+    forward speed.
+    """
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / 'benchmarks'))
+    import drive_pairs as DP
+    pair = next(p for p in DP.mrclam_pairs(DATA) if p.name == 'Robot2_w0')
+    sim, real = DP.recordings(pair)
+    odom = real['/odom']
+    fields = dict(odom.fields, **{D.W: odom.fields[D.W] * (1.0 - 0.089)})
+    res, _ = analyse_recordings(sim, dict(real, **{'/odom': Topic('/odom', odom.msgtype,
+                                                                  odom.t, fields)}))
+    named = [f['effect'] for f in res['findings'] + res.get('minor_findings', [])]
+    assert 'wheel_speed_limit' not in named, res['drive']
+    assert 'track_width_scale' in named or 'drive_gain' in named, named
+
+
 def test_value_with_std_text():
     """The std to two digits, the value to its decimal place; nothing said without a std."""
     assert DI.with_std(0.25312, 0.031) == '0.253 +- 0.031'
