@@ -22,6 +22,19 @@ def _smooth(rng, n, width):
     return x[:n] / np.std(x[:n])
 
 
+def _imu_motion(rng, duration: float, rate: float) -> tuple:
+    """Return t, sim, real: smooth IMU motion and the same plus white sensor noise."""
+    n = int(duration * rate)
+    t = np.arange(n) / rate
+    gyro = np.column_stack([0.8 * _smooth(rng, n, int(0.5 * rate)) for _ in range(3)])
+    acc = np.column_stack([0.5 * _smooth(rng, n, int(0.5 * rate)) for _ in range(3)])
+    acc[:, 2] += GRAVITY
+    sim = {f: (gyro if i < 3 else acc)[:, i % 3].copy() for i, f in enumerate(IMU_FIELDS)}
+    real = {f: v + rng.standard_normal(n) * (0.003 if i < 3 else 0.03)
+            for i, (f, v) in enumerate(sim.items())}
+    return t, sim, real
+
+
 def _wandering_pair(seed, window=None, duration=200.0, rate=100.0):
     """
     Return (sim, real) IMU recordings whose yaw rates differ by an offset and a slow wander.
@@ -33,14 +46,8 @@ def _wandering_pair(seed, window=None, duration=200.0, rate=100.0):
     offset "only from 20 s to 180 s" fits the residual better than a constant).
     """
     rng = np.random.default_rng(seed)
-    n = int(duration * rate)
-    t = np.arange(n) / rate
-    gyro = np.column_stack([0.8 * _smooth(rng, n, int(0.5 * rate)) for _ in range(3)])
-    acc = np.column_stack([0.5 * _smooth(rng, n, int(0.5 * rate)) for _ in range(3)])
-    acc[:, 2] += GRAVITY
-    sim = {f: (gyro if i < 3 else acc)[:, i % 3].copy() for i, f in enumerate(IMU_FIELDS)}
-    real = {f: v + rng.standard_normal(n) * (0.003 if i < 3 else 0.03)
-            for i, (f, v) in enumerate(sim.items())}
+    t, sim, real = _imu_motion(rng, duration, rate)
+    n = t.size
     level = 0.006 * rng.standard_normal(int(duration / 5) + 1)
     level[:4] = level[-5:] = -0.012
     wander = np.convolve(np.repeat(level, int(5 * rate))[:n], np.ones(int(rate)) / rate, 'same')
@@ -85,14 +92,7 @@ def test_a_scale_that_changes_from_block_to_block_is_refused_with_its_spread():
     """A yaw-rate scale drawn anew every 20 s: refused, and the note gives its size and spread."""
     rng = np.random.default_rng(5)
     rate, duration = 100.0, 300.0
-    n = int(duration * rate)
-    t = np.arange(n) / rate
-    gyro = np.column_stack([0.8 * _smooth(rng, n, int(0.5 * rate)) for _ in range(3)])
-    acc = np.column_stack([0.5 * _smooth(rng, n, int(0.5 * rate)) for _ in range(3)])
-    acc[:, 2] += GRAVITY
-    sim = {f: (gyro if i < 3 else acc)[:, i % 3].copy() for i, f in enumerate(IMU_FIELDS)}
-    real = {f: v + rng.standard_normal(n) * (0.003 if i < 3 else 0.03)
-            for i, (f, v) in enumerate(sim.items())}
+    t, sim, real = _imu_motion(rng, duration, rate)
     levels = rng.normal(0.0, 0.1, int(duration / 20.0) + 1)
     real[IMU_FIELDS[2]] = real[IMU_FIELDS[2]] * (1.0 + levels[(t // 20.0).astype(int)])
     out, _ = analyse_recordings({'/imu': Topic('/imu', IMU_TYPE, t, sim)},

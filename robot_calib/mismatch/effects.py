@@ -146,7 +146,8 @@ SPECS = {s.name: s for s in (
                'the left and right wheels differ in radius, so the odometry turns in '
                'proportion to the speed', 0.005),
     EffectSpec('wheel_speed_limit', ('limit', 'half_track'), ('m/s', 'm'), (np.inf, np.inf),
-               False, 'the faster wheel is capped: speed and turn rate shrink together', 0.0),
+               False, 'the faster wheel is capped (its rim speed; on joint states its rate, '
+               'rad/s): speed and turn rate, or both wheels, shrink together', 0.0),
     EffectSpec('yaw_rate_offset', ('offset',), ('rad/s',), (0.2,), True,
                'the two yaw rates differ by a constant: the bias of a gyro used as the '
                'reference, or odometry that turns while driving straight', 0.001),
