@@ -234,7 +234,8 @@ def judge(sim_d: dict, real_d: dict, wabs, acd, held: np.ndarray, piece: int, dt
     hats = _axes(models, sim_d, wabs, acd, dt, gain=False, fields=fields)
     cap, with_cap, without = fit(hats, ys, fitw, wheels)
     if cap is None or (without - with_cap) < prm.min_improvement * without or \
-            np.mean(factor(tuple(x[ok] for x in hats), cap) < 0.99) < 0.02:
+            np.mean(factor(tuple(x[ok] for x in hats), cap) < 0.99) < 0.02 or \
+            not (wheels or _half_known(*hats, *ys, fitw, cap) or _top_speed(hats, cap, fitw)):
         return None
     # the channels chosen again on the real motion divided by the cap's factor, and the cap
     # fitted again on them; the factor always from channels fitted on the fitted part alone
@@ -262,13 +263,7 @@ def judge(sim_d: dict, real_d: dict, wabs, acd, held: np.ndarray, piece: int, dt
         if not _both_wheels(fs, s, fitw):
             return None
     elif not _half_known(*fs, *ys, fitw, cap):
-        # a cap met only while driving nearly straight is the top speed, its half track
-        # unknown; one met turning in place gives only limit / half: not named
-        fv, fw = fs
-        capped = fitw & (s < 0.99)
-        rim = np.abs(fv[capped]) + cap.half * np.abs(fw[capped])
-        if not capped.any() or \
-                float(np.mean(np.abs(fv[capped]))) < STRAIGHT * float(np.mean(rim)):
+        if not _top_speed(fs, cap, fitw):
             return None
         cap.half_known = False
     # a top speed met driving straight is judged on the forward speed alone: what it does to
@@ -276,6 +271,21 @@ def judge(sim_d: dict, real_d: dict, wabs, acd, held: np.ndarray, piece: int, dt
     on = slice(None) if cap.half_known else slice(0, 1)
     test = _heldout(ys[on], rs[on], fs[on], s, ok, fitw, held, piece, prm, wheels)
     return (cap, again, test) if test else None
+
+
+def _top_speed(hats: tuple, cap: WheelCap, w: np.ndarray) -> bool:
+    """
+    Return True when a cap whose half track the data cannot tell is a top speed.
+
+    It must be met mostly driving straight (:data:`STRAIGHT` of the capped rim
+    speed from the forward speed); one met turning in place gives only limit /
+    half. Checked on the first fit too: the rounds of a cap refused at the end
+    cost as much as the rest of the drive.
+    """
+    fv, fw = hats
+    capped = w & (factor(hats, cap) < 0.99)
+    return bool(capped.any()) and float(np.mean(np.abs(fv[capped]))) >= STRAIGHT * float(
+        np.mean(np.abs(fv[capped]) + cap.half * np.abs(fw[capped])))
 
 
 def _heldout(ys: tuple, reduced: tuple, full: tuple, s: np.ndarray, ok: np.ndarray,
