@@ -188,9 +188,26 @@ def test_a_wheel_rate_cap_exports_in_rad_s_and_yields_to_the_odometry_cap(tmp_pa
     ros = yaml.safe_load(text)['diff_drive_controller']['ros__parameters']
     assert ros['linear']['x']['has_velocity_limits'] is False  # no m/s without the radius
     assert 'cap on the wheel rates' in text
-    # beside an odometry cap (even one whose half track is unknown) the odometry's is exported
-    odom = ('wheel_speed_limit', '/odom.twist.twist.linear.x', {'limit': 0.2, 'half_track': None})
-    for rows in ([joint, odom], [odom, joint]):
+    # beside an odometry cap with its half track the odometry's is exported; beside a top
+    # speed met driving straight (half track unknown) the wheels'
+    odom = ('wheel_speed_limit', '/odom.twist.twist.linear.x', {'limit': 0.2, 'half_track': 0.1})
+    top = ('wheel_speed_limit', '/odom.twist.twist.linear.x', {'limit': 0.2, 'half_track': None})
+    for rows, want in (([joint, odom], 0.2 / 0.05), ([odom, joint], 0.2 / 0.05),
+                       ([joint, top], 5.0), ([top, joint], 5.0)):
         export.write(tmp_path, _findings('sim', 'real', rows))
         params = yaml.safe_load((tmp_path / 'sim_params.yaml').read_text())['sim']
-        assert params['drive']['max_wheel_speed'] == pytest.approx(0.2 / 0.05)
+        assert params['drive']['max_wheel_speed'] == pytest.approx(want), rows
+
+
+def test_a_top_speed_met_driving_straight_is_not_a_simulated_wheel_cap(tmp_path):
+    """Half track unknown: not the simulator's cap (it would slow turns); a velocity limit."""
+    top = ('wheel_speed_limit', '/odom.twist.twist.linear.x', {'limit': 0.2, 'half_track': None})
+    export.write(tmp_path, _findings('sim', 'real', [top]))
+    text = (tmp_path / 'sim_params.yaml').read_text()
+    params = yaml.safe_load(text)['sim']
+    assert 'max_wheel_speed' not in params.get('drive', {})
+    assert 'top speed met driving straight' in text  # listed as not applied, with the reason
+    ros = yaml.safe_load((tmp_path / 'suggestions.yaml').read_text())[
+        'diff_drive_controller']['ros__parameters']
+    assert ros['linear']['x']['has_velocity_limits'] is True
+    assert ros['linear']['x']['max_velocity'] == pytest.approx(0.2)

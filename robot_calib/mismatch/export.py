@@ -207,14 +207,18 @@ class _Mapper:
             # found on the wheel joints' rates: the simulator's own cap, in rad/s
             self.v['drive.max_wheel_speed'] = float(par['limit'])
             self.note('drive.max_wheel_speed', why + ' (a wheel rate, from the joint states)')
+        elif e == 'wheel_speed_limit' and par.get('half_track') is None:
+            self.cannot(f, 'a top speed met driving straight: the half track it acts about is '
+                           "not known, and as the simulator's wheel-speed cap it would slow the "
+                           'turns too, which the recording does not show (a linear velocity '
+                           'limit of the controller: suggestions.yaml)')
         elif e == 'wheel_speed_limit':
             # the simulator caps the faster wheel in rad/s of its nominal radius, about its
             # own track
             r, half = float(self.v['robot.wheel_radius']), 0.5 * float(self.v['robot.track_width'])
             self.v['drive.max_wheel_speed'] = float(par['limit']) / r
-            found = par.get('half_track')
+            found = float(par['half_track'])
             self.note('drive.max_wheel_speed', why + (
-                ' (its half track unknown: met driving straight)' if found is None else
                 f' (found about a half track of {found:.3g} m; the simulated robot has '
                 f'{half:.3g} m)' if abs(found - half) > 0.1 * half else ''))
         elif e == 'steering_offset':
@@ -374,10 +378,11 @@ def one_per_slot(findings: list, topic_map: dict) -> tuple[list, list]:
                 not field.startswith('velocity.'):
             slots = [((e,), (True, conf, -i), None)]
         elif e == 'wheel_speed_limit':
-            # one cap of the robot: the odometry's (one with its half track first), else the
-            # wheel joints' (rad/s)
+            # one cap of the robot: the odometry's with its half track, else the wheel joints'
+            # (rad/s), else a top speed met driving straight (not applied: a note)
             known = (f.get('parameters') or {}).get('half_track') is not None
-            slots = [((e,), (2 * (not field.startswith('velocity.')) + known, conf, -i), None)]
+            rank = 2 if field.startswith('velocity.') else 1 + 2 * known
+            slots = [((e,), (rank, conf, -i), None)]
         else:
             slots = [((e, f['channel']), (True, conf, -i), None)]
         for slot, rank, axes in slots:
