@@ -211,3 +211,16 @@ def test_a_top_speed_met_driving_straight_is_not_a_simulated_wheel_cap(tmp_path)
         'diff_drive_controller']['ros__parameters']
     assert ros['linear']['x']['has_velocity_limits'] is True
     assert ros['linear']['x']['max_velocity'] == pytest.approx(0.2)
+
+
+def test_a_wheel_joint_limit_is_not_a_body_limit(tmp_path):
+    """A rate limit or deadband of one wheel (rad/s^2, rad/s) is not the body's (m/s^2, m/s)."""
+    rows = [('drive_rate_limit', '/joint_states.velocity.left_wheel_joint', {'limit': 9.0}),
+            ('drive_deadband', '/joint_states.velocity.left_wheel_joint', {'band': 0.5}),
+            ('drive_lag', '/joint_states.velocity.left_wheel_joint', {'tau': 0.3})]
+    export.write(tmp_path, _findings('sim', 'real', rows))
+    text = (tmp_path / 'sim_params.yaml').read_text()
+    drive = yaml.safe_load(text)['sim']['drive']
+    assert not any(k.endswith(('_rate_limit', '_deadband')) for k in drive), drive
+    assert drive['linear_time_constant'] == pytest.approx(0.3)  # a time is the same on both
+    assert text.count("one wheel's own limit") == 2

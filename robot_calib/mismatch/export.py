@@ -198,6 +198,9 @@ class _Mapper:
                 self.add(key, val, why)
         elif e in ('wheel_radius_scale', 'track_width_scale'):
             self._scale(f, e, par, field, why)
+        elif e in ('drive_rate_limit', 'drive_deadband') and field.startswith('velocity.'):
+            self.cannot(f, "one wheel's own limit, in its rate's units (rad/s, rad/s^2); the "
+                           "simulator's drive limits act on the body's speed and turn rate")
         elif e in ('drive_lag', 'drive_dead_time', 'drive_gain', 'drive_rate_limit',
                    'drive_deadband'):
             self._drive(e, par, axes or _drive_axes(field), why)
