@@ -185,7 +185,8 @@ def test_a_cap_met_driving_straight_has_no_half_track():
 
 
 def test_cap_fit_keeps_a_half_track_a_robot_can_have():
-    """A turn-rate ceiling and little forward motion: the half track stays in the searched range.
+    """
+    A turn-rate ceiling and little forward motion: the half track stays in the searched range.
 
     Unbounded, the limit and the half track grow together without end (1e12 m
     on a real pair): a turn-rate cap dressed as the wheel of no robot.
@@ -423,7 +424,8 @@ def test_mrclam_names_lag_and_turn_speed_loss():
 
 @pytest.mark.skipif(not DATA.is_dir(), reason='MR.CLAM data not available')
 def test_mrclam_turn_deficit_is_no_top_speed():
-    """Robot 2's first window with its turn rate 8.9 % short: no wheel-speed cap named.
+    """
+    Robot 2's first window with its turn rate 8.9 % short: no wheel-speed cap named.
 
     Its straight commands sit at one speed; a cap just over it (0.0695 m/s,
     half track unknown) fitted the turn deficit of the turns it met, and the

@@ -412,6 +412,7 @@ def finding(topic: str, cap: WheelCap, test: tuple, bound: float,
             f'the same drive without the cap the held-out fit improves (z {z:.1f} > {thr:.1f} '
             f'over {pieces} pieces).',
             'evidence': {'z': z, 'z_threshold': thr, 'blocks': pieces,
-                         'test': f'held-out pieces of both {"wheels" if wheels else "axes"} '
-                         'with and without the cap'},
+                         'test': 'held-out pieces of ' + (
+                             'both wheels' if wheels else 'both axes' if cap.half_known else
+                             'the forward speed') + ' with and without the cap'},
             'confidence': confidence(max(0.0, min(1.0, strength)), []), 'fit': fit_rmse}
