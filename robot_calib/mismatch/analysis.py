@@ -221,13 +221,7 @@ def _select(prob: Problem, cands: list, prm: MismatchParams, edges: np.ndarray,
     sel, dropped = R.robust_prune(prob, sel, edges, prm.alpha,
                                   refine=lambda ts: S.refine_nonlinear(prob, ts),
                                   min_block_s=prm.min_block_s)
-    for t, (w, thr, kb, spread) in dropped:
-        size = '' if spread is None else \
-            f' ({spread[0]:+.3g} over the recording, {spread[1]:+.3g} to {spread[2]:+.3g} ' \
-            'from block to block, 10th to 90th percentile)'
-        notes.append(f'{t.channel}: a candidate {t.effect} fits{size}, but not consistently '
-                     f'across the recording (robust test {w:.3g} < {thr:.3g} over {kb} '
-                     'blocks); not reported')
+    notes.extend(R.dropped_note(t, test) for t, test in dropped)
     if prm.gain_band_s > 0 and prm.mode != 'seed':
         sel, unequal = R.band_prune(prob, sel, edges, prm.alpha, prm.gain_band_s)
         for t, (slow, fast, w, thr, _) in unequal:

@@ -269,6 +269,17 @@ def robust_prune(prob: Problem, sel: list, edges: np.ndarray, alpha: float,
     return out, dropped
 
 
+def dropped_note(term, test: tuple) -> str:
+    """Return the report's note on a candidate :func:`robust_prune` dropped (its size, spread)."""
+    w, thr, kb, spread = test
+    size = '' if spread is None else \
+        f' ({spread[0]:+.3g} over the recording, {spread[1]:+.3g} to {spread[2]:+.3g} ' \
+        'from block to block, 10th to 90th percentile)'
+    return (f'{term.channel}: a candidate {term.effect} fits{size}, but not consistently '
+            f'across the recording (robust test {w:.3g} < {thr:.3g} over {kb} blocks); '
+            'not reported')
+
+
 def band_test(prob: Problem, sel: list, j: int, edges: np.ndarray, alpha: float,
               width_s: float) -> Optional[tuple]:
     """
