@@ -206,24 +206,8 @@ class _Mapper:
             self._drive(e, par, axes or _drive_axes(field), why)
         elif e == 'turn_speed_loss':
             self.add('drive.turn_speed_loss', par['coefficient'], why)
-        elif e == 'wheel_speed_limit' and field.startswith('velocity.'):
-            # found on the wheel joints' rates: the simulator's own cap, in rad/s
-            self.v['drive.max_wheel_speed'] = float(par['limit'])
-            self.note('drive.max_wheel_speed', why + ' (a wheel rate, from the joint states)')
-        elif e == 'wheel_speed_limit' and par.get('half_track') is None:
-            self.cannot(f, 'a top speed met driving straight: the half track it acts about is '
-                           "not known, and as the simulator's wheel-speed cap it would slow the "
-                           'turns too, which the recording does not show (a linear velocity '
-                           'limit of the controller: suggestions.yaml)')
         elif e == 'wheel_speed_limit':
-            # the simulator caps the faster wheel in rad/s of its nominal radius, about its
-            # own track
-            r, half = float(self.v['robot.wheel_radius']), 0.5 * float(self.v['robot.track_width'])
-            self.v['drive.max_wheel_speed'] = float(par['limit']) / r
-            found = float(par['half_track'])
-            self.note('drive.max_wheel_speed', why + (
-                f' (found about a half track of {found:.3g} m; the simulated robot has '
-                f'{half:.3g} m)' if abs(found - half) > 0.1 * half else ''))
+            self._cap(f, par, field, why)
         elif e == 'steering_offset':
             self.add('wheels.steering_offset', par['offset'], why)
         elif e in LIDAR_KEYS:
@@ -294,6 +278,28 @@ class _Mapper:
         else:  # real omega = sim omega / (1 + k)
             self.gain('drive.angular_gain', 1.0 / (1.0 + k), why + ': the turn rate becomes '
                       '1 / (1 + k) times')
+
+    def _cap(self, f: dict, par: dict, field: str, why: str) -> None:
+        """Compose a wheel-speed cap: the simulator's ``drive.max_wheel_speed`` (rad/s)."""
+        if field.startswith('velocity.'):
+            # found on the wheel joints' rates: the simulator's own cap, in rad/s
+            self.v['drive.max_wheel_speed'] = float(par['limit'])
+            self.note('drive.max_wheel_speed', why + ' (a wheel rate, from the joint states)')
+        elif par.get('half_track') is None:
+            self.cannot(f, 'a top speed met driving straight: the half track it acts about is '
+                           "not known, and as the simulator's wheel-speed cap it would slow "
+                           'the turns too, which the recording does not show (a linear '
+                           'velocity limit of the controller: suggestions.yaml)')
+        else:
+            # the simulator caps the faster wheel in rad/s of its nominal radius, about its
+            # own track
+            r = float(self.v['robot.wheel_radius'])
+            half = 0.5 * float(self.v['robot.track_width'])
+            self.v['drive.max_wheel_speed'] = float(par['limit']) / r
+            found = float(par['half_track'])
+            self.note('drive.max_wheel_speed', why + (
+                f' (found about a half track of {found:.3g} m; the simulated robot has '
+                f'{half:.3g} m)' if abs(found - half) > 0.1 * half else ''))
 
     def _drive(self, e: str, par: dict, axes: tuple, why: str) -> None:
         for axis in axes:
