@@ -147,7 +147,7 @@ def _capped(seed: int, limit: float, straight: bool = False) -> dict:
     dt = t[1] - t[0]
     lv = D.predict(v, None, dt, D.AxisModel(tau=0.3))
     lw = D.predict(w, None, dt, D.AxisModel(tau=0.2))
-    s = DC.scale(lv, lw, DC.WheelCap(limit, 0.15))
+    s = DC.factor((lv, lw), DC.WheelCap(limit, 0.15))
     rng = np.random.default_rng(seed + 100)
 
     def rec(a, b):

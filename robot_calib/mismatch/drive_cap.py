@@ -69,11 +69,6 @@ def factor(xs: tuple, cap: Optional[WheelCap]) -> np.ndarray:
     return np.clip(s, MIN_SCALE, 1.0)
 
 
-def scale(v: np.ndarray, w: np.ndarray, cap: Optional[WheelCap]) -> np.ndarray:
-    """Return the factor ``s`` of two channels (forward speed and turn rate, or two wheels)."""
-    return factor((v, w), cap)
-
-
 def _wsse(xs: tuple, ys: tuple, wts: list, cap: Optional[WheelCap]) -> float:
     """Return the weighted SSE of the channels ``ys`` against ``s xs``."""
     s = factor(xs, cap)
@@ -140,7 +135,7 @@ def _half_known(vh, wh, yv, yw, w: np.ndarray, cap: WheelCap) -> bool:
     vh, wh, yv, yw = vh[w], wh[w], yv[w], yw[w]
 
     def sse(c: WheelCap) -> tuple:
-        s = scale(vh, wh, c)
+        s = factor((vh, wh), c)
         return yv - s * vh, yw - s * wh
     ev, ew = sse(cap)
     wv, ww = 1.0 / max(float(ev @ ev) / ev.size, 1e-12), 1.0 / max(float(ew @ ew) / ew.size,
